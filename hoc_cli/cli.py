@@ -1,0 +1,163 @@
+"""The ``hoc`` command line: a thin typer layer over ``hoc_cli.commands``.
+
+Standard output carries only CSV (``-o -``) or JSON (``--json``); progress, tables and
+errors go to standard error. Exit codes: see ``hoc_cli.commands.common``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from hoc_cli import __version__
+from hoc_cli.commands.common import run_guarded
+
+app = typer.Typer(
+    name="hoc",
+    help=(
+        "Covariant optimal-control trajectory planner for jointed robot arms.\n\n"
+        "Example: hoc plan configs/lbr7_reach.yaml -o reach.mcap -o reach.csv"
+    ),
+    no_args_is_help=True,
+    add_completion=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+OutputOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("-o", "--output", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
+                 "Default: <task stem>.mcap and <task stem>.csv in the current directory."),
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
+QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="Nothing on stderr but errors.")]
+ProgressOpt = Annotated[bool, typer.Option("--progress", help="Show progress and the summary table on stderr even when it is not a terminal.")]
+DebugOpt = Annotated[bool, typer.Option("--debug", help="Show Python tracebacks for errors.")]
+ElementsOpt = Annotated[Optional[int], typer.Option("-N", "--elements", help="Override the task's number of elements N (>= 1).")]
+OrderOpt = Annotated[Optional[str], typer.Option("--order", help="Override the element order: quintic | cubic.")]
+DurationOpt = Annotated[Optional[float], typer.Option("-T", "--duration", help="Override the duration T in seconds (> 0).")]
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"hoc {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def main(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
+) -> None:
+    """Covariant optimal-control trajectory planner for jointed robot arms."""
+
+
+@app.command()
+def plan(
+    task: Annotated[Path, typer.Argument(help="Task YAML file (see the README's task-file reference).")],
+    output: OutputOpt = None,
+    json_: JsonOpt = False,
+    quiet: QuietOpt = False,
+    progress: ProgressOpt = False,
+    elements: ElementsOpt = None,
+    order: OrderOpt = None,
+    duration: DurationOpt = None,
+    tol: Annotated[Optional[float], typer.Option("--tol", help="Override solver.tol (> 0).")] = None,
+    max_iter: Annotated[Optional[int], typer.Option("--max-iter", help="Override solver.max_iter (>= 1).")] = None,
+    method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | gauss-newton.")] = None,
+    cost: Annotated[Optional[str], typer.Option("--cost", help="Override the cost: covariant | torque.")] = None,
+    init: Annotated[Optional[Path], typer.Option("--init", help="Warm start from an earlier plan's MCAP.")] = None,
+    debug: DebugOpt = False,
+) -> None:
+    """Solve the optimal-control task and write q(t), u(t).
+
+    Example: hoc plan configs/lbr7_reach.yaml -o reach.mcap --json | jq .cost
+    """
+    from hoc_cli.commands import plan as cmd
+
+    code = run_guarded(
+        lambda: cmd.run(
+            task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
+            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost),
+            init=init,
+        ),
+        debug=debug,
+    )
+    raise typer.Exit(code)
+
+
+@app.command()
+def simulate(
+    source: Annotated[Path, typer.Argument(help="Task YAML (with optional torque:) or a plan's MCAP file.")],
+    output: OutputOpt = None,
+    json_: JsonOpt = False,
+    quiet: QuietOpt = False,
+    progress: ProgressOpt = False,
+    elements: ElementsOpt = None,
+    order: OrderOpt = None,
+    duration: DurationOpt = None,
+    method: Annotated[str, typer.Option("--method", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = "hermite",
+    torque: Annotated[Optional[Path], typer.Option("--torque", help="Torque history from a plan's CSV or MCAP (interpolated in time).")] = None,
+    check: Annotated[Optional[float], typer.Option("--check", help="Exit 1 when the final state misses x1 by more than this.")] = None,
+    debug: DebugOpt = False,
+) -> None:
+    """Integrate the motion forward from x0 under a torque history.
+
+    Example: hoc plan task.yaml -o plan.mcap && hoc simulate plan.mcap --check 1e-8
+    """
+    from hoc_cli.commands import simulate as cmd
+
+    code = run_guarded(
+        lambda: cmd.run(
+            source, outputs=output, as_json=json_, quiet=quiet, progress=progress,
+            overrides=dict(N=elements, order=order, T=duration), method=method, torque=torque, check=check,
+        ),
+        debug=debug,
+    )
+    raise typer.Exit(code)
+
+
+@app.command()
+def inspect(
+    robot: Annotated[Path, typer.Argument(help="URDF file.")],
+    json_: JsonOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Print the parsed kinematic tree: joints, bodies, total mass, degrees of freedom.
+
+    Example: hoc inspect robots/lbr7.urdf --json
+    """
+    from hoc_cli.commands import inspect as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_), debug=debug))
+
+
+@app.command()
+def verify(
+    json_: JsonOpt = False,
+    quiet: QuietOpt = False,
+    only: Annotated[Optional[list[str]], typer.Option("--only", help="Run only these checks (repeatable).")] = None,
+    debug: DebugOpt = False,
+) -> None:
+    """Reproduce the paper's numerical claims and print measured beside expected; exit 1 on a miss.
+
+    Example: hoc verify --json
+    """
+    from hoc_cli.commands import verify as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(as_json=json_, quiet=quiet, only=only), debug=debug))
+
+
+@app.command()
+def plot(
+    file: Annotated[Path, typer.Argument(help="A plan or simulation CSV or MCAP.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG (or PDF/SVG) file to write.")] = Path("plot.png"),
+    debug: DebugOpt = False,
+) -> None:
+    """Plot q, q̇ and u per joint against t (needs matplotlib: pip install 'hoc[plot]').
+
+    Example: hoc plot reach.csv -o reach.png
+    """
+    from hoc_cli.commands import plot as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(file, output), debug=debug))

@@ -1,0 +1,150 @@
+"""Shared plumbing for commands: error reporting, exit codes, output targets, atomic writes.
+
+Exit codes (SPEC.md): 0 success, 1 ran but did not meet what was asked, 2 invalid input,
+130 interrupted by SIGINT, 143 terminated by SIGTERM.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from rich.console import Console
+
+from hoc_cli.errors import HocError, OutputError
+
+EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 130, 143
+OUTPUT_KINDS = {".csv": "csv", ".mcap": "mcap"}
+
+
+class Terminated(BaseException):
+    """Raised from the SIGTERM handler so that ``finally`` blocks clean up temporary files."""
+
+
+def stderr_console(quiet: bool = False, progress: bool = False) -> Console:
+    """Rich console on standard error; silent with ``quiet``; decorated only on a terminal unless ``progress``."""
+    return Console(stderr=True, quiet=quiet, force_terminal=True if progress else None, highlight=False)
+
+
+def report_error(message: str) -> None:
+    """One plain line on standard error (no rich markup: paths may contain brackets)."""
+    sys.stderr.write(f"hoc: error: {message}\n")
+    sys.stderr.flush()
+
+
+def run_guarded(body: Callable[[], int], debug: bool = False) -> int:
+    """Run a command body and map failures to exit codes; tracebacks only with ``debug``."""
+    previous = signal.getsignal(signal.SIGTERM)
+
+    def _on_term(signum: int, frame: Any) -> None:
+        raise Terminated()
+
+    try:
+        signal.signal(signal.SIGTERM, _on_term)
+    except ValueError:  # not in the main thread (e.g. some test runners)
+        previous = None
+    try:
+        return body()
+    except HocError as exc:
+        if debug:
+            raise
+        report_error(str(exc))
+        return exc.exit_code
+    except KeyboardInterrupt:
+        report_error("interrupted; no output was changed")
+        return EXIT_SIGINT
+    except Terminated:
+        report_error("terminated; no output was changed")
+        return EXIT_SIGTERM
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+@dataclass(frozen=True)
+class OutputTarget:
+    """One requested output: a path (None for standard output) and its format ("csv" | "mcap")."""
+
+    path: Path | None
+    kind: str
+
+    @property
+    def label(self) -> str:
+        return "-" if self.path is None else str(self.path)
+
+
+def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
+    """Validate ``-o`` values before any work is done. Default: ``<stem>.mcap`` and ``<stem>.csv`` in the cwd."""
+    if not outputs:
+        outputs = [f"{stem}.mcap", f"{stem}.csv"]
+    targets: list[OutputTarget] = []
+    for raw in outputs:
+        if raw == "-":
+            targets.append(OutputTarget(None, "csv"))
+            continue
+        path = Path(raw)
+        kind = OUTPUT_KINDS.get(path.suffix.lower())
+        if kind is None:
+            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)", file=path, key="--output")
+        parent = path.parent if str(path.parent) else Path(".")
+        if not parent.is_dir():
+            raise OutputError(f"directory {str(parent)!r} does not exist", file=path, key="--output")
+        if path.is_dir():
+            raise OutputError("is a directory (expected a file path)", file=path, key="--output")
+        if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+            raise OutputError("not writable", file=path, key="--output")
+        targets.append(OutputTarget(path, kind))
+    return targets
+
+
+@contextmanager
+def atomic_output(path: Path) -> Iterator[Any]:
+    """Open a temporary binary file beside ``path``; rename it into place only if the block succeeds.
+
+    On any exception (including KeyboardInterrupt and ``Terminated``) the temporary file is
+    removed and an existing ``path`` is left untouched.
+    """
+    parent = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        if path.exists():
+            os.chmod(tmp, path.stat().st_mode & 0o777)
+        else:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def print_json(obj: Any) -> None:
+    """One JSON object on standard output."""
+    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=_jsonable) + "\n")
+    sys.stdout.flush()
+
+
+def _jsonable(x: Any) -> Any:
+    import numpy as np
+
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")

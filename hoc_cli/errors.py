@@ -1,0 +1,49 @@
+"""Exceptions raised by hoc: every user-facing failure is a ``HocError`` subclass.
+
+The CLI turns a ``HocError`` into one line on standard error and exit code 2
+(invalid input) or 1 (numerical failure); nothing else should escape to the user
+without ``--debug``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class HocError(Exception):
+    """Base class: a message that names the file, the key (or joint) and what was expected."""
+
+    exit_code: int = 2
+
+    def __init__(self, message: str, *, file: str | Path | None = None, key: str | None = None) -> None:
+        self.file = str(file) if file is not None else None
+        self.key = key
+        self.detail = message
+        parts = []
+        if self.file:
+            parts.append(self.file)
+        if key:
+            parts.append(key)
+        prefix = ": ".join(parts)
+        super().__init__(f"{prefix}: {message}" if prefix else message)
+
+
+class TaskError(HocError):
+    """The task YAML (or a CLI override of one of its keys) is invalid."""
+
+
+class ModelError(HocError):
+    """The URDF cannot be turned into a dynamics model (bad joint type, cycle, massless subtree...)."""
+
+
+class OutputError(HocError):
+    """An output path cannot be written (missing directory, unknown extension...)."""
+
+
+class InputFileError(HocError):
+    """A torque file, plan file or warm-start file is unreadable or does not match the task."""
+
+
+class NumericalError(HocError):
+    """The computation failed numerically (NaN cost, singular mass matrix, stalled line search)."""
+
+    exit_code = 1

@@ -1,0 +1,1 @@
+"""File formats: task YAML, CSV and MCAP. The maths modules never import this package."""

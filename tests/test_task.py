@@ -1,0 +1,114 @@
+"""Task files: valid ones load with defaults; malformed ones give exit 2 and one clear line."""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hoc_cli.cli import app
+from hoc_cli.errors import TaskError
+from hoc_cli.io.task import apply_overrides, load_task, resolve
+
+ROBOT = """<robot name="r"><link name="base"/></robot>"""  # loader only checks that the file exists
+
+GOOD = """\
+robot: r.urdf
+joints: [a, b]
+x0: {q: [0.0, 0.1]}
+x1: {q: {b: -0.6, a: 1.2}, dq: [0.0, 0.0]}
+T: 1.5
+N: 16
+"""
+
+
+@pytest.fixture
+def taskdir(tmp_path):
+    (tmp_path / "r.urdf").write_text(ROBOT)
+    return tmp_path
+
+
+def write(d: Path, text: str, name="task.yaml") -> Path:
+    p = d / name
+    p.write_text(text)
+    return p
+
+
+def test_a_minimal_task_loads_with_the_spec_defaults(taskdir):
+    task = load_task(write(taskdir, GOOD))
+    assert task.robot == taskdir / "r.urdf"
+    assert (task.order, task.cost, task.method, task.tol, task.max_iter, task.rate) == (
+        "quintic", "covariant", "pr-cg", 1e-10, 5000, 100.0)
+    assert task.gravity == (0.0, 0.0, -9.81)
+    s = resolve(task, task.joints)
+    np.testing.assert_array_equal(s.q1, [1.2, -0.6])  # mapping resolved by joint name
+    np.testing.assert_array_equal(s.dq0, [0.0, 0.0])  # dq defaults to zeros
+
+
+def test_overrides_replace_task_keys_and_are_validated(taskdir):
+    task = load_task(write(taskdir, GOOD))
+    t2 = apply_overrides(task, N=4, order="cubic", T=2.0, tol=1e-6, max_iter=10)
+    assert (t2.N, t2.order, t2.T, t2.tol, t2.max_iter) == (4, "cubic", 2.0, 1e-6, 10)
+    with pytest.raises(TaskError, match="--elements"):
+        apply_overrides(task, N=0)
+
+
+def test_resolve_rejects_unknown_joint_names_and_wrong_lengths(taskdir):
+    task = load_task(write(taskdir, GOOD.replace("{b: -0.6, a: 1.2}", "{b: -0.6, c: 1.2}")))
+    with pytest.raises(TaskError, match=r"x1.q.c: unknown joint 'c'"):
+        resolve(task, task.joints)
+    with pytest.raises(TaskError, match=r"x0.q: expected 3 values"):
+        resolve(load_task(write(taskdir, GOOD)), ("a", "b", "c"))
+
+
+# (description, task text, substring the one-line error must contain)
+MALFORMED = [
+    ("empty file", "", "empty file"),
+    ("YAML syntax error", "robot: [r.urdf\nT: 1", "invalid YAML at line"),
+    ("top level is a list", "- 1\n- 2\n", "expected a mapping"),
+    ("missing robot", GOOD.replace("robot: r.urdf\n", ""), "robot: missing required key"),
+    ("missing x1", GOOD.replace("x1: {q: {b: -0.6, a: 1.2}, dq: [0.0, 0.0]}\n", ""), "x1: missing required key"),
+    ("unknown top-level key", GOOD + "durration: 2\n", "unknown key 'durration'"),
+    ("unknown solver key", GOOD + "solver: {tolerance: 1e-6}\n", "solver.tolerance: unknown key"),
+    ("T is zero", GOOD.replace("T: 1.5", "T: 0"), "T: expected a duration T > 0"),
+    ("T negative", GOOD.replace("T: 1.5", "T: -2"), "T: expected a duration T > 0"),
+    ("T is a string", GOOD.replace("T: 1.5", "T: fast"), "T: expected a duration"),
+    ("N is zero", GOOD.replace("N: 16", "N: 0"), "N: expected an integer >= 1"),
+    ("N is fractional", GOOD.replace("N: 16", "N: 2.5"), "N: expected an integer >= 1"),
+    ("NaN in x0", GOOD.replace("[0.0, 0.1]", "[0.0, .nan]"), "x0.q[1]: expected a finite number"),
+    ("inf in x1.dq", GOOD.replace("dq: [0.0, 0.0]", "dq: [0.0, .inf]"), "x1.dq[1]: expected a finite number"),
+    ("unknown order", GOOD + "order: septic\n", "order: expected one of quintic, cubic"),
+    ("unknown cost", GOOD + "cost: energy\n", "cost: expected one of covariant, torque"),
+    ("unknown method", GOOD + "solver: {method: bfgs}\n", "solver.method: expected one of"),
+    ("wrong length", GOOD.replace("[0.0, 0.1]", "[0.0, 0.1, 0.2]"), "x0.q: expected 2 values"),
+    ("unknown joint in mapping", GOOD.replace("{b: -0.6, a: 1.2}", "{b: -0.6, z: 1.2}"), "x1.q.z: unknown joint 'z'"),
+    ("robot file missing", GOOD.replace("r.urdf", "nope.urdf"), "robot: URDF file not found"),
+    ("gravity of length 2", GOOD + "gravity: [0, -9.81]\n", "gravity: expected a list of 3 numbers"),
+    ("state without q", GOOD.replace("x0: {q: [0.0, 0.1]}", "x0: {dq: [0.0, 0.1]}"), "x0.q: missing required key"),
+    ("output rate negative", GOOD + "output: {rate: -5}\n", "output.rate: expected a sample rate > 0"),
+    ("duplicate joints", GOOD.replace("[a, b]", "[a, a]"), "joints: expected distinct joint names"),
+]
+
+
+@pytest.mark.parametrize("desc,text,needle", MALFORMED, ids=[m[0] for m in MALFORMED])
+def test_malformed_task_exits_2_with_one_line_naming_file_and_key(taskdir, desc, text, needle, monkeypatch):
+    monkeypatch.chdir(taskdir)
+    path = write(taskdir, text)
+    result = CliRunner().invoke(app, ["plan", str(path)])
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, result.stderr
+    assert str(path) in lines[0] and needle in lines[0]
+    assert "Traceback" not in result.output
+    assert sorted(p.name for p in taskdir.iterdir()) == ["r.urdf", "task.yaml"]  # nothing created
+
+
+def test_missing_task_file_exits_2_naming_the_file(tmp_path):
+    result = CliRunner().invoke(app, ["plan", str(tmp_path / "absent.yaml")])
+    assert result.exit_code == 2
+    assert "absent.yaml: file not found" in result.stderr
+
+
+def test_cli_override_with_invalid_value_exits_2(taskdir):
+    result = CliRunner().invoke(app, ["plan", str(write(taskdir, GOOD)), "-N", "0"])
+    assert result.exit_code == 2 and "--elements: expected an integer >= 1" in result.stderr
