@@ -1,0 +1,119 @@
+"""The small interface between the planner/simulator and a mechanical system.
+
+A ``System`` maps joint trajectories sampled at K instants to torques and gives the
+derivatives the planner and simulator need. ``RobotSystem`` wraps a URDF model
+(recursive Newton-Euler, ``hoc_cli.dynamics``); ``LinearOscillator`` is the paper's
+validation system q̈ + ω² q = u, so both run through the same code.
+
+Shapes: q, dq, ddq, u, lam, v (K, n); matrices (K, n, n). Units: SI.
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class System(Protocol):
+    """What the planner and simulator need from a mechanical system with n joints."""
+
+    joint_names: tuple[str, ...]
+
+    @property
+    def n(self) -> int: ...
+
+    def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """u = M(q) q̈ + C(q, q̇) q̇ + g(q), (K, n)."""
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q), (K, n, n), symmetric positive definite."""
+
+    def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """q̈ = M⁻¹ (u − h(q, q̇)), (K, n)."""
+
+    def id_derivatives(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(u, ∂u/∂q, ∂u/∂q̇, M): (K, n), (K, n, n) ×3 with [k, i, j] = ∂u_i/∂x_j."""
+
+    def id_vjp(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(u, λᵀ∂u/∂q, λᵀ∂u/∂q̇), each (K, n)."""
+
+    def mass_quadratic_grad(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """∂(vᵀ M(q) v)/∂q with v held fixed, (K, n)."""
+
+
+class LinearOscillator:
+    """q̈ + ω² q = u for n independent unit masses (the paper's validation system with ω = 1)."""
+
+    def __init__(self, n: int = 1, omega: float = 1.0) -> None:
+        self.joint_names = tuple(f"q{i}" for i in range(n))
+        self.omega2 = float(omega) ** 2
+        self._n = n
+
+    @property
+    def n(self) -> int:
+        return self._n
+
+    def inverse_dynamics(self, q, dq, ddq):
+        return np.asarray(ddq, float) + self.omega2 * np.asarray(q, float)
+
+    def mass_matrix(self, q):
+        K = np.shape(q)[0]
+        return np.broadcast_to(np.eye(self.n), (K, self.n, self.n)).copy()
+
+    def forward_dynamics(self, q, dq, u):
+        return np.asarray(u, float) - self.omega2 * np.asarray(q, float)
+
+    def id_derivatives(self, q, dq, ddq):
+        K = np.shape(q)[0]
+        eye = np.broadcast_to(np.eye(self.n), (K, self.n, self.n))
+        return self.inverse_dynamics(q, dq, ddq), self.omega2 * eye.copy(), np.zeros((K, self.n, self.n)), eye.copy()
+
+    def id_vjp(self, q, dq, ddq, lam):
+        lam = np.asarray(lam, float)
+        return self.inverse_dynamics(q, dq, ddq), self.omega2 * lam, np.zeros_like(lam)
+
+    def mass_quadratic_grad(self, q, v):
+        return np.zeros_like(np.asarray(q, float))
+
+
+class RobotSystem:
+    """A URDF robot (``hoc_cli.model.RobotModel``) seen through the ``System`` interface."""
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.joint_names = tuple(model.joint_names)
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+    def inverse_dynamics(self, q, dq, ddq):
+        from hoc_cli import dynamics
+
+        return dynamics.inverse_dynamics(self.model, q, dq, ddq)
+
+    def mass_matrix(self, q):
+        from hoc_cli import dynamics
+
+        return dynamics.mass_matrix(self.model, q)
+
+    def forward_dynamics(self, q, dq, u):
+        from hoc_cli import dynamics
+
+        return dynamics.forward_dynamics(self.model, q, dq, u)
+
+    def id_derivatives(self, q, dq, ddq):
+        from hoc_cli import dynamics
+
+        return dynamics.id_derivatives(self.model, q, dq, ddq)
+
+    def id_vjp(self, q, dq, ddq, lam):
+        from hoc_cli import dynamics
+
+        return dynamics.id_vjp(self.model, q, dq, ddq, lam)
+
+    def mass_quadratic_grad(self, q, v):
+        from hoc_cli import dynamics
+
+        return dynamics.mass_quadratic_grad(self.model, q, v)
