@@ -1,6 +1,9 @@
 """MCAP plan files, read back with mcap's own reader and the ROS 2 decoder, agree with the CSV."""
 import io
 import json
+import sysconfig
+import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -274,3 +277,56 @@ def test_reading_something_that_is_not_a_hoc_plan_is_an_input_error_naming_the_f
     assert "not an MCAP file" in messages["empty.mcap"] and "not an MCAP file" in messages["text.mcap"]
     assert "truncated" in messages["truncated.mcap"]
     assert "not a hoc plan" in messages["bare.mcap"]
+
+
+ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
+ROBOTS_DIR = Path(__file__).resolve().parents[1] / "robots"
+FK_CASES = [
+    ROBOTS_DIR / "lbr7.urdf",
+    ROBOTS_DIR / "dual_arm.urdf",
+    ERD / "ur_description/urdf/ur5_robot.urdf",
+    ERD / "panda_description/urdf/panda.urdf",   # mimic fingers
+    ERD / "baxter_description/urdf/baxter.urdf",  # a branching tree with ~70 links, mimic fingers
+]
+
+
+def joints_without_mimic_masters(model_mod, path):
+    """Default joints minus the masters of mimic joints: hoc locks a mimic joint at its master's
+    *locked* value, yourdfpy moves it with the master, so the masters are locked (at 0) here."""
+    masters = {m.get("joint") for m in ET.parse(path).getroot().findall("joint/mimic")}
+    return [j for j in model_mod.load_robot(path).joint_names if j not in masters]
+
+
+@pytest.mark.parametrize("path", [
+    pytest.param(p, id=p.stem, marks=pytest.mark.skipif(not p.exists(), reason=f"{p.name} not present"))
+    for p in FK_CASES])
+def test_tf_matches_forward_kinematics_computed_independently_by_yourdfpy(path):
+    """Oracle: yourdfpy's own scene graph (trimesh transform tree), yourdfpy 0.0.5x/0.0.6x."""
+    dynamics = pytest.importorskip("hoc_cli.dynamics")
+    model_mod = pytest.importorskip("hoc_cli.model")
+    yourdfpy = pytest.importorskip("yourdfpy")
+
+    model = model_mod.load_robot(path, joints=joints_without_mimic_masters(model_mod, path))
+    rng = np.random.default_rng(12)
+    t = sample_times(0.2, 50.0)
+    q = rng.uniform(-1.5, 1.5, (t.size, model.n))
+    zeros = np.zeros_like(q)
+    traj = Trajectory(tuple(model.joint_names), t, q, zeros, zeros, zeros)
+    urdf_text = path.read_text()
+    data = write(traj, urdf_text=urdf_text, link_poses=lambda q: dynamics.link_poses(model, q))
+    msgs = decoded(data, "/tf")
+    assert len(msgs) == traj.K
+
+    oracle = yourdfpy.URDF.load(str(path), build_scene_graph=True, load_meshes=False,
+                                build_collision_scene_graph=False, load_collision_meshes=False)
+    assert {ts.child_frame_id for ts in msgs[0][2].transforms} == {j.child for j in oracle.robot.joints}
+    for k in (0, 4, traj.K - 1):
+        cfg = {**model.locked, **dict(zip(model.joint_names, q[k].tolist()))}
+        oracle.update_cfg({name: cfg.get(name, 0.0) for name in oracle.actuated_joint_names})
+        for ts in msgs[k][2].transforms:
+            r, p = ts.transform.rotation, ts.transform.translation
+            A = np.eye(4)
+            A[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+            A[:3, 3] = [p.x, p.y, p.z]
+            expected = oracle.get_transform(frame_to=ts.child_frame_id, frame_from=ts.header.frame_id)
+            np.testing.assert_allclose(A, expected, atol=1e-12, err_msg=f"{ts.header.frame_id} → {ts.child_frame_id}")
