@@ -108,7 +108,8 @@ def plot_trajectory(
         ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("t [s]")
-    axes[-1].set_xlim(t[0], t[-1])
+    if t[-1] > t[0]:
+        axes[-1].set_xlim(t[0], t[-1])
     axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small",
                    title="joints (dashed: URDF limits)" if limits else "joints", title_fontsize="small")
     if title:
