@@ -1,0 +1,107 @@
+"""Shared helpers for the model and dynamics tests: where the robots are, and a Pinocchio oracle.
+
+Pinocchio (``pin`` on PyPI, a test-only dependency) is the reference implementation; its
+continuous joints use two configuration coordinates (cos q, sin q), and joints we lock are removed
+with ``buildReducedModel`` at the same locked values.
+"""
+from __future__ import annotations
+
+import sysconfig
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOTS = ROOT / "robots"
+SHIPPED = ["pendulum.urdf", "two_link.urdf", "lbr7.urdf", "dual_arm.urdf"]
+ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
+
+#: third-party URDFs from example-robot-data: id -> (relative path, load_robot keyword arguments)
+THIRD_PARTY = {
+    "ur5 (6-DOF arm)": ("ur_description/urdf/ur5_robot.urdf", {}),
+    "panda arm, mimic fingers locked (7-DOF)": (
+        "panda_description/urdf/panda.urdf",
+        {"joints": [f"panda_joint{i}" for i in range(1, 8)], "locked": {"panda_finger_joint1": 0.02}},
+    ),
+    "panda with a prismatic finger, reordered": (
+        "panda_description/urdf/panda.urdf",
+        {"joints": ["panda_finger_joint1", "panda_joint4", "panda_joint1", "panda_joint2"],
+         "locked": {"panda_joint3": 0.4}},
+    ),
+    "kinova (continuous joints)": ("kinova_description/robots/kinova.urdf", {}),
+    "alex upper body (19 joints, branching)": ("alex_description/urdf/alex_nub_hands.urdf", {}),
+    "baxter (branching, mimic grippers locked)": ("baxter_description/urdf/baxter.urdf", {}),
+    "xarm7": ("xarm_description/urdf/xarm7.urdf", {}),
+    "z1": ("z1_description/urdf/z1.urdf", {}),
+}
+
+
+def random_state(rng: np.random.Generator, K: int, n: int):
+    """(q, dq, ddq), each (K, n), spread over ±π rad (or ±π m) and unit-normal rates."""
+    q = rng.uniform(-np.pi, np.pi, (K, n))
+    return q, rng.standard_normal((K, n)), rng.standard_normal((K, n))
+
+
+class PinocchioOracle:
+    """Pinocchio's model of the same URDF, reduced to ``model``'s joints, gravity matched."""
+
+    def __init__(self, model):
+        import pinocchio as pin
+
+        self.pin = pin
+        full = pin.buildModelFromUrdf(str(model.urdf_path))
+        locked_ids = [full.getJointId(name) for name in model.locked if full.existJointName(name)]
+        if locked_ids:
+            q_ref = pin.neutral(full)
+            for name, value in model.locked.items():
+                joint = full.joints[full.getJointId(name)]
+                if joint.nq == 2:
+                    q_ref[joint.idx_q:joint.idx_q + 2] = (np.cos(value), np.sin(value))
+                else:
+                    q_ref[joint.idx_q] = value
+            full = pin.buildReducedModel(full, locked_ids, q_ref)
+        full.gravity.linear[:] = model.gravity
+        self.pm = full
+        self.pd = full.createData()
+        self.model = model
+        joints = [full.joints[full.getJointId(name)] for name in model.joint_names]
+        self.idx_q = [(j.idx_q, j.nq) for j in joints]
+        self.idx_v = np.array([j.idx_v for j in joints])
+        assert full.nv == model.n
+
+    def config(self, q):
+        out = np.zeros(self.pm.nq)
+        for value, (iq, nq) in zip(q, self.idx_q):
+            if nq == 2:
+                out[iq:iq + 2] = (np.cos(value), np.sin(value))
+            else:
+                out[iq] = value
+        return out
+
+    def velocity(self, v):
+        out = np.zeros(self.pm.nv)
+        out[self.idx_v] = v
+        return out
+
+    def rnea(self, q, dq, ddq):
+        tau = self.pin.rnea(self.pm, self.pd, self.config(q), self.velocity(dq), self.velocity(ddq))
+        return tau[self.idx_v]
+
+    def crba(self, q):
+        M = self.pin.crba(self.pm, self.pd, self.config(q))
+        M = np.triu(M) + np.triu(M, 1).T
+        return M[np.ix_(self.idx_v, self.idx_v)]
+
+    def rnea_derivatives(self, q, dq, ddq):
+        """(∂τ/∂q, ∂τ/∂q̇, ∂τ/∂q̈) in model joint order."""
+        dq_, dv_, da_ = self.pin.computeRNEADerivatives(
+            self.pm, self.pd, self.config(q), self.velocity(dq), self.velocity(ddq))
+        ix = np.ix_(self.idx_v, self.idx_v)
+        da_ = np.triu(da_) + np.triu(da_, 1).T
+        return dq_[ix], dv_[ix], da_[ix]
+
+    def link_pose(self, q, link: str) -> np.ndarray:
+        """(4, 4) pose of a URDF link (a Pinocchio BODY frame) in the root frame."""
+        pin = self.pin
+        pin.framesForwardKinematics(self.pm, self.pd, self.config(q))
+        return self.pd.oMf[self.pm.getFrameId(link, pin.BODY)].homogeneous

@@ -1,0 +1,193 @@
+"""Batched dynamics against Pinocchio, finite differences and physics identities."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hoc_cli import dynamics as D
+from hoc_cli.model import load_robot
+
+from _robots import ERD, ROBOTS, SHIPPED, THIRD_PARTY, PinocchioOracle, random_state
+
+pytest.importorskip("pinocchio")
+
+CASES = {name: (ROBOTS / name, {}) for name in SHIPPED}
+CASES.update({name: (ERD / path, kw) for name, (path, kw) in THIRD_PARTY.items()})
+_MODELS: dict = {}
+
+
+def model_of(case: str):
+    if case not in _MODELS:
+        path, kw = CASES[case]
+        if not path.is_file():
+            pytest.skip(f"{path} not installed (pip install example-robot-data)")
+        _MODELS[case] = load_robot(path, **kw)
+    return _MODELS[case]
+
+
+def rel_err(a, b) -> float:
+    return float(np.abs(a - b).max() / max(1.0, np.abs(b).max()))
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_inverse_dynamics_mass_matrix_and_derivatives_agree_with_pinocchio(case):
+    model = model_of(case)
+    oracle = PinocchioOracle(model)
+    q, dq, ddq = random_state(np.random.default_rng(3), 4, model.n)
+    u = D.inverse_dynamics(model, q, dq, ddq)
+    M = D.mass_matrix(model, q)
+    u2, du_dq, du_ddq, M2 = D.id_derivatives(model, q, dq, ddq)
+    for k in range(len(q)):
+        ref_dq, ref_dv, ref_da = oracle.rnea_derivatives(q[k], dq[k], ddq[k])
+        assert rel_err(u[k], oracle.rnea(q[k], dq[k], ddq[k])) < 1e-10
+        assert rel_err(M[k], oracle.crba(q[k])) < 1e-10
+        assert rel_err(u2[k], u[k]) < 1e-12
+        assert rel_err(du_dq[k], ref_dq) < 1e-10
+        assert rel_err(du_ddq[k], ref_dv) < 1e-10
+        assert rel_err(M2[k], ref_da) < 1e-10
+
+
+@pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "kinova (continuous joints)"])
+def test_link_poses_agree_with_pinocchio_for_every_link(case):
+    model = model_of(case)
+    oracle = PinocchioOracle(model)
+    q = np.random.default_rng(4).uniform(-np.pi, np.pi, (2, model.n))
+    poses = D.link_poses(model, q)
+    assert set(poses) == set(model.link_names)
+    for k in range(2):
+        for link in model.link_names:
+            np.testing.assert_allclose(poses[link][k], oracle.link_pose(q[k], link), atol=1e-12)
+
+
+@pytest.mark.parametrize("case", SHIPPED + ["panda with a prismatic finger, reordered"])
+def test_derivatives_match_central_differences(case):
+    model = model_of(case)
+    rng = np.random.default_rng(5)
+    q, dq, ddq = random_state(rng, 3, model.n)
+    _, du_dq, du_ddq, M = D.id_derivatives(model, q, dq, ddq)
+    eps = 1e-6
+    for j in range(model.n):
+        e = np.zeros(model.n)
+        e[j] = eps
+        fd_q = (D.inverse_dynamics(model, q + e, dq, ddq) - D.inverse_dynamics(model, q - e, dq, ddq)) / (2 * eps)
+        fd_v = (D.inverse_dynamics(model, q, dq + e, ddq) - D.inverse_dynamics(model, q, dq - e, ddq)) / (2 * eps)
+        fd_a = (D.inverse_dynamics(model, q, dq, ddq + e) - D.inverse_dynamics(model, q, dq, ddq - e)) / (2 * eps)
+        scale = 1.0 + np.abs(du_dq).max()
+        assert np.abs(fd_q - du_dq[:, :, j]).max() < 1e-6 * scale
+        assert np.abs(fd_v - du_ddq[:, :, j]).max() < 1e-6 * scale
+        assert np.abs(fd_a - M[:, :, j]).max() < 1e-6 * scale
+
+
+@pytest.mark.parametrize("case", SHIPPED + ["alex upper body (19 joints, branching)"])
+def test_mass_matrix_is_symmetric_positive_definite(case):
+    model = model_of(case)
+    q = np.random.default_rng(6).uniform(-np.pi, np.pi, (20, model.n))
+    M = D.mass_matrix(model, q)
+    np.testing.assert_allclose(M, np.swapaxes(M, 1, 2), rtol=0, atol=1e-13 * np.abs(M).max())
+    assert np.linalg.eigvalsh(M).min() > 0.0
+
+
+@pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "panda with a prismatic finger, reordered"])
+def test_batched_results_equal_a_loop_over_single_samples(case):
+    model = model_of(case)
+    rng = np.random.default_rng(7)
+    q, dq, ddq = random_state(rng, 6, model.n)
+    lam = rng.standard_normal(q.shape)
+    batched = (
+        D.inverse_dynamics(model, q, dq, ddq),
+        D.mass_matrix(model, q),
+        D.bias_forces(model, q, dq),
+        D.forward_dynamics(model, q, dq, ddq),
+        *D.id_derivatives(model, q, dq, ddq),
+        *D.id_vjp(model, q, dq, ddq, lam),
+        D.mass_quadratic_grad(model, q, dq),
+    )
+    for k in range(len(q)):
+        single = (
+            D.inverse_dynamics(model, q[k], dq[k], ddq[k]),
+            D.mass_matrix(model, q[k]),
+            D.bias_forces(model, q[k], dq[k]),
+            D.forward_dynamics(model, q[k], dq[k], ddq[k]),
+            *D.id_derivatives(model, q[k], dq[k], ddq[k]),
+            *D.id_vjp(model, q[k], dq[k], ddq[k], lam[k]),
+            D.mass_quadratic_grad(model, q[k], dq[k]),
+        )
+        for b, s in zip(batched, single):
+            assert s.shape == b.shape[1:]
+            np.testing.assert_allclose(b[k], s, rtol=1e-13, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", SHIPPED + ["baxter (branching, mimic grippers locked)"])
+def test_forward_dynamics_inverts_inverse_dynamics(case):
+    model = model_of(case)
+    q, dq, ddq = random_state(np.random.default_rng(8), 10, model.n)
+    u = D.inverse_dynamics(model, q, dq, ddq)
+    np.testing.assert_allclose(D.forward_dynamics(model, q, dq, u), ddq, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        u, np.einsum("kij,kj->ki", D.mass_matrix(model, q), ddq) + D.bias_forces(model, q, dq), atol=1e-10)
+
+
+def test_inverse_dynamics_without_gravity_drops_exactly_the_gravity_torques():
+    model = model_of("lbr7.urdf")
+    q, dq, ddq = random_state(np.random.default_rng(9), 5, model.n)
+    g = D.inverse_dynamics(model, q, 0 * dq, 0 * ddq)
+    np.testing.assert_allclose(D.inverse_dynamics(model, q, dq, ddq, gravity=False) + g,
+                               D.inverse_dynamics(model, q, dq, ddq), atol=1e-12)
+    np.testing.assert_allclose(D.gravity_forces(model, q), g, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "kinova (continuous joints)"])
+def test_vector_jacobian_products_contract_the_derivative_matrices(case):
+    model = model_of(case)
+    rng = np.random.default_rng(10)
+    q, dq, ddq = random_state(rng, 5, model.n)
+    lam = rng.standard_normal(q.shape)
+    u, du_dq, du_ddq, _ = D.id_derivatives(model, q, dq, ddq, gravity=False)
+    u2, gq, gdq = D.id_vjp(model, q, dq, ddq, lam, gravity=False)
+    np.testing.assert_allclose(u2, u, atol=1e-12)
+    np.testing.assert_allclose(gq, np.einsum("ki,kij->kj", lam, du_dq), atol=1e-10)
+    np.testing.assert_allclose(gdq, np.einsum("ki,kij->kj", lam, du_ddq), atol=1e-10)
+
+
+@pytest.mark.parametrize("case", ["two_link.urdf", "lbr7.urdf", "panda with a prismatic finger, reordered"])
+def test_mass_quadratic_gradient_matches_central_differences(case):
+    model = model_of(case)
+    rng = np.random.default_rng(11)
+    q = rng.uniform(-np.pi, np.pi, (4, model.n))
+    v = rng.standard_normal((4, model.n))
+    grad = D.mass_quadratic_grad(model, q, v)
+
+    def quad(qq):
+        return np.einsum("ki,kij,kj->k", v, D.mass_matrix(model, qq), v)
+
+    eps = 1e-6
+    for j in range(model.n):
+        e = np.zeros(model.n)
+        e[j] = eps
+        fd = (quad(q + e) - quad(q - e)) / (2 * eps)
+        np.testing.assert_allclose(grad[:, j], fd, rtol=1e-6, atol=1e-7)
+
+
+def test_pendulum_linearisation_gives_the_papers_natural_frequency():
+    # ω² = (∂g/∂q) / M at the bottom: g/l with l = 1.0195 m, ω = 3.102 s⁻¹ (paper)
+    model = model_of("pendulum.urdf")
+    zero = np.zeros((1, 1))
+    _, du_dq, _, M = D.id_derivatives(model, zero, zero, zero)
+    assert np.sqrt(du_dq[0, 0, 0] / M[0, 0, 0]) == pytest.approx(3.102, abs=5e-4)
+
+
+def test_wrong_shapes_raise_value_errors_naming_the_argument():
+    model = model_of("two_link.urdf")
+    with pytest.raises(ValueError, match="dq: expected shape"):
+        D.inverse_dynamics(model, np.zeros((3, 2)), np.zeros((3, 3)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="ddq: has 4 samples but q has 3"):
+        D.inverse_dynamics(model, np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="q: expected shape"):
+        D.mass_matrix(model, np.zeros((2, 2, 2)))
+
+
+def test_an_empty_batch_returns_empty_arrays():
+    model = model_of("two_link.urdf")
+    empty = np.zeros((0, 2))
+    assert D.inverse_dynamics(model, empty, empty, empty).shape == (0, 2)
+    assert D.mass_matrix(model, empty).shape == (0, 2, 2)
