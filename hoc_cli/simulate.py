@@ -1,0 +1,551 @@
+"""Forward simulation: the paper's Hermite collocation time integrator and a reference integrator.
+
+Symbols
+-------
+T   duration [s];  N elements;  h = T / N [s];  t_p = p h the nodes
+m   coefficients per node and joint: 2 (cubic: a = q, b = q̇), 3 (quintic: a, b, c = q̈)
+n   joints;  K time samples;  s ∈ [0, 1] the local coordinate of an element, t = (e + s) h
+u   joint torques [N·m] (forces [N] for prismatic joints), shape (K, n)
+ID  inverse dynamics u = M(q) q̈ + C(q, q̇) q̇ + g(q)
+
+The time integration algorithm (paper, "Motion Simulations")
+-------------------------------------------------------------
+Given x(0) = (q0, q̇0) and a torque history u(t), march element by element. In element e the
+left-node coefficients L = (a_e, b_e[, c_e]) are known; the m·n right-node coefficients
+R = (a_{e+1}, b_{e+1}[, c_{e+1}]) are the unknowns, fixed by the m·n motion equations
+
+    ID(q_h(t_j), q̇_h(t_j), q̈_h(t_j)) − u(t_j) = 0,    t_j = (e + s_j) h,  j = 1 … m,
+
+solved by Newton's method with the analytic Jacobian
+∂F_j/∂R_k = (∂u/∂q)_j B0[j, k] + (∂u/∂q̇)_j B1[j, k] + M_j B2[j, k] (B_r the r-th t-derivative of
+the right node's shape functions at s_j).
+
+Unknown count (the errata ask for it): a_0 = q0 and b_0 = q̇0 are known; for quintic elements c_0
+is not an unknown either, it follows from the motion equation at t = 0, c_0 = FD(q0, q̇0, u(0)).
+So there are m·n·N unknowns in all (2nN cubic, 3nN quintic, not 3n(N+1)), solved N·n at a time.
+
+Collocation points (measured, see tests/test_simulate.py and ``DEFAULT_POINTS``):
+cubic with the 2 Gauss-Legendre points is 2-stage Gauss collocation, nodal order 4. Quintic with
+the 2 interior and the right point of 4-point Gauss-Lobatto: C² continuity carries q̈ from the
+previous element, where the right end was collocated, so the motion equation also holds at s = 0
+and the element is 4-stage Lobatto IIIA collocation, nodal order 6 (symmetric: no energy drift).
+Quintic with 3 Gauss points is only order 4 at the nodes (q̈ at a node is not consistent with the
+motion equation), and Radau IIA points give order 4 as well.
+"""
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+from hoc_cli.elements import HermiteMesh, gauss_legendre
+from hoc_cli.errors import NumericalError
+from hoc_cli.system import System
+from hoc_cli.trajectory import Trajectory
+
+POINT_KINDS = ("gauss", "lobatto", "radau")
+DEFAULT_POINTS = {"cubic": "gauss", "quintic": "lobatto"}
+NEWTON_XTOL = 1e-13
+NEWTON_MAX_ITER = 25
+
+
+# --------------------------------------------------------------------------- torque sources
+class TorqueSource(Protocol):
+    """A torque history: ``u(t)`` maps times (K,) [s] to torques (K, n) [N·m or N]."""
+
+    n: int
+
+    def __call__(self, t: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True, eq=False)
+class ConstantTorque:
+    """u(t) = value for all t; ``value`` shape (n,). ``ConstantTorque(np.zeros(n))`` is free motion."""
+
+    value: np.ndarray
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.value, dtype=float).reshape(-1)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"constant torque must be finite, got {v}")
+        object.__setattr__(self, "value", v)
+
+    @property
+    def n(self) -> int:
+        return self.value.size
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        return np.broadcast_to(self.value, (t.size, self.n)).copy()
+
+
+def zero_torque(n: int) -> ConstantTorque:
+    """No actuation: u(t) = 0, shape (K, n)."""
+    return ConstantTorque(np.zeros(n))
+
+
+@dataclass(frozen=True, eq=False)
+class SampledTorque:
+    """Torque interpolated in time from samples (a plan's CSV).
+
+    ``t`` (K,) strictly increasing [s], ``u`` (K, n). ``kind="cubic"`` (default): the C² cubic
+    spline with not-a-knot ends through the samples (error O(Δt⁴) for smooth torques; a planned
+    torque is only C⁰ with small kinks at element nodes, where the error is locally O(Δt·[u̇])).
+    ``kind="linear"``: piecewise linear (O(Δt²), never overshoots). Fewer than 4 samples fall back
+    to linear. Outside [t_0, t_K] the end values are held; callers check the time range.
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    kind: str = "cubic"
+    _spline: Callable | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float).reshape(-1)
+        u = np.asarray(self.u, dtype=float)
+        u = u[:, None] if u.ndim == 1 else u
+        if u.ndim != 2 or u.shape[0] != t.size:
+            raise ValueError(f"torque samples must have shape ({t.size}, n), got {u.shape}")
+        if t.size < 2 or not np.all(np.diff(t) > 0):
+            raise ValueError("torque sample times must be at least 2 and strictly increasing")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+            raise ValueError("torque samples must be finite")
+        if self.kind not in ("cubic", "linear"):
+            raise ValueError(f"interpolation kind must be 'cubic' or 'linear', got {self.kind!r}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "u", u)
+        if self.kind == "cubic" and t.size >= 4:
+            from scipy.interpolate import CubicSpline
+
+            object.__setattr__(self, "_spline", CubicSpline(t, u, axis=0, bc_type="not-a-knot", extrapolate=False))
+
+    @property
+    def n(self) -> int:
+        return self.u.shape[1]
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), self.t[0], self.t[-1])
+        if self._spline is not None:
+            return np.asarray(self._spline(t)).reshape(t.size, self.n)
+        return np.stack([np.interp(t, self.t, self.u[:, i]) for i in range(self.n)], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class PlannedTorque:
+    """The exact torque of a Hermite trajectory: u(t) = ID(q_h(t), q̇_h(t), q̈_h(t)); (K, n).
+
+    ``coeffs`` (N+1, m, n) on ``mesh``; times outside [0, T] are clamped to it.
+    """
+
+    system: System
+    mesh: HermiteMesh
+    coeffs: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "coeffs", self.mesh.check_coefficients(np.asarray(self.coeffs, dtype=float)))
+
+    @property
+    def n(self) -> int:
+        return self.coeffs.shape[2]
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.mesh.T)
+        q, dq, ddq = self.mesh.evaluate_all(self.coeffs, t)
+        return self.system.inverse_dynamics(q, dq, ddq)
+
+
+# --------------------------------------------------------------------------- collocation points
+def collocation_points(order: str, kind: str | None = None) -> np.ndarray:
+    """The m local collocation coordinates s_j ∈ (0, 1] of an element, shape (m,).
+
+    kind "gauss": m Gauss-Legendre points. "radau": m Radau IIA points (right end included).
+    "lobatto": the m points of (m+1)-point Gauss-Lobatto other than s = 0 (right end included).
+    ``None`` picks ``DEFAULT_POINTS[order]`` (the highest nodal order measured).
+    """
+    m = {"cubic": 2, "quintic": 3}.get(order)
+    if m is None:
+        raise ValueError(f"order must be 'cubic' or 'quintic', got {order!r}")
+    kind = DEFAULT_POINTS[order] if kind is None else kind
+    if kind == "gauss":
+        return gauss_legendre(m)[0]
+    if kind == "radau":  # zeros of P_m(x) − P_{m−1}(x) on [−1, 1] (x = 1 included), mapped to [0, 1]
+        c = np.zeros(m + 1)
+        c[m], c[m - 1] = 1.0, -1.0
+        x = np.sort(np.real(np.polynomial.legendre.legroots(c)))
+        return (x + 1.0) / 2.0
+    if kind == "lobatto":  # ±1 and the zeros of P'_m on [−1, 1], mapped to [0, 1], without 0
+        c = np.zeros(m + 1)
+        c[m] = 1.0
+        inner = np.sort(np.real(np.polynomial.legendre.legroots(np.polynomial.legendre.legder(c))))
+        return np.concatenate([(inner + 1.0) / 2.0, [1.0]])
+    raise ValueError(f"collocation point kind must be one of {POINT_KINDS}, got {kind!r}")
+
+
+# --------------------------------------------------------------------------- results
+class Status(enum.Enum):
+    """How a simulation ended. Failures raise ``NumericalError`` instead of returning."""
+
+    SUCCESS = "success"
+
+
+@dataclass(eq=False)
+class HermiteSimulation:
+    """Result of ``simulate_hermite``: the Hermite trajectory and Newton's work.
+
+    coeffs (N+1, m, n): a, b(, c) at every node. ``points`` (m,) the collocation coordinates.
+    ``newton_iterations`` is the total number of Newton steps (Jacobian factorisations) over all
+    elements, ``max_newton_iterations`` the worst element, ``evaluations`` the number of batched
+    ``id_derivatives`` calls (m samples each), ``wall_time_s`` the march alone.
+    """
+
+    mesh: HermiteMesh
+    coeffs: np.ndarray
+    points: np.ndarray
+    status: Status
+    newton_iterations: int
+    max_newton_iterations: int
+    evaluations: int
+    wall_time_s: float
+    message: str
+
+    def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q_h(t), q̇_h(t) at times t (K,) [s]; each (K, n)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        return self.mesh.evaluate(self.coeffs, t, 0), self.mesh.evaluate(self.coeffs, t, 1)
+
+    def final_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q(T), q̇(T)), each (n,): the last node's a and b."""
+        return self.coeffs[-1, 0].copy(), self.coeffs[-1, 1].copy()
+
+
+@dataclass(eq=False)
+class ReferenceSimulation:
+    """Result of ``simulate_reference``: a dense ODE solution of the forward dynamics.
+
+    ``solution(t)`` gives x = (q, q̇) stacked, shape (2n, K). ``nfev`` forward-dynamics calls,
+    ``steps`` accepted steps.
+    """
+
+    T: float
+    n: int
+    solution: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+    status: Status
+    nfev: int
+    steps: int
+    wall_time_s: float
+    message: str
+
+    def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q(t), q̇(t) at times t (K,) in [0, T]; each (K, n)."""
+        x = self.solution(np.atleast_1d(np.asarray(t, dtype=float)))
+        return x[: self.n].T.copy(), x[self.n :].T.copy()
+
+    def final_state(self) -> tuple[np.ndarray, np.ndarray]:
+        q, dq = self.state(np.array([self.T]))
+        return q[0], dq[0]
+
+
+# --------------------------------------------------------------------------- Hermite integrator
+@dataclass(frozen=True, eq=False)
+class _Element:
+    """Shape-function values at the collocation points of one element (all elements alike).
+
+    BL, BR: (3, m, m) t-derivative r at point j of the left / right node's shape function k.
+    BX: (3, 2m) the element's polynomial at s = 2 (the predictor for the next right node).
+    """
+
+    BL: np.ndarray
+    BR: np.ndarray
+    BX: np.ndarray
+
+    @classmethod
+    def build(cls, mesh: HermiteMesh, s: np.ndarray) -> "_Element":
+        m = mesh.m
+        B = np.stack([mesh.shape_values(s, r) for r in range(3)])  # (3, m, 2m)
+        BX = np.stack([mesh.shape_values(np.array([2.0]), r)[0] for r in range(3)])
+        return cls(BL=B[:, :, :m].copy(), BR=B[:, :, m:].copy(), BX=BX)
+
+
+def collocation_residual(
+    system: System, el: "_Element", left: np.ndarray, right: np.ndarray, u: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residual of the motion equations at an element's collocation points and its Jacobian.
+
+    left, right: node coefficients (m, n); u: torques at the m points (m, n).
+    Returns F = ID(q_h, q̇_h, q̈_h) − u, shape (m, n) [N·m], and J = ∂F/∂right,
+    shape (m, n, m, n) with J[j, i, k, l] = ∂F[j, i] / ∂right[k, l].
+    """
+    q, dq, ddq = (el.BL[r] @ left + el.BR[r] @ right for r in range(3))
+    uh, du_dq, du_ddq, M = system.id_derivatives(q, dq, ddq)
+    F = np.asarray(uh) - u
+    J = (
+        np.einsum("jil,jk->jikl", du_dq, el.BR[0])
+        + np.einsum("jil,jk->jikl", du_ddq, el.BR[1])
+        + np.einsum("jil,jk->jikl", M, el.BR[2])
+    )
+    return F, J
+
+
+def simulate_hermite(
+    system: System,
+    q0: np.ndarray,
+    dq0: np.ndarray,
+    torque: TorqueSource,
+    mesh: HermiteMesh,
+    *,
+    points: str | np.ndarray | None = None,
+    xtol: float = NEWTON_XTOL,
+    max_iter: int = NEWTON_MAX_ITER,
+    callback: Callable[[int, int], None] | None = None,
+) -> HermiteSimulation:
+    """March the Hermite collocation integrator over ``mesh`` from x(0) = (q0, q̇0).
+
+    Parameters
+    ----------
+    system : the mechanical system (n joints)
+    q0, dq0 : (n,) initial positions [rad | m] and velocities [rad/s | m/s]
+    torque : u(t), (K,) → (K, n)
+    mesh : HermiteMesh (order, T, N)
+    points : collocation kind ("gauss" | "lobatto" | "radau"), explicit coordinates (m,) in
+        (0, 1], or None for ``DEFAULT_POINTS[order]``
+    xtol : Newton stops when the step, scaled to position units (Δa, h Δb, h² Δc), is below
+        xtol·(1 + |R|) (the error left is then of order step²); a step that stops shrinking
+        below 1e3·xtol is accepted as the round-off floor
+    max_iter : Newton iterations allowed per element
+    callback : called as callback(e, N) after element e is solved (progress)
+
+    Raises
+    ------
+    NumericalError when Newton does not converge or meets a non-finite value; the message
+    names the element and its time interval.
+    """
+    started = time.perf_counter()
+    m, N, h = mesh.m, mesh.N, mesh.h
+    q0 = np.asarray(q0, dtype=float).reshape(-1)
+    dq0 = np.asarray(dq0, dtype=float).reshape(-1)
+    n = q0.size
+    if dq0.size != n or system.n != n:
+        raise ValueError(f"q0 {q0.shape}, dq0 {dq0.shape} and the system's {system.n} joints disagree")
+    s = collocation_points(mesh.order, points) if points is None or isinstance(points, str) else np.asarray(points, float)
+    if s.shape != (m,) or np.any(s <= 0) or np.any(s > 1):
+        raise ValueError(f"{mesh.order} elements need {m} collocation points in (0, 1], got {s}")
+    el = _Element.build(mesh, s)
+
+    t_col = ((np.arange(N)[:, None] + s[None, :]) * h).ravel()
+    U = np.asarray(torque(t_col), dtype=float).reshape(N, m, n)  # all collocation torques at once
+    u0 = np.asarray(torque(np.array([0.0])), dtype=float).reshape(1, n)
+    ddq0 = system.forward_dynamics(q0[None], dq0[None], u0)[0]
+    if not (np.all(np.isfinite(u0)) and np.all(np.isfinite(ddq0))):
+        raise NumericalError("non-finite torque or acceleration at t = 0 s (check x0 and the torque history)")
+    bad = np.flatnonzero(~np.all(np.isfinite(U), axis=(1, 2)))
+    if bad.size:
+        raise NumericalError(_where(int(bad[0]), h, "the torque history is not finite there"))
+
+    C = np.zeros((N + 1, m, n))
+    C[0, 0], C[0, 1] = q0, dq0
+    if m == 3:
+        C[0, 2] = ddq0
+    scale = (h ** np.arange(m))[:, None]  # a, h b, h² c: all in position units
+    total = worst = evaluations = 0
+    for e in range(N):
+        left = C[e]
+        if e == 0:  # Taylor predictor from the initial state
+            guess = np.stack([q0 + h * dq0 + 0.5 * h * h * ddq0, dq0 + h * ddq0, ddq0][:m])
+        else:  # extrapolate the previous element's polynomial to s = 2
+            guess = el.BX[:m] @ np.concatenate([C[e - 1], C[e]])
+        right, iterations, calls = _newton(system, el, left, guess, U[e], scale, xtol, max_iter, e, h)
+        C[e + 1] = right
+        total += iterations
+        evaluations += calls
+        worst = max(worst, iterations)
+        if callback is not None:
+            callback(e, N)
+    wall = time.perf_counter() - started
+    return HermiteSimulation(
+        mesh=mesh, coeffs=C, points=s, status=Status.SUCCESS, newton_iterations=total,
+        max_newton_iterations=worst, evaluations=evaluations, wall_time_s=wall,
+        message=f"{N} {mesh.order} elements, {total} Newton iterations (at most {worst} per element), "
+        f"{evaluations} dynamics evaluations",
+    )
+
+
+def _newton(
+    system: System, el: _Element, left: np.ndarray, guess: np.ndarray, u: np.ndarray, scale: np.ndarray,
+    xtol: float, max_iter: int, e: int, h: float,
+) -> tuple[np.ndarray, int, int]:
+    """Solve one element's collocation equations for the right node (m, n).
+
+    Newton's method with the analytic Jacobian, globalised by Deuflhard's natural monotonicity
+    test (the simplified Newton correction J_k⁻¹ F(x_{k+1}) must shrink, else the step is halved;
+    P. Deuflhard, "Newton Methods for Nonlinear Problems", Springer 2004, §3.3). Norms are max
+    norms of (Δa, h Δb, h² Δc) [position units]. The last simplified correction is applied when
+    it is below xtol·(1 + |R|) (the error left is then of order its square), so a converged
+    element costs one Jacobian factorisation per Newton step plus the initial evaluation.
+
+    Returns the right-node coefficients, Newton steps and ``id_derivatives`` calls.
+    """
+    from scipy.linalg import lu_factor, lu_solve
+
+    m, n = guess.shape
+
+    def size(x: np.ndarray) -> float:
+        return float(np.max(np.abs(x * scale)))
+
+    def correction(lu, F: np.ndarray) -> np.ndarray:
+        return lu_solve(lu, -F.reshape(m * n)).reshape(m, n)
+
+    right = guess
+    F, J = collocation_residual(system, el, left, right, u)
+    calls = 1
+    if not (np.all(np.isfinite(F)) and np.all(np.isfinite(J))):
+        raise NumericalError(_where(e, h, "non-finite residual at the predicted state (motion blew up?)"))
+    for it in range(1, max_iter + 1):
+        with np.errstate(all="ignore"):
+            lu = lu_factor(J.reshape(m * n, m * n), check_finite=False)
+        if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) == 0.0:
+            raise NumericalError(_where(e, h, "singular Newton Jacobian"))
+        delta = correction(lu, F)
+        step = size(delta)
+        tol = xtol * (1.0 + size(right))
+        if not np.isfinite(step):
+            raise NumericalError(_where(e, h, "non-finite Newton step (motion blew up?)"))
+        if step <= tol:
+            return right + delta, it, calls
+        lam = 1.0
+        while True:
+            trial = right + lam * delta
+            F_t, J_t = collocation_residual(system, el, left, trial, u)
+            calls += 1
+            if np.all(np.isfinite(F_t)) and np.all(np.isfinite(J_t)):
+                bar = correction(lu, F_t)
+                small = size(bar)
+                if small <= (1.0 - lam / 4.0) * step or lam * step <= 1e3 * tol:
+                    break
+            lam *= 0.5
+            if lam < 2.0 ** -12:
+                raise NumericalError(_where(e, h, f"Newton step rejected down to λ = {2 * lam:.2g} (no decrease)"))
+        right, F, J = trial, F_t, J_t
+        if lam == 1.0 and (small <= tol or (small <= 1e3 * tol and small >= 0.5 * step)):
+            return right + bar, it, calls  # converged (or at the round-off floor)
+    raise NumericalError(_where(e, h, f"Newton did not converge in {max_iter} iterations (last step {step:.3g})"))
+
+
+def _where(e: int, h: float, what: str) -> str:
+    return f"Hermite simulation failed in element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s): {what}"
+
+
+# --------------------------------------------------------------------------- reference integrator
+def simulate_reference(
+    system: System,
+    q0: np.ndarray,
+    dq0: np.ndarray,
+    torque: TorqueSource,
+    T: float,
+    *,
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+    method: str = "DOP853",
+) -> ReferenceSimulation:
+    """Integrate ẋ = (q̇, FD(q, q̇, u(t))) on [0, T] with scipy's ``solve_ivp`` (dense output).
+
+    q0, dq0 (n,); T [s]. Raises NumericalError when the integrator fails.
+    """
+    from scipy.integrate import solve_ivp
+
+    started = time.perf_counter()
+    q0 = np.asarray(q0, dtype=float).reshape(-1)
+    dq0 = np.asarray(dq0, dtype=float).reshape(-1)
+    n = q0.size
+
+    def rhs(t: float, x: np.ndarray) -> np.ndarray:
+        u = torque(np.array([t]))
+        ddq = system.forward_dynamics(x[None, :n], x[None, n:], u)[0]
+        return np.concatenate([x[n:], ddq])
+
+    sol = solve_ivp(rhs, (0.0, float(T)), np.concatenate([q0, dq0]), method=method, rtol=rtol, atol=atol,
+                    dense_output=True)
+    if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+        raise NumericalError(f"reference integrator ({method}) failed at t = {sol.t[-1]:.6g} s: {sol.message}")
+    return ReferenceSimulation(
+        T=float(T), n=n, solution=sol.sol, status=Status.SUCCESS, nfev=int(sol.nfev), steps=int(sol.t.size - 1),
+        wall_time_s=time.perf_counter() - started, message=f"{method}: {sol.t.size - 1} steps, {sol.nfev} evaluations",
+    )
+
+
+# --------------------------------------------------------------------------- sampling, period
+def sample(
+    result: HermiteSimulation | ReferenceSimulation,
+    system: System,
+    torque: TorqueSource,
+    t: np.ndarray,
+    joints: tuple[str, ...],
+) -> Trajectory:
+    """The simulated motion at times t (K,) as a ``Trajectory``.
+
+    q, q̇ from the result; q̈ from the Hermite polynomial (hermite) or FD(q, q̇, u) (rk); u is the
+    applied torque u(t). A Hermite result keeps its mesh and coefficients.
+    """
+    t = np.asarray(t, dtype=float)
+    u = torque(t)
+    if isinstance(result, HermiteSimulation):
+        q, dq, ddq = result.mesh.evaluate_all(result.coeffs, t)
+        return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u, mesh=result.mesh, coeffs=result.coeffs)
+    q, dq = result.state(t)
+    ddq = system.forward_dynamics(q, dq, u)
+    return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u)
+
+
+def velocity_zeros(mesh: HermiteMesh, coeffs: np.ndarray, joint: int = 0) -> np.ndarray:
+    """All times [s] in [0, T] where q̇_h of ``joint`` vanishes, sorted; shape (Z,).
+
+    Found per element as the real roots in [0, 1] of the polynomial q̇_h(s) (degree 2 or 4),
+    polished by Newton's method on that polynomial: no sampling error.
+    """
+    from numpy.polynomial import polynomial as P
+
+    from hoc_cli.elements import local_basis
+
+    coeffs = mesh.check_coefficients(coeffs)
+    basis = local_basis(mesh.order)[1] * mesh.scale(1)[:, None]  # (2m, 6): q̇ as a power series in s
+    loc = mesh.local_coefficients(coeffs)[:, :, joint]  # (N, 2m)
+    poly = loc @ basis  # (N, 6)
+    times: list[float] = []
+    for e in range(mesh.N):
+        p = np.trim_zeros(poly[e], "b")
+        if p.size < 2:
+            continue
+        dp = P.polyder(p)
+        for r in P.polyroots(p):
+            if abs(r.imag) > 1e-7:
+                continue
+            x = r.real
+            for _ in range(3):
+                d = P.polyval(x, dp)
+                if d == 0:
+                    break
+                x -= P.polyval(x, p) / d
+            if -1e-12 <= x <= 1 + 1e-12:
+                times.append((e + min(max(x, 0.0), 1.0)) * mesh.h)
+    times.sort()
+    out: list[float] = []
+    for tz in times:  # a root on a shared node is found by both elements
+        if not out or tz - out[-1] > 1e-9 * mesh.h:
+            out.append(tz)
+    return np.array(out)
+
+
+def oscillation_period(mesh: HermiteMesh, coeffs: np.ndarray, joint: int = 0) -> float:
+    """Period [s] of a free, symmetric oscillation from the zeros of q̇_h (turning points).
+
+    Turning points are half a period apart: τ/2 is the least-squares slope of t_k against k.
+    Needs at least three turning points (one full period).
+    """
+    tz = velocity_zeros(mesh, coeffs, joint)
+    if tz.size < 3:
+        raise NumericalError(f"need at least 3 turning points to measure a period, found {tz.size} in [0, {mesh.T}] s")
+    k = np.arange(tz.size, dtype=float)
+    slope = np.polyfit(k, tz, 1)[0]
+    return 2.0 * float(slope)
