@@ -334,6 +334,13 @@ def simulate_hermite(
         raise ValueError(f"{mesh.order} elements need {m} collocation points in (0, 1], got {s}")
     el = _Element.build(mesh, s)
 
+    with np.errstate(all="ignore"):  # overflow and NaN are detected and reported below, with the element
+        return _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started)
+
+
+def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started) -> HermiteSimulation:
+    """The element-by-element loop of ``simulate_hermite`` (arguments checked there)."""
+    m, N, h, n = mesh.m, mesh.N, mesh.h, q0.size
     t_col = ((np.arange(N)[:, None] + s[None, :]) * h).ravel()
     U = np.asarray(torque(t_col), dtype=float).reshape(N, m, n)  # all collocation torques at once
     u0 = np.asarray(torque(np.array([0.0])), dtype=float).reshape(1, n)
@@ -403,8 +410,7 @@ def _newton(
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(J))):
         raise NumericalError(_where(e, h, "non-finite residual at the predicted state (motion blew up?)"))
     for it in range(1, max_iter + 1):
-        with np.errstate(all="ignore"):
-            lu = lu_factor(J.reshape(m * n, m * n), check_finite=False)
+        lu = lu_factor(J.reshape(m * n, m * n), check_finite=False)
         if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) == 0.0:
             raise NumericalError(_where(e, h, "singular Newton Jacobian"))
         delta = correction(lu, F)
@@ -465,8 +471,9 @@ def simulate_reference(
         ddq = system.forward_dynamics(x[None, :n], x[None, n:], u)[0]
         return np.concatenate([x[n:], ddq])
 
-    sol = solve_ivp(rhs, (0.0, float(T)), np.concatenate([q0, dq0]), method=method, rtol=rtol, atol=atol,
-                    dense_output=True)
+    with np.errstate(all="ignore"):  # a blow-up is reported below
+        sol = solve_ivp(rhs, (0.0, float(T)), np.concatenate([q0, dq0]), method=method, rtol=rtol, atol=atol,
+                        dense_output=True)
     if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
         raise NumericalError(f"reference integrator ({method}) failed at t = {sol.t[-1]:.6g} s: {sol.message}")
     return ReferenceSimulation(

@@ -1,8 +1,318 @@
-"""``hoc simulate``: being built (see the issue tracker)."""
+"""``hoc simulate SOURCE``: integrate the motion forward from x0 under a torque history.
+
+SOURCE is a task YAML or a plan's MCAP file (written by ``hoc plan``).
+
+Torque history, first that applies:
+1. ``--torque FILE``: a plan's CSV (``u.<joint>`` columns, interpolated in time by a C² cubic
+   spline, not-a-knot) or MCAP (its exact Hermite coefficients when attached, u(t) = ID(q_h, q̇_h,
+   q̈_h); else its ``effort`` samples, interpolated as for CSV). The file must cover [0, T] and
+   name the task's joints (any column order).
+2. An MCAP SOURCE's own plan, as in 1.
+3. The task's ``torque:`` key (``zero`` or one constant per joint).
+
+``--method hermite`` (default): the paper's collocation integrator with the task's N and order
+(``hoc_cli.simulate.simulate_hermite``); ``--method rk``: scipy's DOP853, rtol = atol = 1e-12.
+
+Outputs as for ``hoc plan``: ``-o`` CSV/MCAP (default ``<task stem>.mcap`` and ``.csv``; for an
+MCAP SOURCE ``<source stem>-sim.mcap`` and ``.csv``, so the plan is never overwritten), samples at
+``output.rate``; ``u`` is the applied torque u(t). The MCAP carries the simulation's Hermite
+coefficients (hermite method) and a ``simulation`` metadata entry (the JSON summary).
+
+``--json`` summary: ``method``, ``joints``, ``N``, ``order``, ``T``, ``torque`` (its source),
+``final_state`` {q, dq} at T, ``final_error`` (max |x(T) − x1|, when the task has x1; else null),
+``check`` {tol, passed} (with ``--check``), ``converged``, ``iterations`` (Newton steps or RK
+steps), ``evaluations`` (dynamics calls), ``wall_time_s`` (the integration alone), ``max_abs_u``,
+``limit_violations``, ``outputs``. Exit 1 when ``--check TOL`` is given and final_error > TOL.
+"""
 from __future__ import annotations
 
-from hoc_cli.errors import HocError
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from hoc_cli.commands.common import (
+    EXIT_OK,
+    EXIT_UNMET,
+    OutputTarget,
+    atomic_output,
+    parse_outputs,
+    print_json,
+    stderr_console,
+)
+from hoc_cli.errors import HocError, InputFileError, OutputError, TaskError
+from hoc_cli.io.task import Task, apply_overrides, load_task, parse_task, resolve
+
+METHODS = ("hermite", "rk")
 
 
-def run(*args, **kwargs) -> int:
-    raise HocError("'hoc simulate' is not available in this build yet")
+def run(
+    source: Path,
+    outputs: list[str] | None = None,
+    as_json: bool = False,
+    quiet: bool = False,
+    progress: bool = False,
+    overrides: dict | None = None,
+    method: str = "hermite",
+    torque: Path | None = None,
+    check: float | None = None,
+) -> int:
+    from hoc_cli import simulate as sim
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.model import load_robot
+    from hoc_cli.system import RobotSystem
+    from hoc_cli.trajectory import sample_times
+
+    source = Path(source)
+    if method not in METHODS:
+        raise TaskError(f"expected one of {', '.join(METHODS)}, got {method!r}", key="--method")
+    if check is not None and not (math.isfinite(check) and check > 0):
+        raise TaskError(f"expected a tolerance > 0, got {check!r}", key="--check")
+
+    with tempfile.TemporaryDirectory(prefix="hoc-simulate-") as scratch:
+        plan = None
+        if source.suffix.lower() == ".mcap":
+            from hoc_cli.io.mcap import read_plan
+
+            plan = read_plan(source)
+            task = _task_from_plan(plan, source, Path(scratch))
+            stem = f"{source.stem}-sim"
+            urdf_text = plan.urdf_text
+        else:
+            task = load_task(source, purpose="simulate")
+            stem = task.stem
+            urdf_text = _read_text(task.robot)
+        task = apply_overrides(task, **(overrides or {}))
+        targets = parse_outputs(outputs, stem)
+        if as_json and any(t.path is None for t in targets):
+            raise OutputError("'-o -' writes CSV to standard output, which --json needs for the summary", key="--output")
+        if check is not None and task.x1 is None:
+            raise TaskError("--check needs a goal state x1 in the task", file=task.path, key="x1")
+
+        model = load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
+                           gravity=task.gravity)
+        system = RobotSystem(model)
+        joints = tuple(model.joint_names)
+        states = resolve(task, joints)
+
+        if torque is not None:
+            history, described = _torque_file(Path(torque), system, joints, task.T)
+        elif plan is not None:
+            history, described = _torque_from_plan(plan, source, system, joints, task.T)
+        elif states.torque is not None:
+            history = sim.ConstantTorque(states.torque)
+            described = "zero" if not np.any(states.torque) else "constant"
+        else:
+            raise TaskError("no torque history: give torque: (zero or a list) in the task, or --torque FILE",
+                            file=task.path, key="torque")
+
+        console = stderr_console(quiet=quiet, progress=progress)
+        if method == "hermite":
+            mesh = HermiteMesh(task.order, task.T, task.N)
+            with _progress(console, task.N, progress) as tick:
+                result = sim.simulate_hermite(system, states.q0, states.dq0, history, mesh, callback=tick)
+            iterations, evaluations = result.newton_iterations, result.evaluations
+        else:
+            result = sim.simulate_reference(system, states.q0, states.dq0, history, task.T)
+            iterations, evaluations = result.steps, result.nfev
+        qT, dqT = result.final_state()
+        traj = sim.sample(result, system, history, sample_times(task.T, task.rate), joints)
+
+        final_error = None
+        if states.q1 is not None:
+            final_error = float(max(np.max(np.abs(qT - states.q1)), np.max(np.abs(dqT - states.dq1))))
+        summary: dict[str, Any] = {
+            "method": method,
+            "source": str(source),
+            "torque": described,
+            "joints": list(joints),
+            "N": task.N if method == "hermite" else None,
+            "order": task.order if method == "hermite" else None,
+            "T": task.T,
+            "converged": True,
+            "iterations": iterations,
+            "evaluations": evaluations,
+            "wall_time_s": result.wall_time_s,
+            "message": result.message,
+            "final_state": {"q": qT.tolist(), "dq": dqT.tolist()},
+            "final_error": final_error,
+            "max_abs_u": np.max(np.abs(traj.u), axis=0).tolist(),
+            "limit_violations": _limit_violations(model, traj),
+            "outputs": [t.label for t in targets],
+        }
+        passed = True
+        if check is not None:
+            passed = bool(final_error is not None and final_error <= check)
+            summary["check"] = {"tol": check, "passed": passed}
+
+        _write_outputs(targets, traj, model, urdf_text, task, summary)
+
+    if as_json:
+        print_json(summary)
+    elif not quiet and (progress or console.is_terminal):
+        _human(console, summary)
+    if not passed:
+        miss = "no x1" if final_error is None else f"{final_error:.3g}"
+        sys.stderr.write(f"hoc: check failed: the final state misses x1 by {miss} > {check:g}\n")
+        return EXIT_UNMET
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------- sources
+def _read_text(path: Path) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(f"cannot be read ({type(exc).__name__})", file=path) from None
+
+
+def _task_from_plan(plan, source: Path, scratch: Path) -> Task:
+    """The task stored in a plan's MCAP, with ``robot`` pointing at the URDF attached to it."""
+    urdf = scratch / "robot.urdf"
+    urdf.write_text(plan.urdf_text, encoding="utf-8")
+    try:
+        doc = yaml.safe_load(plan.task_text)
+    except yaml.YAMLError:
+        raise InputFileError("the task attached to this plan is not valid YAML", file=source) from None
+    if not isinstance(doc, dict):
+        raise InputFileError("the task attached to this plan is not a mapping of task keys", file=source)
+    doc = dict(doc, robot=str(urdf))
+    try:
+        return parse_task(doc, path=source, text=plan.task_text, purpose="simulate")
+    except TaskError as exc:
+        raise InputFileError(f"the attached task is invalid: {exc.key or ''} {exc.detail}".strip(), file=source) from None
+
+
+def _columns(file: Path, have: tuple[str, ...], joints: tuple[str, ...]) -> list[int]:
+    """Index of each task joint among a file's joints; InputFileError when they differ."""
+    if set(have) != set(joints):
+        raise InputFileError(
+            f"torque columns name joints {', '.join(have)}; the task's joints are {', '.join(joints)}", file=file
+        )
+    return [have.index(j) for j in joints]
+
+
+def _check_span(file: Path, t: np.ndarray, T: float) -> None:
+    slack = 1e-9 * max(1.0, T)
+    if t[0] > slack or t[-1] < T - slack:
+        raise InputFileError(
+            f"torque samples cover t = {t[0]:g} … {t[-1]:g} s; the simulation needs 0 … {T:g} s", file=file
+        )
+
+
+def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
+    """A ``--torque`` CSV or MCAP as a torque source and a one-word description."""
+    from hoc_cli import simulate as sim
+
+    suffix = file.suffix.lower()
+    if suffix == ".csv":
+        from hoc_cli.io.csv import read_csv
+
+        traj = read_csv(file)
+        cols = _columns(file, tuple(traj.joints), joints)
+        if traj.K < 2:
+            raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
+        _check_span(file, traj.t, T)
+        return sim.SampledTorque(traj.t, traj.u[:, cols]), "csv"
+    if suffix == ".mcap":
+        from hoc_cli.io.mcap import read_plan
+
+        return _torque_from_plan(read_plan(file), file, system, joints, T)
+    raise InputFileError(f"unknown torque file extension {suffix or '(none)'!r} (expected .csv or .mcap)", file=file,
+                         key="--torque")
+
+
+def _torque_from_plan(plan, file: Path, system, joints: tuple[str, ...], T: float):
+    from hoc_cli import simulate as sim
+
+    traj = plan.trajectory
+    cols = _columns(file, tuple(traj.joints), joints)
+    if traj.mesh is not None and traj.coeffs is not None:
+        if traj.mesh.T < T * (1 - 1e-12):
+            raise InputFileError(f"the plan lasts {traj.mesh.T:g} s; the simulation needs {T:g} s", file=file)
+        return sim.PlannedTorque(system, traj.mesh, np.asarray(traj.coeffs)[:, :, cols]), "plan (exact Hermite)"
+    if traj.K < 2:
+        raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
+    _check_span(file, traj.t, T)
+    return sim.SampledTorque(traj.t, traj.u[:, cols]), "plan (sampled)"
+
+
+# --------------------------------------------------------------------------- outputs
+def _limit_violations(model, traj) -> list[dict]:
+    """URDF position, velocity and effort limits exceeded: joint, kind, worst value."""
+    out = []
+    checks = (("position", traj.q, model.lower, model.upper), ("velocity", traj.dq, -model.velocity_limit, model.velocity_limit),
+              ("effort", traj.u, -model.effort_limit, model.effort_limit))
+    for kind, x, lo, hi in checks:
+        for i, joint in enumerate(model.joint_names):
+            below, above = x[:, i] < lo[i], x[:, i] > hi[i]
+            if below.any() or above.any():
+                worst = x[:, i][np.argmax(np.where(above, x[:, i] - hi[i], lo[i] - x[:, i]))]
+                out.append({"joint": joint, "kind": kind, "worst": float(worst)})
+    return out
+
+
+def _write_outputs(targets: list[OutputTarget], traj, model, urdf_text: str, task: Task, summary: dict) -> None:
+    from hoc_cli.io.csv import write_csv
+
+    for target in targets:
+        if target.path is None:
+            write_csv(sys.stdout, traj)
+            sys.stdout.flush()
+        elif target.kind == "csv":
+            with atomic_output(target.path) as fh:
+                write_csv(fh, traj)
+        else:
+            from hoc_cli import dynamics
+            from hoc_cli.io.mcap import write_mcap
+
+            meta = {"simulation": json.dumps({k: v for k, v in summary.items() if k != "outputs"}, allow_nan=False)}
+            with atomic_output(target.path) as fh:
+                write_mcap(fh, traj, urdf_text=urdf_text, task_text=task.text, metadata=meta,
+                           link_poses=lambda q: dynamics.link_poses(model, q))
+
+
+class _progress:
+    """A rich progress bar over elements on standard error (terminal or ``--progress`` only)."""
+
+    def __init__(self, console, total: int, force: bool) -> None:
+        self.console, self.total = console, total
+        self.enabled = not console.quiet and (force or console.is_terminal)
+        self.bar = None
+
+    def __enter__(self):
+        if not self.enabled:
+            return None
+        from rich.progress import Progress
+
+        self.bar = Progress(console=self.console, transient=True)
+        self.bar.start()
+        task = self.bar.add_task("simulating", total=self.total)
+        return lambda e, N: self.bar.update(task, completed=e + 1)
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def _human(console, s: dict) -> None:
+    """The human summary on standard error (terminal or ``--progress`` only, as the spec asks)."""
+    def say(text: str) -> None:
+        console.print(text, soft_wrap=True, markup=False, highlight=False)  # paths may hold [ ]
+
+    what = f"{s['method']}" + (f", {s['N']} {s['order']} elements" if s["method"] == "hermite" else "")
+    say(f"simulated {s['T']:g} s ({what}; torque: {s['torque']}) in {s['wall_time_s']:.3g} s: {s['message']}")
+    say(f"final q  = {s['final_state']['q']}")
+    say(f"final dq = {s['final_state']['dq']}")
+    if s["final_error"] is not None:
+        say(f"final error against x1: {s['final_error']:.3g}")
+    for v in s["limit_violations"]:
+        say(f"warning: {v['joint']} exceeds its {v['kind']} limit (worst {v['worst']:.4g})")
+    for path in s["outputs"]:
+        if path != "-":
+            say(f"wrote {path}")
