@@ -10,7 +10,13 @@ from hoc_cli.cli import app
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task import apply_overrides, load_task, resolve
 
-ROBOT = """<robot name="r"><link name="base"/></robot>"""  # loader only checks that the file exists
+LINK = """<link name="{n}"><inertial><origin xyz="0 0 0.2"/><mass value="1"/>
+<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>"""
+ROBOT = f"""<robot name="r"><link name="base"/>{LINK.format(n="l1")}{LINK.format(n="l2")}
+<joint name="a" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 1 0"/>
+<limit lower="-3" upper="3" effort="10" velocity="5"/></joint>
+<joint name="b" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.4"/><axis xyz="0 1 0"/>
+<limit lower="-3" upper="3" effort="10" velocity="5"/></joint></robot>"""
 
 GOOD = """\
 robot: r.urdf

@@ -1,12 +1,151 @@
-"""``hoc plan``: being built (see the issue tracker)."""
+"""``hoc plan``: load the task and robot, solve, sample, check limits, write outputs, summarise."""
 from __future__ import annotations
 
-from hoc_cli.errors import HocError
-from hoc_cli.io.task import apply_overrides, load_task, resolve
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.table import Table
+
+from hoc_cli import __version__
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, parse_outputs, print_json, stderr_console
+from hoc_cli.commands.outputs import write_outputs
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.errors import InputFileError, OutputError
+from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
+from hoc_cli.limits import dense_times, limit_violations
+from hoc_cli.planner import PlanResult, plan
+from hoc_cli.system import RobotSystem
+from hoc_cli.trajectory import Trajectory, sample_times
 
 
-def run(task_path, overrides=None, **kwargs) -> int:
-    task = apply_overrides(load_task(task_path), **(overrides or {}))
-    if task.joints:
-        resolve(task, task.joints)
-    raise HocError("'hoc plan' is not available in this build yet", file=task.path)
+def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
+        progress: bool = False, overrides: dict | None = None, init: Path | None = None) -> int:
+    from hoc_cli.model import load_robot
+
+    task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
+    targets = parse_outputs(outputs, task.stem)
+    if as_json and any(t.path is None for t in targets):
+        raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
+    model = load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
+                       gravity=task.gravity)
+    states = resolve(task, model.joint_names)
+    console = stderr_console(quiet=quiet, progress=progress)
+    show = not quiet and (progress or console.is_terminal)
+    _warn_outside_limits(console, task, model, states)
+    mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
+    C_init = _warm_start(init, mesh, model.joint_names) if init is not None else None
+
+    start = time.perf_counter()
+
+    def report(log) -> None:
+        if show:
+            console.print(f"iter {log.iteration:4d}  J = {log.J:.12g}  |g|∞ = {log.grad_norm:.2e}  "
+                          f"½gᵀP⁻¹g = {log.decrement:.2e}  evals {log.n_evals:4d}  "
+                          f"{time.perf_counter() - start:7.2f} s", highlight=False)
+
+    result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
+                  method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
+    traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
+    summary = summarise(task, model, result, states)
+    summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
+                                       summary=summary | {"hoc_version": __version__})
+    if as_json:
+        print_json(summary)
+    if show:
+        console.print(summary_table(summary))
+    if not result.converged:
+        console.print(f"hoc: not converged: {result.optimizer.message}; the best iterate was written", highlight=False)
+        return EXIT_UNMET
+    return EXIT_OK
+
+
+def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
+    """The plan at the output rate: q, q̇, q̈ from the Hermite coefficients, u by inverse dynamics."""
+    t = sample_times(result.mesh.T, rate)
+    q, dq, ddq = result.mesh.evaluate_all(result.coeffs, t)
+    u = system.inverse_dynamics(q, dq, ddq)
+    return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u, mesh=result.mesh, coeffs=result.coeffs)
+
+
+def summarise(task: Task, model, result: PlanResult, states) -> dict:
+    """The JSON summary of SPEC.md (plus solver details)."""
+    mesh, C = result.mesh, result.coeffs
+    td = dense_times(mesh.T, mesh.N)
+    q, dq, ddq = mesh.evaluate_all(C, td)
+    u = RobotSystem(model).inverse_dynamics(q, dq, ddq)
+    end = np.concatenate([np.abs(q[0] - states.q0), np.abs(dq[0] - states.dq0),
+                          np.abs(q[-1] - states.q1), np.abs(dq[-1] - states.dq1)])
+    o = result.optimizer
+    return {
+        "cost": result.J,
+        "cost_type": task.cost,
+        "converged": result.converged,
+        "status": o.status.value,
+        "message": o.message,
+        "iterations": o.iterations,
+        "evaluations": o.n_evals,
+        "hessians": o.n_precond,
+        "grad_norm": o.grad_norm,
+        "decrement": o.decrement,
+        "wall_time_s": result.wall_time_s,
+        "method": task.method,
+        "tol": task.tol,
+        "joints": list(model.joint_names),
+        "N": mesh.N,
+        "order": mesh.order,
+        "T": mesh.T,
+        "gauss_points": result.G,
+        "quadrature_change": result.quadrature_change,
+        "boundary_error": float(end.max()),
+        "max_abs_u": [float(v) for v in np.abs(u).max(axis=0)],
+        "limit_violations": limit_violations(model.joint_names, model.lower, model.upper, model.velocity_limit,
+                                             model.effort_limit, td, q, dq, u),
+    }
+
+
+def summary_table(summary: dict) -> Table:
+    table = Table(title="hoc plan", show_header=False)
+    table.add_column("key")
+    table.add_column("value")
+    for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
+                "N", "order", "T", "boundary_error"):
+        v = summary[key]
+        table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
+    table.add_row("max |u|", ", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"])))
+    viol = summary["limit_violations"]
+    table.add_row("limit violations", "none" if not viol else "; ".join(
+        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol))
+    table.add_row("outputs", ", ".join(summary["outputs"]))
+    return table
+
+
+def _warn_outside_limits(console, task: Task, model, states) -> None:
+    for label, q in (("x0.q", states.q0), ("x1.q", states.q1)):
+        for i, name in enumerate(model.joint_names):
+            if q[i] < model.lower[i] or q[i] > model.upper[i]:
+                console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "
+                              f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False)
+
+
+def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
+    """Coefficients (N+1, m, n) from an earlier plan's MCAP, resampled at this mesh's nodes if needed."""
+    from hoc_cli.io.mcap import read_plan
+
+    plan_file = read_plan(path)
+    tr = plan_file.trajectory
+    if tuple(tr.joints) != tuple(joints):
+        raise InputFileError(f"plan joints {list(tr.joints)} differ from the task's {list(joints)}", file=path,
+                             key="--init")
+    if tr.mesh is None or tr.coeffs is None:
+        raise InputFileError("has no Hermite coefficients (expected an MCAP written by 'hoc plan')", file=path,
+                             key="--init")
+    if not math.isclose(tr.mesh.T, mesh.T, rel_tol=1e-12):
+        raise InputFileError(f"plan duration T = {tr.mesh.T:g} s differs from the task's T = {mesh.T:g} s",
+                             file=path, key="--init")
+    if (tr.mesh.order, tr.mesh.N) == (mesh.order, mesh.N):
+        return np.array(tr.coeffs)
+    t = mesh.nodes
+    cols = [tr.mesh.evaluate(tr.coeffs, t, r) for r in range(mesh.m)]
+    return np.stack(cols, axis=1)

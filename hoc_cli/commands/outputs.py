@@ -1,0 +1,41 @@
+"""Writing a trajectory to the requested outputs (CSV, MCAP, CSV on stdout), each atomically."""
+from __future__ import annotations
+
+import io
+import json
+import sys
+from pathlib import Path
+
+from hoc_cli.commands.common import OutputTarget, atomic_output
+from hoc_cli.trajectory import Trajectory
+
+
+def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_path: Path, task_text: str,
+                  summary: dict) -> list[str]:
+    """Write ``traj`` to every target; returns the labels written ("-" for stdout).
+
+    Each file goes to a temporary file beside its target and is renamed into place only when
+    complete, so an interrupted or failed run leaves existing files as they were.
+    """
+    from hoc_cli import dynamics
+    from hoc_cli.io.csv import write_csv
+    from hoc_cli.io.mcap import write_mcap
+
+    urdf_text = Path(urdf_path).read_text(encoding="utf-8")
+    written = []
+    for target in targets:
+        if target.path is None:
+            buf = io.StringIO()
+            write_csv(buf, traj)
+            sys.stdout.write(buf.getvalue())
+            sys.stdout.flush()
+        elif target.kind == "csv":
+            with atomic_output(target.path) as fh:
+                write_csv(fh, traj)
+        else:
+            with atomic_output(target.path) as fh:
+                write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
+                           metadata={"summary": json.dumps(summary, sort_keys=True, default=float)},
+                           link_poses=lambda q: dynamics.link_poses(model, q))
+        written.append(target.label)
+    return written

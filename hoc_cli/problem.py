@@ -1,0 +1,335 @@
+"""The discrete optimal-control problem: design vector, cost I(q_h), exact gradient, Gauss-Newton matrix.
+
+Symbols
+-------
+n joints; N elements; m = 2 (cubic) or 3 (quintic) coefficients per node and joint;
+G Gauss points per element; K = N G quadrature samples; P = (N + 1) m n coefficients.
+C (N+1, m, n) Hermite coefficients (see ``hoc_cli.elements``); its C-order flattening
+gives the global coefficient index  g = p·m·n + d·n + i  (node p, derivative d, joint i).
+
+Design-vector layout (documented once, here)
+--------------------------------------------
+x0 fixes a_0 = q(0), b_0 = q̇(0) (C[0, 0:2]); x1 fixes a_N, b_N (C[N, 0:2]). Every other
+coefficient (for quintic elements c_0 and c_N too) is free. The design vector x holds
+the free coefficients in increasing global index order: x = C.ravel()[free].
+
+Cost
+----
+I(q_h) = Σ_k w_k L(q_k, q̇_k, q̈_k) over Gauss points, with u = ID(q, q̇, q̈) and
+  covariant:  L = ½ uᵀ M(q)⁻¹ u        torque:  L = ½ uᵀ u.
+For the covariant cost, with w = M⁻¹u:  dL = wᵀ du − ½ wᵀ dM w, so
+  ∂L/∂q = (∂u/∂q)ᵀ w − ½ ∂(wᵀMw)/∂q,   ∂L/∂q̇ = (∂u/∂q̇)ᵀ w,   ∂L/∂q̈ = M w = u.
+The coefficient gradient is the transpose of the element operator applied to these.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import cho_solve_banded, cholesky_banded
+
+from hoc_cli.elements import HermiteMesh, QuadratureOperator
+from hoc_cli.errors import NumericalError
+from hoc_cli.system import System
+
+COSTS = ("covariant", "torque")
+
+
+def default_gauss_points(order: str) -> int:
+    """Gauss points per element: exact for the oscillator's (2·degree)-polynomial integrand, plus margin."""
+    return 8 if order == "quintic" else 6
+
+
+@dataclass(frozen=True, eq=False)
+class Layout:
+    """Which coefficients are free; packing between C (N+1, m, n) and the design vector x (P_free,)."""
+
+    mesh: HermiteMesh
+    n: int
+    free: np.ndarray = field(repr=False)  # (P,) bool over the flattened C
+
+    @classmethod
+    def build(cls, mesh: HermiteMesh, n: int) -> "Layout":
+        mask = np.ones((mesh.N + 1, mesh.m, n), dtype=bool)
+        mask[0, 0:2] = False
+        mask[-1, 0:2] = False
+        return cls(mesh=mesh, n=n, free=mask.ravel())
+
+    @property
+    def size(self) -> int:
+        return int(self.free.sum())
+
+    def pack(self, C: np.ndarray) -> np.ndarray:
+        """Free coefficients of C as the design vector x."""
+        return np.asarray(C, float).ravel()[self.free].copy()
+
+    def unpack(self, x: np.ndarray, C_fixed: np.ndarray) -> np.ndarray:
+        """Coefficients C with the free ones from x and the fixed ones from C_fixed."""
+        flat = np.array(C_fixed, dtype=np.result_type(x, C_fixed)).ravel()
+        flat[self.free] = x
+        return flat.reshape(self.mesh.N + 1, self.mesh.m, self.n)
+
+
+def boundary_coefficients(mesh: HermiteMesh, q0, dq0, q1, dq1) -> np.ndarray:
+    """C (N+1, m, n) that is zero except the boundary values a_0, b_0, a_N, b_N."""
+    n = len(q0)
+    C = np.zeros((mesh.N + 1, mesh.m, n))
+    C[0, 0], C[0, 1], C[-1, 0], C[-1, 1] = q0, dq0, q1, dq1
+    return C
+
+
+def minimum_jerk_guess(mesh: HermiteMesh, q0, dq0, q1, dq1) -> np.ndarray:
+    """Initial guess: per joint the quintic with q, q̇ of x0 and x1 and q̈ = 0 at both ends, interpolated.
+
+    Returns C (N+1, m, n). For cubic elements the quintic is Hermite-interpolated at the nodes.
+    """
+    T = mesh.T
+    q0, dq0, q1, dq1 = (np.asarray(v, float) for v in (q0, dq0, q1, dq1))
+    # q(s) = Σ c_k s^k with s = t/T; conditions on q, q', q'' at s = 0 and s = 1.
+    A = np.array([
+        [1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, 2, 0, 0, 0],
+        [1, 1, 1, 1, 1, 1], [0, 1, 2, 3, 4, 5], [0, 0, 2, 6, 12, 20],
+    ], dtype=float)
+    rhs = np.stack([q0, dq0 * T, np.zeros_like(q0), q1, dq1 * T, np.zeros_like(q0)])  # (6, n)
+    coef = np.linalg.solve(A, rhs)  # (6, n)
+    s = mesh.nodes / T
+    powers = np.stack([s**k for k in range(6)], axis=1)  # (N+1, 6)
+    d1 = np.stack([k * s ** max(k - 1, 0) for k in range(6)], axis=1) / T
+    d2 = np.stack([k * (k - 1) * s ** max(k - 2, 0) for k in range(6)], axis=1) / T**2
+    cols = [powers @ coef, d1 @ coef, d2 @ coef][: mesh.m]
+    C = np.stack(cols, axis=1)
+    C[0, 0], C[0, 1], C[-1, 0], C[-1, 1] = q0, dq0, q1, dq1
+    return C
+
+
+@dataclass(eq=False)
+class Evaluation:
+    """Cost and gradient at one design vector, with the per-sample quantities kept for reuse."""
+
+    x: np.ndarray
+    J: float
+    grad: np.ndarray | None
+    u: np.ndarray  # (K, n)
+    jac: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # ∂u/∂q, ∂u/∂q̇, M, each (K, n, n)
+    noise: float = 0.0  # rounding level of J: u = M q̈ + h loses ~eps·(|M q̈| + |h|) to cancellation
+    samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # q, q̇, q̈ at the Gauss points
+
+
+class ControlProblem:
+    """min over x of I(q_h) for a ``System`` on a Hermite mesh, with x0, x1 fixed.
+
+    Parameters
+    ----------
+    system : the dynamics (``RobotSystem`` or an analytic model)
+    mesh : HermiteMesh (order, T [s], N)
+    q0, dq0, q1, dq1 : (n,) boundary states [rad, rad/s]
+    cost : "covariant" (½ uᵀM⁻¹u) or "torque" (½ uᵀu)
+    G : Gauss points per element (default ``default_gauss_points``)
+    """
+
+    def __init__(self, system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, cost: str = "covariant",
+                 G: int | None = None) -> None:
+        if cost not in COSTS:
+            raise ValueError(f"cost must be one of {COSTS}, got {cost!r}")
+        self.system, self.mesh, self.cost = system, mesh, cost
+        self.n = system.n
+        self.G = G or default_gauss_points(mesh.order)
+        self.op: QuadratureOperator = mesh.quadrature(self.G)
+        self.layout = Layout.build(mesh, self.n)
+        self.C_fixed = boundary_coefficients(mesh, q0, dq0, q1, dq1)
+        self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
+        self.n_evals = 0
+        self.last: Evaluation | None = None
+
+    # -- design vector ---------------------------------------------------------------------------------
+    def initial_guess(self) -> np.ndarray:
+        return self.layout.pack(minimum_jerk_guess(self.mesh, *self.boundary))
+
+    def coefficients(self, x: np.ndarray) -> np.ndarray:
+        return self.layout.unpack(x, self.C_fixed)
+
+    # -- cost and gradient -----------------------------------------------------------------------------
+    def sample_gradients(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> dict:
+        """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ (each (K, n)), with u, w, Jacobians."""
+        u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
+        w = _spd_solve(M, u) if self.cost == "covariant" else u
+        gq = np.einsum("kij,ki->kj", Jq, w)
+        gdq = np.einsum("kij,ki->kj", Jv, w)
+        if self.cost == "covariant":
+            gq -= 0.5 * self.system.mass_quadratic_grad(q, w)
+            gddq = u
+        else:
+            gddq = np.einsum("kij,ki->kj", M, w)
+        L = 0.5 * np.einsum("ki,ki->k", u, w)
+        return dict(L=L, gq=gq, gdq=gdq, gddq=gddq, u=u, w=w, Jq=Jq, Jv=Jv, M=M)
+
+    def evaluate(self, x: np.ndarray, grad: bool = True) -> Evaluation:
+        """I(q_h) [(N·m)²·s / (kg·m²) covariant, (N·m)²·s torque] and its gradient with respect to x."""
+        self.n_evals += 1
+        C = self.coefficients(x)
+        q, dq, ddq = self.op.apply(C)
+        wt = self.op.w
+        if not grad:
+            u = self.system.inverse_dynamics(q, dq, ddq)
+            w = _spd_solve(self.system.mass_matrix(q), u) if self.cost == "covariant" else u
+            J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
+            if not np.isfinite(J):
+                raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+            return Evaluation(x=x, J=J, grad=None, u=u)
+        s = self.sample_gradients(q, dq, ddq)
+        J = float(np.dot(wt, s["L"]))
+        if not np.isfinite(J):
+            raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+        W = wt[:, None]
+        g = self.layout.pack(self.op.transpose(W * s["gq"], W * s["gdq"], W * s["gddq"]))
+        M, u, w = s["M"], s["u"], s["w"]
+        Mddq = np.einsum("kij,kj->ki", M, ddq)
+        size = np.abs(Mddq) + np.abs(u - Mddq)
+        noise = 64 * np.finfo(float).eps * float(np.dot(wt, np.einsum("ki,ki->k", np.abs(w), size)))
+        ev = Evaluation(x=x, J=J, grad=g, u=u, jac=(s["Jq"], s["Jv"], M), noise=noise, samples=(q, dq, ddq))
+        self.last = ev
+        return ev
+
+    def value(self, x: np.ndarray) -> float:
+        """I(q_h) alone (no gradient)."""
+        return self.evaluate(x, grad=False).J
+
+    # -- Newton matrix -------------------------------------------------------------------------------------
+    def sample_hessians(self, ev: Evaluation, rel_step: float = 1e-6) -> np.ndarray:
+        """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), by central differences of the
+        analytic per-sample gradient in q and q̇ (all samples and all 4n perturbations in one batched
+        call); the q̈ columns follow by symmetry, and ∂²L/∂q̈² = M (covariant) or M² (torque) exactly."""
+        q, dq, ddq = ev.samples
+        K, n = q.shape
+        Jq, Jv, M = ev.jac
+        eps_q = rel_step * (1.0 + np.abs(q))  # (K, n)
+        eps_v = rel_step * (1.0 + np.abs(dq))
+        E = np.eye(n)
+        # batch of 4n perturbed copies: (+q_j, −q_j, +dq_j, −dq_j) for j = 0..n−1
+        sign = np.array([1.0, -1.0])
+        Qp = q[None, None] + sign[:, None, None, None] * (E[None, :, None, :] * eps_q[None, None])  # (2, n, K, n)
+        Vp = dq[None, None] + sign[:, None, None, None] * (E[None, :, None, :] * eps_v[None, None])
+        Qb = np.concatenate([Qp, np.broadcast_to(q, Qp.shape)], axis=0).reshape(-1, n)
+        Vb = np.concatenate([np.broadcast_to(dq, Vp.shape), Vp], axis=0).reshape(-1, n)
+        Ab = np.broadcast_to(ddq, (4, n, K, n)).reshape(-1, n)
+        s = self.sample_gradients(Qb, Vb, Ab)
+        G = np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1).reshape(4, n, K, 3 * n)
+        dq_cols = (G[0] - G[1]) / (2 * eps_q.T[:, :, None])  # (n_j, K, 3n): column j of ∂(gq, gdq, gddq)/∂q_j
+        dv_cols = (G[2] - G[3]) / (2 * eps_v.T[:, :, None])
+        H = np.empty((K, 3 * n, 3 * n))
+        H[:, :, :n] = np.transpose(dq_cols, (1, 2, 0))
+        H[:, :, n : 2 * n] = np.transpose(dv_cols, (1, 2, 0))
+        H[:, 2 * n :, 2 * n :] = M if self.cost == "covariant" else np.einsum("kij,kil->kjl", M, M)
+        H[:, : 2 * n, 2 * n :] = np.swapaxes(H[:, 2 * n :, : 2 * n], 1, 2)
+        return 0.5 * (H + np.swapaxes(H, 1, 2))
+
+    def newton(self, ev: Evaluation) -> "BandedSPD":
+        """The exact Hessian of I on the free coefficients (block-banded), made positive definite.
+
+        Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
+        with μ = 1e-3, 1e-2, … until the banded Cholesky factorisation succeeds.
+        """
+        Hs = self.sample_hessians(ev)
+        H = self._element_blocks(Hs)
+        try:
+            return self._banded(H)
+        except NumericalError:
+            GN = self._gauss_newton_blocks(ev)
+            mu = 1e-3 * np.trace(H.sum(axis=0)) / np.trace(GN.sum(axis=0))
+            for _ in range(12):
+                try:
+                    return self._banded(H + abs(mu) * GN)
+                except NumericalError:
+                    mu *= 10
+            return self._banded(GN)
+
+    # -- Gauss-Newton matrix and banded assembly ---------------------------------------------------------
+    def gauss_newton(self, ev: Evaluation) -> "BandedSPD":
+        """The block-banded Gauss-Newton matrix Σ_k w_k A_kᵀ S_k A_k on the free coefficients.
+
+        A_k = ∂u_k/∂C (n × 2mn per element), S = M⁻¹ (covariant) or I (torque). Each element
+        couples only its two nodes, so the matrix has half-bandwidth 2mn − 1 in the global order.
+        """
+        return self._banded(self._gauss_newton_blocks(ev))
+
+    def _operator_rows(self) -> np.ndarray:
+        """B at every sample: (3, K, 2m), derivative r of the local shape functions (h-scaled)."""
+        op = self.op
+        return np.repeat(op.B[:, None], self.mesh.N, axis=1).reshape(3, op.K, 2 * self.mesh.m)
+
+    def _gauss_newton_blocks(self, ev: Evaluation) -> np.ndarray:
+        if ev.jac is None:
+            raise ValueError("the evaluation has no Jacobians (evaluate with grad=True)")
+        Jq, Jv, M = ev.jac
+        op, n, m, N, G = self.op, self.n, self.mesh.m, self.mesh.N, self.G
+        L = 2 * m * n
+        Bx = self._operator_rows()
+        A = (np.einsum("kij,kl->kilj", Jq, Bx[0]) + np.einsum("kij,kl->kilj", Jv, Bx[1])
+             + np.einsum("kij,kl->kilj", M, Bx[2])).reshape(op.K, n, L)
+        SA = np.linalg.solve(M, A) if self.cost == "covariant" else A
+        return np.einsum("kia,kib->kab", A * op.w[:, None, None], SA).reshape(N, G, L, L).sum(axis=1)
+
+    def _element_blocks(self, Hs: np.ndarray) -> np.ndarray:
+        """Σ_g w_g Ãᵀ Hs_g Ã per element, (N, 2mn, 2mn), for per-sample Hessians Hs (K, 3n, 3n)."""
+        op, n, m, N, G = self.op, self.n, self.mesh.m, self.mesh.N, self.G
+        Bx = self._operator_rows()  # (3, K, 2m)
+        H5 = Hs.reshape(op.K, 3, n, 3, n) * op.w[:, None, None, None, None]
+        T = np.einsum("rka,krisj->kaisj", Bx, H5)  # (K, 2m, n, 3, n)
+        E = np.einsum("kaisj,skb->kaibj", T, Bx)  # (K, 2m, n, 2m, n)
+        return E.reshape(N, G, 2 * m * n, 2 * m * n).sum(axis=1)
+
+    def _banded(self, blocks: np.ndarray) -> "BandedSPD":
+        mn = self.mesh.m * self.n
+        return BandedSPD.assemble(blocks, stride=mn, size=(self.mesh.N + 1) * mn, free=self.layout.free, shift=1e-12)
+
+
+def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """w = M⁻¹ u for a batch of SPD matrices (K, n, n) and vectors (K, n), via Cholesky."""
+    try:
+        Lc = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
+    y = np.linalg.solve(Lc, u[..., None])
+    return np.linalg.solve(np.swapaxes(Lc, -1, -2), y)[..., 0]
+
+
+@dataclass(eq=False)
+class BandedSPD:
+    """A symmetric positive-definite banded matrix on the free coefficients, Cholesky-factored.
+
+    ``solve(g)`` maps a design-space vector (free coefficients) to P⁻¹ g.
+    """
+
+    factor: np.ndarray
+    free: np.ndarray
+    size: int
+
+    @classmethod
+    def assemble(cls, blocks: np.ndarray, stride: int, size: int, free: np.ndarray, shift: float) -> "BandedSPD":
+        """Sum diagonal blocks (E, L, L) placed at offsets e·stride; fixed rows/cols become identity."""
+        E, L, _ = blocks.shape
+        u = L - 1
+        a, b = np.triu_indices(L)
+        rows = u + a - b
+        cols = (np.arange(E)[:, None] * stride + b[None, :]).ravel()
+        flat = np.tile(rows, E) * size + cols
+        ab = np.bincount(flat, weights=blocks[:, a, b].ravel(), minlength=(u + 1) * size).reshape(u + 1, size)
+        # zero every entry that touches a fixed coefficient, then put a unit scale on fixed diagonals
+        d = np.arange(u + 1)[:, None]
+        j = np.arange(size)[None, :]
+        i = j - (u - d)
+        keep = (i >= 0) & free[np.clip(i, 0, size - 1)] & free[j]
+        ab = np.where(keep, ab, 0.0)
+        diag = ab[u]
+        scale = float(np.mean(diag[free])) if free.any() else 1.0
+        ab[u] = np.where(free, diag * (1.0 + shift) + shift * scale, scale)
+        try:
+            factor = cholesky_banded(ab, lower=False)
+        except np.linalg.LinAlgError:
+            raise NumericalError("the Gauss-Newton matrix is not positive definite") from None
+        return cls(factor=factor, free=free, size=size)
+
+    def solve(self, g: np.ndarray) -> np.ndarray:
+        full = np.zeros(self.size)
+        full[self.free] = g
+        return cho_solve_banded((self.factor, False), full, check_finite=False)[self.free]
