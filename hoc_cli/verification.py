@@ -23,14 +23,24 @@ class Measurement:
     tolerance: float
     paper: str = ""
     note: str = ""
+    at_least: bool = False  # then the claim is measured >= expected (tolerance unused)
 
     @property
     def passed(self) -> bool:
-        return bool(np.isfinite(self.measured) and abs(self.measured - self.expected) <= self.tolerance)
+        if not np.isfinite(self.measured):
+            return False
+        if self.at_least:
+            return bool(self.measured >= self.expected)
+        return bool(abs(self.measured - self.expected) <= self.tolerance)
+
+    @property
+    def expectation(self) -> str:
+        return f">= {self.expected:.6g}" if self.at_least else f"{self.expected:.6g} ± {self.tolerance:.2g}"
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["passed"] = self.passed
+        d["expectation"] = self.expectation
         return d
 
 
@@ -70,8 +80,78 @@ def check_interpolation() -> list[Measurement]:
     return out
 
 
+def validation_study(order: str, Ns: tuple[int, ...] = (2, 4, 8, 16, 32, 64)) -> tuple[np.ndarray, ...]:
+    """The paper's validation problem q̈ + q = u, T = π, x0 = (0, 1), x1 = (0, −1) (exact q = sin t, u = 0).
+
+    Returns h, I(q_h) and ‖q − q_h‖ (‖·‖₃ cubic, ‖·‖₅ quintic), each (len(Ns),).
+    """
+    from hoc_cli.planner import plan
+    from hoc_cli.system import LinearOscillator
+
+    exact = (np.sin, np.cos, lambda t: -np.sin(t))
+    hs, Is, es = [], [], []
+    for N in Ns:
+        mesh = HermiteMesh(order, np.pi, N)  # type: ignore[arg-type]
+        r = plan(LinearOscillator(), mesh, [0.0], [1.0], [0.0], [-1.0], cost="torque")
+        hs.append(mesh.h)
+        Is.append(r.J)
+        es.append(error_norm(mesh, r.coeffs, exact))
+    return np.array(hs), np.array(Is), np.array(es)
+
+
+def check_validation() -> list[Measurement]:
+    """Paper §"Validation": I(q_h) and ‖q − q_h‖₅ "decreasing as h⁶" (quintic). We measure both orders.
+
+    Measured (N = 4…64): cubic I ~ h⁴, ‖e‖₃ ~ h⁴; quintic I ~ h⁸, ‖e‖₅ ~ h⁶. I is a squared
+    residual norm, so it converges at twice the order of the residual u = q̈_h + q_h (h² for cubic's
+    q̈, h⁴ for quintic's), which is what we see; the paper's h⁶ for I is not reproduced.
+    """
+    out = []
+    for order, eI, ee, norm in (("cubic", 4.0, 4.0, "‖e‖₃"), ("quintic", 8.0, 6.0, "‖e‖₅")):
+        h, I, e = validation_study(order)
+        out.append(Measurement(f"validation q̈+q=u, {order}: order of I(q_h), N = 4…64",
+                               convergence_order(h[1:], I[1:]), eI, 0.2,
+                               paper="h^6" if order == "quintic" else "-",
+                               note="I is a squared norm: twice the residual's order"))
+        out.append(Measurement(f"validation q̈+q=u, {order}: order of {norm}(q − q_h), N = 4…64",
+                               convergence_order(h[1:], e[1:]), ee, 0.2,
+                               paper="h^6" if order == "quintic" else "-"))
+    return out
+
+
+def check_cost_comparison() -> list[Measurement]:
+    """2-link arm (robots/two_link.urdf, configs/two_link.yaml): each optimum is best for its own cost.
+
+    Measured as the relative excess of the other optimum's cost: must be >= 0 for both.
+    """
+    from pathlib import Path
+
+    from hoc_cli.model import load_robot
+    from hoc_cli.planner import plan
+    from hoc_cli.problem import ControlProblem
+    from hoc_cli.system import RobotSystem
+
+    urdf = Path(__file__).resolve().parent.parent / "robots" / "two_link.urdf"
+    if not urdf.exists():  # installed without the repository's robots/
+        return []
+    S = RobotSystem(load_robot(urdf))
+    mesh = HermiteMesh("quintic", 1.5, 16)
+    b = ([0.0, 0.0], [0.0, 0.0], [1.2, -0.6], [0.0, 0.0])
+    sol = {c: plan(S, mesh, *b, cost=c) for c in ("covariant", "torque")}
+    out = []
+    for own, other in (("covariant", "torque"), ("torque", "covariant")):
+        P = ControlProblem(S, mesh, *b, cost=own, G=max(sol[own].G, sol[other].G))
+        J_own, J_other = (P.value(P.layout.pack(sol[k].coeffs)) for k in (own, other))
+        excess = (J_other - J_own) / J_own
+        out.append(Measurement(f"2-link arm: {own} cost of the {other} optimum, relative excess over the {own} optimum",
+                               excess, 0.0, 0.0, paper="-", note=f"J_{own}* = {J_own:.10g}", at_least=True))
+    return out
+
+
 CHECKS: dict[str, Callable[[], list[Measurement]]] = {
     "interpolation": check_interpolation,
+    "validation": check_validation,
+    "costs": check_cost_comparison,
 }
 
 

@@ -50,7 +50,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
     summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
-                                       summary=summary | {"hoc_version": __version__})
+                                       summary=_reproducible(summary))
     if as_json:
         print_json(summary)
     if show:
@@ -103,6 +103,11 @@ def summarise(task: Task, model, result: PlanResult, states) -> dict:
         "limit_violations": limit_violations(model.joint_names, model.lower, model.upper, model.velocity_limit,
                                              model.effort_limit, td, q, dq, u),
     }
+
+
+def _reproducible(summary: dict) -> dict:
+    """The summary as stored in the MCAP: without wall-clock timings, so that equal inputs give equal bytes."""
+    return {k: v for k, v in summary.items() if k not in ("wall_time_s", "outputs")} | {"hoc_version": __version__}
 
 
 def summary_table(summary: dict) -> Table:

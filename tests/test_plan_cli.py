@@ -1,0 +1,115 @@
+"""`hoc plan` end to end through the CLI: outputs, JSON summary, exit codes, warm start."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hoc_cli.cli import app
+from hoc_cli.io.csv import read_csv
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def task(tmp_path, monkeypatch):
+    shutil.copy(ROOT / "robots" / "two_link.urdf", tmp_path / "two_link.urdf")
+    text = (ROOT / "configs" / "two_link.yaml").read_text().replace("../robots/two_link.urdf", "two_link.urdf")
+    text = text.replace("N: 16", "N: 8")
+    p = tmp_path / "arm.yaml"
+    p.write_text(text)
+    monkeypatch.chdir(tmp_path)
+    return p
+
+
+def invoke(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_plan_writes_csv_and_mcap_and_a_json_summary(task, tmp_path):
+    r = invoke("plan", task, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    for key in ("cost", "converged", "iterations", "grad_norm", "wall_time_s", "joints", "N", "order", "T",
+                "boundary_error", "max_abs_u", "limit_violations", "outputs"):
+        assert key in s
+    assert s["converged"] is True and s["joints"] == ["shoulder", "elbow"] and s["N"] == 8
+    assert s["boundary_error"] <= 1e-12
+    assert sorted(s["outputs"]) == ["arm.csv", "arm.mcap"]
+    assert (tmp_path / "arm.csv").exists() and (tmp_path / "arm.mcap").exists()
+
+
+def test_csv_torque_equals_pinocchio_rnea_of_the_csv_motion_and_boundaries_are_exact(task, tmp_path):
+    pin = pytest.importorskip("pinocchio")
+    assert invoke("plan", task, "-o", "arm.csv", "-q").exit_code == 0
+    tr = read_csv(tmp_path / "arm.csv")
+    model = pin.buildModelFromUrdf(str(tmp_path / "two_link.urdf"))
+    data = model.createData()
+    names = [model.names[i] for i in range(1, model.njoints)]
+    idx = [names.index(j) for j in tr.joints]
+    for k in range(0, tr.K, 7):
+        q, v, a = (np.zeros(model.nq) for _ in range(3))
+        q[idx], v[idx], a[idx] = tr.q[k], tr.dq[k], tr.ddq[k]
+        tau = pin.rnea(model, data, q, v, a)[idx]
+        np.testing.assert_allclose(tr.u[k], tau, rtol=1e-10, atol=1e-10 * np.abs(tau).max())
+    np.testing.assert_allclose(tr.q[0], [0, 0], atol=1e-12)
+    np.testing.assert_allclose(tr.q[-1], [1.2, -0.6], atol=1e-12)
+    np.testing.assert_allclose(tr.dq[[0, -1]], 0, atol=1e-12)
+    assert tr.t[-1] == 1.5 and tr.K == 151
+
+
+def test_dash_streams_csv_to_stdout_and_nothing_else(task, tmp_path):
+    r = invoke("plan", task, "-o", "-", "-q")
+    assert r.exit_code == 0
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith("t,q.shoulder,q.elbow,dq.shoulder")
+    assert len(lines) == 152
+    assert r.stderr == ""
+    assert not list(tmp_path.glob("*.csv")) and not list(tmp_path.glob("*.mcap"))
+
+
+def test_quiet_prints_nothing_on_stderr(task):
+    r = invoke("plan", task, "-q", "--progress")
+    assert r.exit_code == 0 and r.stderr == ""
+
+
+def test_hitting_max_iter_writes_the_best_iterate_marked_unconverged_and_exits_1(task, tmp_path):
+    r = invoke("plan", task, "--max-iter", "1", "--json")
+    assert r.exit_code == 1
+    s = json.loads(r.stdout)
+    assert s["converged"] is False and s["status"] == "max_iter" and s["iterations"] == 1
+    assert (tmp_path / "arm.csv").exists()
+
+
+def test_same_inputs_give_byte_identical_csv_and_mcap(task, tmp_path):
+    assert invoke("plan", task, "-o", "a.csv", "-o", "a.mcap", "-q").exit_code == 0
+    assert invoke("plan", task, "-o", "b.csv", "-o", "b.mcap", "-q").exit_code == 0
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+
+
+def test_warm_start_from_a_converged_plan_needs_no_iterations(task, tmp_path):
+    assert invoke("plan", task, "-o", "first.mcap", "-q").exit_code == 0
+    r = invoke("plan", task, "--init", "first.mcap", "-o", "second.csv", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["iterations"] <= 1
+
+
+def test_warm_start_resamples_a_plan_with_another_number_of_elements(task, tmp_path):
+    assert invoke("plan", task, "-o", "coarse.mcap", "-q", "-N", "4").exit_code == 0
+    r = invoke("plan", task, "--init", "coarse.mcap", "-o", "fine.csv", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["converged"] is True
+
+
+def test_json_and_csv_on_stdout_together_is_a_usage_error(task):
+    r = invoke("plan", task, "--json", "-o", "-")
+    assert r.exit_code == 2 and "--output" in r.stderr
+
+
+@pytest.mark.parametrize("out,needle", [("nodir/x.csv", "does not exist"), ("x.txt", "unknown output extension")])
+def test_bad_output_paths_exit_2_before_any_work(task, tmp_path, out, needle):
+    r = invoke("plan", task, "-o", out)
+    assert r.exit_code == 2 and needle in r.stderr
+    assert not list(tmp_path.glob("*.csv"))
