@@ -23,7 +23,7 @@ Q0 = math.pi / 12
 pytestmark = pytest.mark.skipif(not PENDULUM.exists(), reason="robots/pendulum.urdf not present yet")
 
 
-def invoke(*args, cwd=None):
+def invoke(*args):
     return CliRunner().invoke(app, ["simulate", *map(str, args)])
 
 

@@ -45,7 +45,7 @@ from hoc_cli.commands.common import (
     print_json,
     stderr_console,
 )
-from hoc_cli.errors import HocError, InputFileError, OutputError, TaskError
+from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.task import Task, apply_overrides, load_task, parse_task, resolve
 
 METHODS = ("hermite", "rk")
