@@ -41,6 +41,8 @@ from .model.tree import RobotModel
 
 #: samples processed together by the derivative kernels (bounds the (6, 3n, K) tangent arrays)
 CHUNK = 512
+#: samples processed together by the reverse (vector-Jacobian) sweep
+VJP_CHUNK = 2048
 
 
 # --------------------------------------------------------------------------- input checking
@@ -377,9 +379,89 @@ def _tangent(model: RobotModel, P: _Pass, blocks: tuple[str, ...]) -> np.ndarray
     return dtau
 
 
-def _chunks(K: int):
-    for start in range(0, K, CHUNK):
-        yield slice(start, min(K, start + CHUNK))
+def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Reverse-mode sweep of :func:`_rnea` (its adjoint): (λᵀ ∂τ/∂q, λᵀ ∂τ/∂q̇), each (n, K);
+    the second is None when the nominal pass had no velocity.
+
+    Sweep 1 (root to leaves) carries the force adjoints F̄_i = s_i λ_i + X_iᵀ-transposed F̄_parent
+    (a motion-like vector); sweep 2 (leaves to root) carries the adjoints of each body's velocity
+    and acceleration, through f = I a + v ×* (I v) and the joint terms, accumulating ∂/∂q_i where
+    the joint's rotation (or shift) appears and ∂/∂q̇_i where q̇_i does.
+    """
+    Cst = _consts(model)
+    n, K = P.q.shape
+    has_v = P.dq is not None
+    gq = np.zeros((n, K))
+    gdq = np.zeros((n, K)) if has_v else None
+    Fb = [None] * n
+    for i in Cst.order:
+        p = Cst.parent[i]
+        t = Cst.part[i]
+        if p < 0:
+            b = np.zeros((3, 2, K))
+        else:
+            y = _mm(Cst.X[i], Fb[p])
+            fo = P.RF[i]
+            if Cst.prism[i]:
+                gq[i] += y[1, 0] * fo[0, 1] - y[0, 0] * fo[1, 1]
+                b = y
+                _shift_in(b, P.q[i])
+            else:
+                gq[i] += (y[1] * fo[0] - y[0] * fo[1]).sum(axis=0)
+                b = y
+                _rot_in(b, P.c[i], P.s[i])
+        b[2, t] += lam[i]
+        Fb[i] = b
+    Wb = [None] * n  # adjoint of (v, a) of each body, (3, 2, 2, K), from its children
+    for i in reversed(Cst.order):
+        t = Cst.part[i]
+        fb = Fb[i].reshape(6, K)
+        Y = Cst.IS[i].T @ fb  # (I f̄, Sᵀ f̄)
+        ab = Y[:6].reshape(3, 2, K)
+        mb = np.zeros((3, 2, 2, K))
+        if has_v:
+            G = P.G[i]
+            g = Y[6:].reshape(3, 3, K)
+            Z = np.empty((18, K))
+            _cross(G[1], g, out=Z[:9].reshape(3, 3, K))
+            _cross(g, G[0], out=Z[9:].reshape(3, 3, K))
+            mb[:, :, 0] = (Cst.AB[i].T @ Z).reshape(3, 2, K)
+        mb[:, :, 1] = ab
+        if Wb[i] is not None:
+            mb += Wb[i]
+        vb = mb[:, :, 0]
+        ab = mb[:, :, 1]
+        mc = P.Wc[i]
+        if has_v:
+            w = P.dq[i]
+            v = P.W[i][:, :, 0]
+            if Cst.prism[i]:
+                gdq[i] += ab[0, 1] * v[1, 0] - ab[1, 1] * v[0, 0] + vb[2, 1]
+                vb[0, 0] -= w * ab[1, 1]
+                vb[1, 0] += w * ab[0, 1]
+            else:
+                gdq[i] += (ab[0] * v[1] - ab[1] * v[0]).sum(axis=0) + vb[2, 0]
+                vb[0] -= w * ab[1]
+                vb[1] += w * ab[0]
+        if Cst.prism[i]:
+            gq[i] += (mb[0, 1] * mc[1, 0] - mb[1, 1] * mc[0, 0]).sum(axis=0)
+            r = _shift_out(mb, P.q[i])
+        else:
+            gq[i] += (mb[0] * mc[1] - mb[1] * mc[0]).sum(axis=(0, 1))
+            r = _rot_out(mb, P.c[i], P.s[i])
+        p = Cst.parent[i]
+        if p >= 0:
+            contribution = _mm(Cst.X[i].T, r)
+            if Wb[p] is None:
+                Wb[p] = contribution
+            else:
+                Wb[p] += contribution
+    return gq, gdq
+
+
+def _chunks(K: int, size: int = CHUNK):
+    for start in range(0, K, size):
+        yield slice(start, min(K, start + size))
 
 
 # --------------------------------------------------------------------------- public kernels
@@ -485,13 +567,12 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
     u = np.empty((K, n))
     gq = np.empty((K, n))
     gdq = np.empty((K, n))
-    for sl in _chunks(K):
+    for sl in _chunks(K, VJP_CHUNK):
         P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
-        dtau = _tangent(model, P, ("q", "dq"))
-        g = np.einsum("ik,ibdk->bdk", lT[:, sl], dtau)
+        gqT, gdqT = _vjp(model, P, lT[:, sl])
         u[sl] = P.tau.T
-        gq[sl] = g[0].T
-        gdq[sl] = g[1].T
+        gq[sl] = gqT.T
+        gdq[sl] = gdqT.T
     return tuple(_shape_out(x, one_d) for x in (u, gq, gdq))
 
 
@@ -502,10 +583,9 @@ def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
     """
     (qT, vT), K, one_d = _inputs(model, q=q, v=v)
     out = np.empty((K, model.n))
-    for sl in _chunks(K):
+    for sl in _chunks(K, VJP_CHUNK):
         P = _rnea(model, qT[:, sl], None, vT[:, sl], False, keep=True)
-        dtau = _tangent(model, P, ("q",))
-        out[sl] = np.einsum("ik,idk->kd", vT[:, sl], dtau[:, 0])
+        out[sl] = _vjp(model, P, vT[:, sl])[0].T
     return _shape_out(out, one_d)
 
 

@@ -136,14 +136,16 @@ def test_inverse_dynamics_without_gravity_drops_exactly_the_gravity_torques():
     np.testing.assert_allclose(D.gravity_forces(model, q), g, atol=1e-12)
 
 
-@pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "kinova (continuous joints)"])
-def test_vector_jacobian_products_contract_the_derivative_matrices(case):
+@pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "kinova (continuous joints)",
+                                  "panda with a prismatic finger, reordered"])
+@pytest.mark.parametrize("gravity", [True, False])
+def test_vector_jacobian_products_contract_the_derivative_matrices(case, gravity):
     model = model_of(case)
     rng = np.random.default_rng(10)
     q, dq, ddq = random_state(rng, 5, model.n)
     lam = rng.standard_normal(q.shape)
-    u, du_dq, du_ddq, _ = D.id_derivatives(model, q, dq, ddq, gravity=False)
-    u2, gq, gdq = D.id_vjp(model, q, dq, ddq, lam, gravity=False)
+    u, du_dq, du_ddq, _ = D.id_derivatives(model, q, dq, ddq, gravity=gravity)
+    u2, gq, gdq = D.id_vjp(model, q, dq, ddq, lam, gravity=gravity)
     np.testing.assert_allclose(u2, u, atol=1e-12)
     np.testing.assert_allclose(gq, np.einsum("ki,kij->kj", lam, du_dq), atol=1e-10)
     np.testing.assert_allclose(gdq, np.einsum("ki,kij->kj", lam, du_ddq), atol=1e-10)
