@@ -148,10 +148,53 @@ def check_cost_comparison() -> list[Measurement]:
     return out
 
 
+PAPER_PERIOD = 2.03452  # s, printed in the paper's pendulum example (N = 35 cubic elements)
+
+
+def check_pendulum() -> list[Measurement]:
+    """Paper §"Motion Simulations, Example": the pendulum's period from the Hermite integrator.
+
+    robots/pendulum.urdf (ω = √(g/l) = 3.102 s⁻¹), q(0) = π/12, q̇(0) = 0, no torque. Exact period
+    τ = (4/ω) K(k), k = sin(q0/2), K the complete elliptic integral of the first kind
+    (scipy.special.ellipk takes m = k²). The paper prints 2.03452 s, which its own formula does not give.
+    """
+    import math
+    from pathlib import Path
+
+    from scipy.special import ellipk
+
+    from hoc_cli.model import load_robot
+    from hoc_cli.simulate import oscillation_period, simulate_hermite, zero_torque
+    from hoc_cli.system import RobotSystem
+
+    urdf = Path(__file__).resolve().parent.parent / "robots" / "pendulum.urdf"
+    if not urdf.exists():
+        return []
+    S = RobotSystem(load_robot(urdf))
+    q0 = math.pi / 12
+    # ω² = (∂g/∂q)(0) / M(0) from the model itself: gravity torque slope at the bottom over the inertia
+    eps = 1e-6
+    g_slope = (S.inverse_dynamics(np.array([[eps]]), np.zeros((1, 1)), np.zeros((1, 1)))[0, 0]
+               - S.inverse_dynamics(np.array([[-eps]]), np.zeros((1, 1)), np.zeros((1, 1)))[0, 0]) / (2 * eps)
+    omega = math.sqrt(g_slope / S.mass_matrix(np.zeros((1, 1)))[0, 0, 0])
+    tau = 4.0 / omega * float(ellipk(math.sin(q0 / 2) ** 2))
+    out = []
+    for order, N in (("quintic", 60), ("cubic", 35)):
+        mesh = HermiteMesh(order, 1.25 * tau, N)  # type: ignore[arg-type]
+        sim = simulate_hermite(S, np.array([q0]), np.array([0.0]), zero_torque(1), mesh)
+        period = oscillation_period(sim.mesh, sim.coeffs)
+        tol = 1e-10 if order == "quintic" else 1e-5
+        out.append(Measurement(f"pendulum period, {order} N = {N}: |τ_h − τ|/τ (τ_h = {period:.15g} s, "
+                               f"exact τ = {tau:.15g} s, ω = {omega:.7g})", abs(period - tau) / tau, 0.0, tol,
+                               paper=f"{PAPER_PERIOD} s", note="paper: 'machine precision' with cubic N = 35"))
+    return out
+
+
 CHECKS: dict[str, Callable[[], list[Measurement]]] = {
     "interpolation": check_interpolation,
     "validation": check_validation,
     "costs": check_cost_comparison,
+    "pendulum": check_pendulum,
 }
 
 

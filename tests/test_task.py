@@ -118,3 +118,13 @@ def test_missing_task_file_exits_2_naming_the_file(tmp_path):
 def test_cli_override_with_invalid_value_exits_2(taskdir):
     result = CliRunner().invoke(app, ["plan", str(write(taskdir, GOOD)), "-N", "0"])
     assert result.exit_code == 2 and "--elements: expected an integer >= 1" in result.stderr
+
+
+def test_exponent_floats_without_a_dot_are_numbers(taskdir):
+    task = load_task(write(taskdir, GOOD + "solver: {tol: 1e-8, max_iter: 100}\n"))
+    assert task.tol == 1e-8
+
+
+def test_yaml_tags_that_construct_python_objects_are_rejected(taskdir):
+    with pytest.raises(TaskError, match="invalid YAML"):
+        load_task(write(taskdir, GOOD + "x: !!python/object/apply:os.system ['true']\n"))

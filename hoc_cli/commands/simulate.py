@@ -46,7 +46,7 @@ from hoc_cli.commands.common import (
     stderr_console,
 )
 from hoc_cli.errors import InputFileError, OutputError, TaskError
-from hoc_cli.io.task import Task, apply_overrides, load_task, parse_task, resolve
+from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve
 
 METHODS = ("hermite", "rk")
 
@@ -176,7 +176,7 @@ def _task_from_plan(plan, source: Path, scratch: Path) -> Task:
     urdf = scratch / "robot.urdf"
     urdf.write_text(plan.urdf_text, encoding="utf-8")
     try:
-        doc = yaml.safe_load(plan.task_text)
+        doc = load_yaml(plan.task_text)
     except yaml.YAMLError:
         raise InputFileError("the task attached to this plan is not valid YAML", file=source) from None
     if not isinstance(doc, dict):

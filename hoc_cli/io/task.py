@@ -7,6 +7,7 @@ See SPEC.md "Task file" and the README's task-file reference for every key.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -29,6 +30,22 @@ DEFAULT_MAX_ITER = 5000
 DEFAULT_RATE = 100.0
 
 Values = list[float] | dict[str, float]
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.1 safe loader that also reads YAML 1.2 floats such as ``1e-10`` (PyYAML reads them as strings)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def load_yaml(text: str):
+    """Parse YAML text safely (no object construction), with YAML 1.2 exponent floats."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
 
 
 @dataclass(frozen=True)
@@ -166,7 +183,7 @@ def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
     except (OSError, UnicodeDecodeError) as exc:
         raise TaskError(f"cannot be read as UTF-8 text ({exc.__class__.__name__})", file=path) from None
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
