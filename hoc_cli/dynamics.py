@@ -22,13 +22,18 @@ X      (6, 6) Plücker transform of a joint's constant part (``model.tree_motion
 
 Implementation. Every joint moves about or along its body's local z axis (see
 :mod:`hoc_cli.model.tree`), so the q-dependent part of a joint transform is a plane rotation of
-x/y components (cos, sin of q) or a shift along z. Internally arrays are stored *sample axis last*
-(``(6, K)`` per body, components as rows) so that each numpy operation streams over K contiguous
-values and the constant 6 × 6 transforms and inertias apply as one BLAS product ``(6, 6) @ (6, K)``;
-the only Python loops are over bodies. Derivatives are computed by forward-mode differentiation of
-the same recursion, with all 3n tangent directions (∂/∂q, ∂/∂q̇, ∂/∂q̈) carried together in a
-``(6, D, K)`` array; the ∂/∂q̈ block is the mass matrix. The algorithm is the recursive
-Newton-Euler algorithm as described by Featherstone, *Rigid Body Dynamics Algorithms* (2008), ch. 5.
+the x/y components (cos q, sin q) or a shift along z. Internally arrays are stored *sample axis
+last*, as ``(3, 2, ..., K)`` (x/y/z × angular/linear × channels × samples), so that each numpy
+operation streams over K contiguous values and the constant 6 × 6 transforms and inertias apply as
+one BLAS product ``(6, 6) @ (6, ·)``; the only Python loops are over bodies.
+
+* ``inverse_dynamics``: the recursive Newton-Euler algorithm (Featherstone, *Rigid Body Dynamics
+  Algorithms*, 2008, ch. 5), velocity and acceleration carried together.
+* ``mass_matrix``: the same recursion applied to the n unit accelerations at once (gravity and
+  velocity off), each body carrying only the columns of its ancestors.
+* ``id_vjp``, ``mass_quadratic_grad``: one reverse (adjoint) sweep of the recursion, O(n) per
+  sample; ``id_derivatives``: the same sweep seeded with the n unit vectors, giving ∂u/∂q, ∂u/∂q̇
+  and ∂u/∂q̈ = M row by row.
 """
 from __future__ import annotations
 
@@ -209,7 +214,7 @@ class _Pass:
 
 def _rnea(model: RobotModel, q, dq, ddq, gravity: bool, keep: bool = False) -> _Pass:
     """Recursive Newton-Euler on (n, K) arrays; ``dq`` may be None (zero velocity), ``ddq`` None
-    (zero acceleration). ``keep`` stores what :func:`_tangent` needs."""
+    (zero acceleration). ``keep`` stores what the adjoint sweep :func:`_vjp` needs."""
     C = _consts(model)
     n, K = q.shape
     P = _Pass()
@@ -269,180 +274,131 @@ def _rnea(model: RobotModel, q, dq, ddq, gravity: bool, keep: bool = False) -> _
     return P
 
 
-def _tangent(model: RobotModel, P: _Pass, blocks: tuple[str, ...]) -> np.ndarray:
-    """Forward-mode derivative of :func:`_rnea` along the unit directions of the listed blocks
-    (``'q'``, ``'dq'``, ``'ddq'``; n directions each). Returns dτ (n, nb, n, K): dτ[i, b, j] =
-    ∂τ_i/∂(block b)_j.
+def _mass_columns(model: RobotModel, q, c, s) -> np.ndarray:
+    """Mass matrix by propagating the n unit accelerations q̈ = e_j together (no velocity, no
+    gravity): the Newton-Euler response to e_j is column j of M. Returns M as (n, n, K).
 
-    Tangent arrays are (3, 2, C, nb, Na, K): C channels (velocity, acceleration; the velocity
-    channel is dropped when it is identically zero), nb blocks and, in the forward sweep, only the
-    Na ancestors of the body (a joint moves only its subtree).
+    The forward sweep carries, for each body, only the columns of its ancestors (a joint
+    accelerates only its subtree): arrays (3, 2, Na, K); the backward sweep carries all n.
     """
     Cst = _consts(model)
-    n, K = P.q.shape
-    nb = len(blocks)
-    bq = blocks.index("q") if "q" in blocks else None
-    bv = blocks.index("dq") if "dq" in blocks else None
-    ba = blocks.index("ddq") if "ddq" in blocks else None
-    has_v = P.dq is not None
-    if bv is not None and not has_v:
-        raise ValueError("derivatives with respect to dq need a velocity (pass zeros)")
-    C = 2 if has_v else 1
-    acc = C - 1
-    dW = [None] * n
-    df = [None] * n
+    n, K = q.shape
+    dA = [None] * n
     for i in Cst.order:
         p = Cst.parent[i]
         Na = len(Cst.anc[i])
-        slot = Na - 1
-        dm = np.empty((3, 2, C, nb, Na, K))
-        dm[..., slot, :] = 0.0
+        a = np.empty((3, 2, Na, K))
+        a[:, :, Na - 1] = 0.0
         if p >= 0:
-            dm[..., :slot, :] = _mm(Cst.X[i], dW[p])
+            a[:, :, :Na - 1] = _mm(Cst.X[i], dA[p])
             if Cst.prism[i]:
-                _shift_in(dm, P.q[i])
+                _shift_in(a, q[i])
             else:
-                _rot_in(dm, P.c[i], P.s[i])
-        t = Cst.part[i]
-        if bq is not None:
-            mc = P.Wc[i] if C == 2 else P.Wc[i][:, :, 1:]
-            if Cst.prism[i]:
-                dm[0, 1, :, bq, slot] += mc[1, 0]
-                dm[1, 1, :, bq, slot] -= mc[0, 0]
-            else:
-                dm[0, :, :, bq, slot] += mc[1]
-                dm[1, :, :, bq, slot] -= mc[0]
-        if has_v:
-            w = P.dq[i]
-            v = P.W[i][:, :, 0]
-            if Cst.prism[i]:
-                dm[0, 1, 1] += w * dm[1, 0, 0]
-                dm[1, 1, 1] -= w * dm[0, 0, 0]
-            else:
-                dm[0, :, 1] += w * dm[1, :, 0]
-                dm[1, :, 1] -= w * dm[0, :, 0]
-        if bv is not None:
-            if has_v:
-                if Cst.prism[i]:
-                    dm[0, 1, 1, bv, slot] += v[1, 0]
-                    dm[1, 1, 1, bv, slot] -= v[0, 0]
-                else:
-                    dm[0, :, 1, bv, slot] += v[1]
-                    dm[1, :, 1, bv, slot] -= v[0]
-            dm[2, t, 0, bv, slot] += 1.0
-        if ba is not None:
-            dm[2, t, acc, ba, slot] += 1.0
-        dW[i] = dm
-        D = nb * Na
-        dm6 = dm.reshape(6, C, D * K)
-        if has_v:
-            dG = (Cst.AB[i] @ dm6[:, 0]).reshape(2, 3, 3, D, K)
-            G = P.G[i][:, :, :, None, :]
-            U = np.empty((15, D, K))
-            U[:6] = dm6[:, 1].reshape(6, D, K)
-            t = _cross(dG[0], G[1], out=U[6:].reshape(3, 3, D, K))
-            t += _cross(G[0], dG[1])
-            dfi = Cst.IS[i] @ U.reshape(15, D * K)
-        else:
-            dfi = Cst.I[i] @ dm6[:, 0]
-        df[i] = dfi.reshape(3, 2, nb, Na, K)
-    dtau = np.empty((n, nb, n, K))
-    G = [None] * n
+                _rot_in(a, c[i], s[i])
+        a[2, Cst.part[i], Na - 1] += 1.0
+        dA[i] = a
+    M = np.empty((n, n, K))
+    F = [None] * n
     for i in reversed(Cst.order):
-        idx = Cst.anc_index[i]
-        if G[i] is None:
-            G[i] = np.zeros((3, 2, nb, n, K))
-        G[i][:, :, :, idx] += df[i]
-        Gi = G[i]
-        t = Cst.part[i]
-        dtau[i] = Gi[2, t]
+        f = (Cst.I[i] @ dA[i].reshape(6, -1)).reshape(dA[i].shape)
+        if F[i] is None:
+            F[i] = np.zeros((3, 2, n, K))
+        F[i][:, :, Cst.anc_index[i]] += f
+        M[i] = F[i][2, Cst.part[i]]
         p = Cst.parent[i]
-        if p < 0:
-            continue
-        if Cst.prism[i]:
-            r = _shift_out(Gi, P.q[i])
-        else:
-            r = _rot_out(Gi, P.c[i], P.s[i])
-        if bq is not None:
-            fo = P.RF[i]
-            if Cst.prism[i]:
-                r[0, 0, bq, i] -= fo[1, 1]
-                r[1, 0, bq, i] += fo[0, 1]
+        if p >= 0:
+            r = _shift_out(F[i], q[i]) if Cst.prism[i] else _rot_out(F[i], c[i], s[i])
+            contribution = _mm(Cst.XT[i], r)
+            if F[p] is None:
+                F[p] = contribution
             else:
-                r[0, :, bq, i] -= fo[1]
-                r[1, :, bq, i] += fo[0]
-        contribution = _mm(Cst.XT[i], r)
-        if G[p] is None:
-            G[p] = contribution
-        else:
-            G[p] += contribution
-    return dtau
+                F[p] += contribution
+    return M
 
 
-def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """Reverse-mode sweep of :func:`_rnea` (its adjoint): (λᵀ ∂τ/∂q, λᵀ ∂τ/∂q̇), each (n, K);
-    the second is None when the nominal pass had no velocity.
+def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray | None):
+    """Reverse-mode sweep of :func:`_rnea` (its adjoint) for S weight vectors at once.
 
-    Sweep 1 (root to leaves) carries the force adjoints F̄_i = s_i λ_i + X_iᵀ-transposed F̄_parent
-    (a motion-like vector); sweep 2 (leaves to root) carries the adjoints of each body's velocity
-    and acceleration, through f = I a + v ×* (I v) and the joint terms, accumulating ∂/∂q_i where
-    the joint's rotation (or shift) appears and ∂/∂q̇_i where q̇_i does.
+    Args:
+        lam: (n, S, K) weights λ (S "seeds"), or None for the n unit seeds λ = e_j (full
+            Jacobians; then sweep 1 only carries each body's ancestors, the only nonzero seeds).
+    Returns:
+        (gq, gdq, gddq), each (n, S, K): ``gq[j, s] = λ_sᵀ ∂τ/∂q_j``; likewise ∂/∂q̇ (None without
+        nominal velocity) and ∂/∂q̈ (= (M λ_s)_j).
+
+    Sweep 1 (root to leaves) carries the force adjoints F̄_i = s_i λ_i + (the parent's F̄ moved
+    into body i), motion-like vectors; sweep 2 (leaves to root) carries the adjoints of each body's
+    velocity and acceleration back through f = I a + v ×* (I v) and the joint terms, accumulating
+    ∂/∂q_i wherever the joint's rotation (or shift) acts and ∂/∂q̇_i, ∂/∂q̈_i where they enter.
     """
     Cst = _consts(model)
     n, K = P.q.shape
+    unit = lam is None
+    S = n if unit else lam.shape[1]
     has_v = P.dq is not None
-    gq = np.zeros((n, K))
-    gdq = np.zeros((n, K)) if has_v else None
-    Fb = [None] * n
+    gq = np.zeros((n, S, K))
+    gdq = np.empty((n, S, K)) if has_v else None
+    gddq = np.empty((n, S, K))
+    Fb = [None] * n  # (3, 2, Na or S, K)
     for i in Cst.order:
         p = Cst.parent[i]
         t = Cst.part[i]
+        Na = len(Cst.anc[i]) if unit else S
+        b = np.empty((3, 2, Na, K))
         if p < 0:
-            b = np.zeros((3, 2, K))
+            b[...] = 0.0
         else:
-            y = _mm(Cst.X[i], Fb[p])
-            fo = P.RF[i]
+            y = b[:, :, :Na - 1] if unit else b
+            y[...] = _mm(Cst.X[i], Fb[p])
+            fo = P.RF[i][:, :, None, :]
+            cols = Cst.anc_index[p] if unit else slice(None)
             if Cst.prism[i]:
-                gq[i] += y[1, 0] * fo[0, 1] - y[0, 0] * fo[1, 1]
-                b = y
+                gq[i, cols] += y[1, 0] * fo[0, 1] - y[0, 0] * fo[1, 1]
+            else:
+                gq[i, cols] += (y[1] * fo[0] - y[0] * fo[1]).sum(axis=0)
+            if unit:
+                b[:, :, Na - 1] = 0.0
+            if Cst.prism[i]:
                 _shift_in(b, P.q[i])
             else:
-                gq[i] += (y[1] * fo[0] - y[0] * fo[1]).sum(axis=0)
-                b = y
                 _rot_in(b, P.c[i], P.s[i])
-        b[2, t] += lam[i]
+        if unit:
+            b[2, t, Na - 1] += 1.0
+        else:
+            b[2, t] += lam[i]
         Fb[i] = b
-    Wb = [None] * n  # adjoint of (v, a) of each body, (3, 2, 2, K), from its children
+    Wb = [None] * n  # adjoint of (v, a) of each body, (3, 2, 2, S, K), from its children
     for i in reversed(Cst.order):
         t = Cst.part[i]
-        fb = Fb[i].reshape(6, K)
-        Y = Cst.IS[i].T @ fb  # (I f̄, Sᵀ f̄)
-        ab = Y[:6].reshape(3, 2, K)
-        mb = np.zeros((3, 2, 2, K))
+        Na = Fb[i].shape[2]
+        Y = Cst.IS[i].T @ Fb[i].reshape(6, Na * K)  # (I f̄, Sᵀ f̄)
+        mb = Wb[i]
+        if mb is None:
+            mb = np.zeros((3, 2, 2, S, K))
+        cols = Cst.anc_index[i] if unit else slice(None)
         if has_v:
-            G = P.G[i]
-            g = Y[6:].reshape(3, 3, K)
-            Z = np.empty((18, K))
-            _cross(G[1], g, out=Z[:9].reshape(3, 3, K))
-            _cross(g, G[0], out=Z[9:].reshape(3, 3, K))
-            mb[:, :, 0] = (Cst.AB[i].T @ Z).reshape(3, 2, K)
-        mb[:, :, 1] = ab
-        if Wb[i] is not None:
-            mb += Wb[i]
+            G = P.G[i][:, :, :, None, :]
+            g = Y[6:].reshape(3, 3, Na, K)
+            Z = np.empty((18, Na, K))
+            _cross(G[1], g, out=Z[:9].reshape(3, 3, Na, K))
+            _cross(g, G[0], out=Z[9:].reshape(3, 3, Na, K))
+            mb[:, :, 0, cols] += (Cst.AB[i].T @ Z.reshape(18, Na * K)).reshape(3, 2, Na, K)
+        mb[:, :, 1, cols] += Y[:6].reshape(3, 2, Na, K)
         vb = mb[:, :, 0]
         ab = mb[:, :, 1]
-        mc = P.Wc[i]
+        gddq[i] = ab[2, t]
         if has_v:
             w = P.dq[i]
-            v = P.W[i][:, :, 0]
+            v = P.W[i][:, :, 0, None, :]
             if Cst.prism[i]:
-                gdq[i] += ab[0, 1] * v[1, 0] - ab[1, 1] * v[0, 0] + vb[2, 1]
+                gdq[i] = ab[0, 1] * v[1, 0] - ab[1, 1] * v[0, 0] + vb[2, 1]
                 vb[0, 0] -= w * ab[1, 1]
                 vb[1, 0] += w * ab[0, 1]
             else:
-                gdq[i] += (ab[0] * v[1] - ab[1] * v[0]).sum(axis=0) + vb[2, 0]
+                gdq[i] = (ab[0] * v[1] - ab[1] * v[0]).sum(axis=0) + vb[2, 0]
                 vb[0] -= w * ab[1]
                 vb[1] += w * ab[0]
+        mc = P.Wc[i][:, :, :, None, :]
         if Cst.prism[i]:
             gq[i] += (mb[0, 1] * mc[1, 0] - mb[1, 1] * mc[0, 0]).sum(axis=0)
             r = _shift_out(mb, P.q[i])
@@ -451,12 +407,12 @@ def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray) -> tuple[np.ndarray, np.n
             r = _rot_out(mb, P.c[i], P.s[i])
         p = Cst.parent[i]
         if p >= 0:
-            contribution = _mm(Cst.X[i].T, r)
+            contribution = _mm(Cst.XT[i], r)
             if Wb[p] is None:
                 Wb[p] = contribution
             else:
                 Wb[p] += contribution
-    return gq, gdq
+    return gq, gdq, gddq
 
 
 def _chunks(K: int, size: int = CHUNK):
@@ -503,12 +459,8 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
     (qT,), K, one_d = _inputs(model, q=q)
     out = np.empty((K, model.n, model.n))
     for sl in _chunks(K):
-        P = _Pass()
-        P.q = qT[:, sl]
-        P.dq = None
-        P.c, P.s = _cos_sin(P.q)
-        dtau = _tangent(model, P, ("ddq",))  # no velocity, no q-block: needs no nominal pass
-        out[sl] = np.transpose(dtau[:, 0], (2, 0, 1))
+        qs = qT[:, sl]
+        out[sl] = np.transpose(_mass_columns(model, qs, *_cos_sin(qs)), (2, 0, 1))
     return _shape_out(out, one_d)
 
 
@@ -546,11 +498,11 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     M = np.empty((K, n, n))
     for sl in _chunks(K):
         P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
-        dtau = _tangent(model, P, ("q", "dq", "ddq"))
+        gq, gdq, gddq = _vjp(model, P, None)  # [j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
         u[sl] = P.tau.T
-        du_dq[sl] = np.transpose(dtau[:, 0], (2, 0, 1))
-        du_ddq[sl] = np.transpose(dtau[:, 1], (2, 0, 1))
-        M[sl] = np.transpose(dtau[:, 2], (2, 0, 1))
+        du_dq[sl] = np.transpose(gq, (2, 1, 0))
+        du_ddq[sl] = np.transpose(gdq, (2, 1, 0))
+        M[sl] = np.transpose(gddq, (2, 1, 0))
     return tuple(_shape_out(x, one_d) for x in (u, du_dq, du_ddq, M))
 
 
@@ -569,7 +521,8 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
     gdq = np.empty((K, n))
     for sl in _chunks(K, VJP_CHUNK):
         P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
-        gqT, gdqT = _vjp(model, P, lT[:, sl])
+        gqT, gdqT, _ = _vjp(model, P, lT[:, None, sl])
+        gqT, gdqT = gqT[:, 0], gdqT[:, 0]
         u[sl] = P.tau.T
         gq[sl] = gqT.T
         gdq[sl] = gdqT.T
@@ -585,7 +538,7 @@ def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
     out = np.empty((K, model.n))
     for sl in _chunks(K, VJP_CHUNK):
         P = _rnea(model, qT[:, sl], None, vT[:, sl], False, keep=True)
-        out[sl] = _vjp(model, P, vT[:, sl])[0].T
+        out[sl] = _vjp(model, P, vT[:, None, sl])[0][:, 0].T
     return _shape_out(out, one_d)
 
 
