@@ -44,10 +44,10 @@ import numpy as np
 
 from .model.tree import RobotModel
 
-#: samples processed together by the derivative kernels (bounds the (6, 3n, K) tangent arrays)
-CHUNK = 512
-#: samples processed together by the reverse (vector-Jacobian) sweep
-VJP_CHUNK = 2048
+#: samples processed together (bounds the temporaries; tuned on a 7-DOF arm, 2-core x86 machine)
+DERIV_CHUNK = 256   # id_derivatives: (3, 2, 2, n, K) adjoints per body
+MASS_CHUNK = 1024   # mass_matrix: (3, 2, n, K) columns per body
+VJP_CHUNK = 2048    # id_vjp, mass_quadratic_grad: one seed
 
 
 # --------------------------------------------------------------------------- input checking
@@ -415,7 +415,7 @@ def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray | None):
     return gq, gdq, gddq
 
 
-def _chunks(K: int, size: int = CHUNK):
+def _chunks(K: int, size: int):
     for start in range(0, K, size):
         yield slice(start, min(K, start + size))
 
@@ -458,7 +458,7 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
     """
     (qT,), K, one_d = _inputs(model, q=q)
     out = np.empty((K, model.n, model.n))
-    for sl in _chunks(K):
+    for sl in _chunks(K, MASS_CHUNK):
         qs = qT[:, sl]
         out[sl] = np.transpose(_mass_columns(model, qs, *_cos_sin(qs)), (2, 0, 1))
     return _shape_out(out, one_d)
@@ -496,7 +496,7 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     du_dq = np.empty((K, n, n))
     du_ddq = np.empty((K, n, n))
     M = np.empty((K, n, n))
-    for sl in _chunks(K):
+    for sl in _chunks(K, DERIV_CHUNK):
         P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
         gq, gdq, gddq = _vjp(model, P, None)  # [j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
         u[sl] = P.tau.T
