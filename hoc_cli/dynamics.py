@@ -45,6 +45,7 @@ import numpy as np
 from .model.tree import RobotModel
 
 #: samples processed together (bounds the temporaries; tuned on a 7-DOF arm, 2-core x86 machine)
+ID_CHUNK = 512      # inverse_dynamics, bias_forces, gravity_forces: keeps the sweep in cache
 DERIV_CHUNK = 256   # id_derivatives: (3, 2, 2, n, K) adjoints per body
 MASS_CHUNK = 1024   # mass_matrix: (3, 2, n, K) columns per body
 VJP_CHUNK = 2048    # id_vjp, mass_quadratic_grad: one seed
@@ -421,6 +422,16 @@ def _chunks(K: int, size: int):
 
 
 # --------------------------------------------------------------------------- public kernels
+def _tau(model: RobotModel, q, dq, ddq, gravity: bool) -> np.ndarray:
+    """RNEA torques (K, n) from (n, K) inputs (dq, ddq may be None), in cache-sized chunks."""
+    n, K = q.shape
+    out = np.empty((K, n))
+    for sl in _chunks(K, ID_CHUNK):
+        out[sl] = _rnea(model, q[:, sl], None if dq is None else dq[:, sl],
+                        None if ddq is None else ddq[:, sl], gravity).tau.T
+    return out
+
+
 def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.ndarray:
     """Joint torques u (K, n) = M(q) q̈ + C(q, q̇) q̇ + g(q), by recursive Newton-Euler.
 
@@ -432,22 +443,19 @@ def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.
         u: (K, n) N·m (revolute) or N (prismatic).
     """
     (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
-    P = _rnea(model, qT, dqT, ddqT, gravity)
-    return _shape_out(P.tau.T.copy(), one_d)
+    return _shape_out(_tau(model, qT, dqT, ddqT, gravity), one_d)
 
 
 def bias_forces(model: RobotModel, q, dq) -> np.ndarray:
     """Bias forces h (K, n) = C(q, q̇) q̇ + g(q) = ID(q, q̇, 0), N·m or N."""
     (qT, dqT), K, one_d = _inputs(model, q=q, dq=dq)
-    P = _rnea(model, qT, dqT, None, True)
-    return _shape_out(P.tau.T.copy(), one_d)
+    return _shape_out(_tau(model, qT, dqT, None, True), one_d)
 
 
 def gravity_forces(model: RobotModel, q) -> np.ndarray:
     """Gravity torques g (K, n) = ID(q, 0, 0), N·m or N."""
     (qT,), K, one_d = _inputs(model, q=q)
-    P = _rnea(model, qT, None, None, True)
-    return _shape_out(P.tau.T.copy(), one_d)
+    return _shape_out(_tau(model, qT, None, None, True), one_d)
 
 
 def mass_matrix(model: RobotModel, q) -> np.ndarray:
@@ -473,7 +481,7 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
         numpy.linalg.LinAlgError: if M is not positive definite at some sample.
     """
     (qT, dqT, uT), K, one_d = _inputs(model, q=q, dq=dq, u=u)
-    h = _rnea(model, qT, dqT, None, True).tau.T
+    h = _tau(model, qT, dqT, None, True)
     M = mass_matrix(model, qT.T)
     L = np.linalg.cholesky(M)
     rhs = (uT.T - h)[:, :, None]
