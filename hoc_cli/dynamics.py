@@ -279,8 +279,9 @@ def _mass_columns(model: RobotModel, q, c, s) -> np.ndarray:
     """Mass matrix by propagating the n unit accelerations q̈ = e_j together (no velocity, no
     gravity): the Newton-Euler response to e_j is column j of M. Returns M as (n, n, K).
 
-    The forward sweep carries, for each body, only the columns of its ancestors (a joint
-    accelerates only its subtree): arrays (3, 2, Na, K); the backward sweep carries all n.
+    Each body carries only the columns of its Na ancestors, arrays (3, 2, Na, K): a joint
+    accelerates only its subtree, and M[i, j] for j below i is M[j, i] by symmetry (and 0 for
+    joints on other branches).
     """
     Cst = _consts(model)
     n, K = q.shape
@@ -298,17 +299,23 @@ def _mass_columns(model: RobotModel, q, c, s) -> np.ndarray:
                 _rot_in(a, c[i], s[i])
         a[2, Cst.part[i], Na - 1] += 1.0
         dA[i] = a
-    M = np.empty((n, n, K))
+    M = np.zeros((n, n, K))
     F = [None] * n
     for i in reversed(Cst.order):
         f = (Cst.I[i] @ dA[i].reshape(6, -1)).reshape(dA[i].shape)
         if F[i] is None:
-            F[i] = np.zeros((3, 2, n, K))
-        F[i][:, :, Cst.anc_index[i]] += f
-        M[i] = F[i][2, Cst.part[i]]
+            F[i] = f
+        else:
+            F[i] += f
+        Na = f.shape[2]
+        row = F[i][2, Cst.part[i]]  # M[i, j] for the ancestors j of i; M is symmetric
+        idx = Cst.anc_index[i]
+        M[i, idx] = row
+        M[idx, i] = row
         p = Cst.parent[i]
         if p >= 0:
-            r = _shift_out(F[i], q[i]) if Cst.prism[i] else _rot_out(F[i], c[i], s[i])
+            Fi = F[i][:, :, :Na - 1]  # the parent needs only its own ancestors' columns
+            r = _shift_out(Fi, q[i]) if Cst.prism[i] else _rot_out(Fi, c[i], s[i])
             contribution = _mm(Cst.XT[i], r)
             if F[p] is None:
                 F[p] = contribution
