@@ -36,7 +36,8 @@ class _Identity:
 def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition | None = None,
              method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, refresh: int = 1,
              callback: Callable[[IterLog], None] | None = None,
-             noise: Callable[[Any], float] | None = None) -> OptimizeResult:
+             noise: Callable[[Any], float] | None = None, final_precondition: Precondition | None = None,
+             switch: float = 1e-6) -> OptimizeResult:
     """Minimise a smooth function from x0.
 
     Parameters
@@ -50,6 +51,9 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
     callback : called with an ``IterLog`` after every iteration (progress display)
     noise : payload -> rounding level of J at that point; the stopping test also holds when the
         decrement is below it (J cannot be resolved further in double precision)
+    final_precondition : a better (costlier) preconditioner, e.g. the Newton matrix, used from the
+        moment the decrement falls below ``switch``·|J|, and always to confirm the stopping test:
+        with it P is refreshed every iteration, so the decrement estimates J − J* reliably
     """
     if method not in ("pr-cg", "gauss-newton"):
         raise ValueError(f"method must be 'pr-cg' or 'gauss-newton', got {method!r}")
@@ -92,8 +96,29 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
             return float(np.max(np.abs(g), initial=0.0)) <= tol * max(abs(J), 1.0)
         return 0.5 * gz <= max(tol * abs(J), floor) or gz == 0.0
 
+    final = False
+
+    def go_final() -> None:
+        nonlocal P, z, gz, d, final
+        final = True
+        P = make_final(payload)
+        z = P.solve(g)
+        gz = float(g @ z)
+        d = -z
+
+    def make_final(payload: Any):
+        nonlocal n_precond
+        n_precond += 1
+        return final_precondition(payload)  # type: ignore[misc]
+
     while True:
+        if final_precondition is not None and not final and 0.5 * gz <= switch * abs(J):
+            go_final()
         if converged(J, g, gz):
+            if final_precondition is not None and not final:
+                go_final()
+                if not converged(J, g, gz):
+                    continue
             status = Status.CONVERGED
             break
         if it >= max_iter:
@@ -134,7 +159,9 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         if not (math.isfinite(J) and np.all(np.isfinite(g_new))):
             status = Status.NOT_FINITE
             break
-        if it % refresh == 0:
+        if final:
+            P = make_final(payload)
+        elif it % refresh == 0:
             P = make_precond(payload)
         z_new = P.solve(g_new)
         gz_new = float(g_new @ z_new)
