@@ -227,6 +227,8 @@ def test_unknown_duplicate_or_fixed_names_in_joints_and_locked_are_model_errors(
     expect_model_error(path, "joint 'wrist'", "cannot be locked", joints=["shoulder"], locked={"wrist": 0.0})
     expect_model_error(path, "joint 'elbow'", "both", joints=["elbow"], locked={"elbow": 0.0})
     expect_model_error(path, "gravity", gravity=[0.0, 9.81])
+    expect_model_error(path, "joints must be a list", joints="shoulder")
+    expect_model_error(path, "locked must map", joints=["shoulder"], locked=[1.0])
 
 
 def test_inspect_tables_list_every_raw_joint_and_link():

@@ -30,8 +30,15 @@ SINGULAR_INERTIA = 1e-12
 
 def _read(path) -> tuple[object, str]:
     """Parse a URDF with yourdfpy (no meshes); ModelError on a missing file or malformed XML."""
-    path = os.fspath(path)
-    if not Path(path).is_file():
+    try:
+        path = os.fspath(path)
+    except TypeError:
+        raise ModelError(f"expected a URDF file path, got {type(path).__name__}", file=str(path)) from None
+    try:
+        found = Path(path).is_file()
+    except (OSError, ValueError):  # a name the system cannot look up (too long, ...)
+        found = False
+    if not found:
         raise ModelError("file not found (expected a URDF file)", file=path)
     try:
         root = ET.parse(path).getroot()
@@ -200,6 +207,8 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
 
     if joints is None:
         joints = list(movable)
+    if isinstance(joints, str) or not hasattr(joints, "__iter__"):
+        raise ModelError(f"joints must be a list of joint names, got {joints!r}", file=path, key="joints")
     joints = list(joints)
     for name in joints:
         key = f"joint {name!r}"
@@ -214,7 +223,10 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
     if len(set(joints)) != len(joints):
         dup = next(n for n in joints if joints.count(n) > 1)
         raise ModelError("is listed twice in joints", file=path, key=f"joint {dup!r}")
-    locked = dict(locked or {})
+    try:
+        locked = dict(locked or {})
+    except (TypeError, ValueError):
+        raise ModelError(f"locked must map joint names to values, got {locked!r}", file=path, key="locked") from None
     for name, value in locked.items():
         key = f"joint {name!r}"
         if name not in by_name or by_name[name].type not in MOVABLE:
