@@ -9,7 +9,7 @@ import numpy as np
 from rich.table import Table
 
 from hoc_cli import __version__
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, parse_outputs, print_json, stderr_console
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, output_transaction, parse_outputs, print_json, stderr_console
 from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError
@@ -41,22 +41,25 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
 
     def report(log) -> None:
         if show:
-            console.print(f"iter {log.iteration:4d}  J = {log.J:.12g}  |g|∞ = {log.grad_norm:.2e}  "
-                          f"½gᵀP⁻¹g = {log.decrement:.2e}  evals {log.n_evals:4d}  "
-                          f"{time.perf_counter() - start:7.2f} s", highlight=False)
+            console.print(f"iter {log.iteration:4d}  J {log.J:<18.12g} |g| {log.grad_norm:.1e}  "
+                          f"dec {log.decrement:.1e}  evals {log.n_evals:4d} {time.perf_counter() - start:6.2f}s",
+                          highlight=False, soft_wrap=True)
 
-    result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
-                  method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
+    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+        result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
+                      method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
-    summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
-                                       summary=_reproducible(summary))
+    with output_transaction():  # every output is replaced, or none
+        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
+                                           summary=_reproducible(summary))
     if as_json:
         print_json(summary)
     if show:
         console.print(summary_table(summary))
     if not result.converged:
-        console.print(f"hoc: not converged: {result.optimizer.message}; the best iterate was written", highlight=False)
+        console.print(f"hoc: not converged: {result.optimizer.message}; the best iterate was written",
+                      highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
 
@@ -131,7 +134,7 @@ def _warn_outside_limits(console, task: Task, model, states) -> None:
         for i, name in enumerate(model.joint_names):
             if q[i] < model.lower[i] or q[i] > model.upper[i]:
                 console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "
-                              f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False)
+                              f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False, markup=False, soft_wrap=True)
 
 
 def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
