@@ -105,3 +105,36 @@ class PinocchioOracle:
         pin = self.pin
         pin.framesForwardKinematics(self.pm, self.pd, self.config(q))
         return self.pd.oMf[self.pm.getFrameId(link, pin.BODY)].homogeneous
+
+
+def random_tree_urdf(rng: np.random.Generator, n_joints: int = 7) -> str:
+    """A random tree URDF: each joint hangs off a random earlier link, with a random type
+    (revolute, continuous, prismatic or fixed), a random axis (also ±x/±y/±z), a random origin with
+    rpy, and a random physically valid inertia (principal moments from a random box, rotated)."""
+    axes = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, -1, 0)]
+    links = ['<link name="l0"/>']
+    joints = []
+    for k in range(1, n_joints + 1):
+        a, b, c = rng.uniform(0.05, 0.4, 3)
+        m = rng.uniform(0.2, 3.0)
+        moments = m / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+        rpy = rng.uniform(-np.pi, np.pi, 3)
+        cr, sr, cp, sp, cy, sy = np.cos(rpy[0]), np.sin(rpy[0]), np.cos(rpy[1]), np.sin(rpy[1]), np.cos(rpy[2]), np.sin(rpy[2])
+        R = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                      [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                      [-sp, cp * sr, cp * cr]])
+        I = R @ np.diag(moments) @ R.T
+        com = " ".join(f"{x:.17g}" for x in rng.uniform(-0.2, 0.2, 3))
+        links.append(
+            f'<link name="l{k}"><inertial><origin xyz="{com}" rpy="0 0 0"/><mass value="{m:.17g}"/>'
+            f'<inertia ixx="{I[0, 0]:.17g}" ixy="{I[0, 1]:.17g}" ixz="{I[0, 2]:.17g}" iyy="{I[1, 1]:.17g}" '
+            f'iyz="{I[1, 2]:.17g}" izz="{I[2, 2]:.17g}"/></inertial></link>')
+        kind = rng.choice(["revolute", "revolute", "continuous", "prismatic", "fixed"])
+        axis = axes[rng.integers(len(axes))] if rng.random() < 0.4 else rng.standard_normal(3)
+        xyz = " ".join(f"{x:.17g}" for x in rng.uniform(-0.3, 0.3, 3))
+        rpy_j = " ".join(f"{x:.17g}" for x in rng.uniform(-np.pi, np.pi, 3))
+        joints.append(
+            f'<joint name="j{k}" type="{kind}"><parent link="l{rng.integers(k)}"/><child link="l{k}"/>'
+            f'<origin xyz="{xyz}" rpy="{rpy_j}"/><axis xyz="{" ".join(f"{x:.17g}" for x in axis)}"/>'
+            '<limit lower="-1" upper="1" effort="10" velocity="2"/></joint>')
+    return '<?xml version="1.0"?>\n<robot name="random">' + "".join(links + joints) + "</robot>"

@@ -7,7 +7,7 @@ import pytest
 from hoc_cli import dynamics as D
 from hoc_cli.model import load_robot
 
-from _robots import ERD, ROBOTS, SHIPPED, THIRD_PARTY, PinocchioOracle, random_state
+from _robots import ERD, ROBOTS, SHIPPED, THIRD_PARTY, PinocchioOracle, random_state, random_tree_urdf
 
 pytest.importorskip("pinocchio")
 
@@ -193,3 +193,30 @@ def test_an_empty_batch_returns_empty_arrays():
     empty = np.zeros((0, 2))
     assert D.inverse_dynamics(model, empty, empty, empty).shape == (0, 2)
     assert D.mass_matrix(model, empty).shape == (0, 2, 2)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_trees_with_every_joint_type_and_arbitrary_axes_agree_with_pinocchio(tmp_path, seed):
+    rng = np.random.default_rng(100 + seed)
+    path = tmp_path / f"random{seed}.urdf"
+    path.write_text(random_tree_urdf(rng, 8))
+    model = load_robot(path)
+    if model.n == 0:
+        pytest.skip("every joint came out fixed")
+    oracle = PinocchioOracle(model)
+    q, dq, ddq = random_state(rng, 3, model.n)
+    u, du_dq, du_ddq, M = D.id_derivatives(model, q, dq, ddq)
+    lam = rng.standard_normal(q.shape)
+    _, gq, gdq = D.id_vjp(model, q, dq, ddq, lam)
+    poses = D.link_poses(model, q)
+    for k in range(len(q)):
+        ref_dq, ref_dv, ref_da = oracle.rnea_derivatives(q[k], dq[k], ddq[k])
+        assert rel_err(u[k], oracle.rnea(q[k], dq[k], ddq[k])) < 1e-10
+        assert rel_err(D.mass_matrix(model, q[k]), oracle.crba(q[k])) < 1e-10
+        assert rel_err(du_dq[k], ref_dq) < 1e-10
+        assert rel_err(du_ddq[k], ref_dv) < 1e-10
+        assert rel_err(M[k], ref_da) < 1e-10
+        assert rel_err(gq[k], lam[k] @ ref_dq) < 1e-10
+        assert rel_err(gdq[k], lam[k] @ ref_dv) < 1e-10
+        for link in model.link_names:
+            np.testing.assert_allclose(poses[link][k], oracle.link_pose(q[k], link), atol=1e-12)
