@@ -54,13 +54,14 @@ def _read(path) -> tuple[object, str]:
     level = logger.level
     logger.setLevel(logging.CRITICAL)
     try:
-        urdf = yourdfpy.URDF.load(
-            path,
-            load_meshes=False,
-            build_scene_graph=False,
-            load_collision_meshes=False,
-            build_collision_scene_graph=False,
-        )
+        with np.errstate(all="ignore"):  # rpy="inf": non-finite values are reported by _check, not warned about
+            urdf = yourdfpy.URDF.load(
+                path,
+                load_meshes=False,
+                build_scene_graph=False,
+                load_collision_meshes=False,
+                build_collision_scene_graph=False,
+            )
     except Exception as exc:  # third-party parser: wrap whatever it raises (no leak of its types)
         raise ModelError(f"not a valid URDF ({type(exc).__name__}: {exc})", file=path) from None
     finally:
@@ -271,7 +272,9 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
             parent[i] = body
             axis_out[i] = axis
             tree_transform[i] = T @ A
-            place[joint.child] = (i, np.linalg.inv(A))
+            A_inv = np.eye(4)
+            A_inv[:3, :3] = A[:3, :3].T
+            place[joint.child] = (i, A_inv)
             order.append(i)
             if joint.type != "continuous" and joint.limit is not None:
                 if joint.limit.lower is not None:
