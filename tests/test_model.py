@@ -214,6 +214,11 @@ def test_an_inertia_that_is_not_positive_semidefinite_is_a_model_error(tmp_path)
     expect_model_error(path, "link 'a'", "positive")
 
 
+def test_two_joints_with_the_same_name_are_a_model_error(tmp_path):
+    path = write(tmp_path, link("base"), link("a"), link("b"), joint("j", "base", "a"), joint("j", "a", "b"))
+    expect_model_error(path, "joint 'j'", "unique")
+
+
 def test_a_link_referenced_but_not_defined_is_a_model_error(tmp_path):
     path = write(tmp_path, link("base"), joint("j", "base", "ghost"))
     expect_model_error(path, "joint 'j'", "ghost")

@@ -93,6 +93,13 @@ def _check(robot, path: str) -> tuple[str, dict, dict]:
     links = {link.name: link for link in robot.links}
     if not links:
         raise ModelError("the URDF has no <link> (expected at least one)", file=path)
+    for kind, items in (("link", robot.links), ("joint", robot.joints)):
+        seen_names: set = set()
+        for item in items:
+            if item.name in seen_names:
+                raise ModelError(f"two {kind}s are named {item.name!r} (names must be unique)",
+                                 file=path, key=f"{kind} {item.name!r}")
+            seen_names.add(item.name)
     parent_joint: dict[str, str] = {}
     children: dict[str, list] = {name: [] for name in links}
     for joint in robot.joints:
