@@ -94,7 +94,8 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
             raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)", file=path, key="--output")
         parent = path.parent if str(path.parent) else Path(".")
         if not parent.is_dir():
-            raise OutputError(f"directory {str(parent)!r} does not exist", file=path, key="--output")
+            what = "is not a directory" if parent.exists() else "does not exist"
+            raise OutputError(f"directory {str(parent)!r} {what}", file=path, key="--output")
         if path.is_dir():
             raise OutputError("is a directory (expected a file path)", file=path, key="--output")
         if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
@@ -103,12 +104,51 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
     return targets
 
 
+#: renames deferred by an open ``output_transaction`` (temporary file, target); None when none is open
+_pending: list[tuple[str, Path]] | None = None
+
+
+@contextmanager
+def output_transaction() -> Iterator[None]:
+    """Defer the renames of every ``atomic_output`` in the block to its end: all targets change, or none.
+
+    A run writing a CSV and an MCAP that is interrupted while writing the second leaves the first
+    as it was too; on any exception every temporary file written in the block is removed.
+    """
+    global _pending
+    outer, _pending = _pending, []
+    mine = _pending
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in mine:
+            _unlink(tmp)
+        raise
+    finally:
+        _pending = outer
+    for i, (tmp, path) in enumerate(mine):
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            for rest, _ in mine[i:]:
+                _unlink(rest)
+            raise
+
+
+def _unlink(tmp: str) -> None:
+    try:
+        os.unlink(tmp)
+    except FileNotFoundError:
+        pass
+
+
 @contextmanager
 def atomic_output(path: Path) -> Iterator[Any]:
     """Open a temporary binary file beside ``path``; rename it into place only if the block succeeds.
 
     On any exception (including KeyboardInterrupt and ``Terminated``) the temporary file is
-    removed and an existing ``path`` is left untouched.
+    removed and an existing ``path`` is left untouched. Inside ``output_transaction`` the rename
+    waits for the end of the transaction.
     """
     parent = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
@@ -123,12 +163,12 @@ def atomic_output(path: Path) -> Iterator[Any]:
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
+        if _pending is not None:
+            _pending.append((tmp, path))
+        else:
+            os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+        _unlink(tmp)
         raise
 
 

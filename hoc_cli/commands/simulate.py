@@ -41,6 +41,7 @@ from hoc_cli.commands.common import (
     EXIT_UNMET,
     OutputTarget,
     atomic_output,
+    output_transaction,
     parse_outputs,
     print_json,
     stderr_console,
@@ -150,7 +151,8 @@ def run(
             passed = bool(final_error is not None and final_error <= check)
             summary["check"] = {"tol": check, "passed": passed}
 
-        _write_outputs(targets, traj, model, urdf_text, task, summary)
+        with output_transaction():  # every output is replaced, or none
+            _write_outputs(targets, traj, model, urdf_text, task, summary)
 
     if as_json:
         print_json(summary)
@@ -271,7 +273,9 @@ def _write_outputs(targets: list[OutputTarget], traj, model, urdf_text: str, tas
             from hoc_cli import dynamics
             from hoc_cli.io.mcap import write_mcap
 
-            meta = {"simulation": json.dumps({k: v for k, v in summary.items() if k != "outputs"}, allow_nan=False)}
+            # no wall-clock time in the file: the same inputs give the same bytes
+            stored = {k: v for k, v in summary.items() if k not in ("outputs", "wall_time_s")}
+            meta = {"simulation": json.dumps(stored, allow_nan=False)}
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task.text, metadata=meta,
                            link_poses=lambda q: dynamics.link_poses(model, q))

@@ -324,13 +324,20 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
     except (InvalidMagic, EndOfFile) as exc:
         raise InputFileError("not an MCAP file (expected an MCAP plan written by hoc)", file=path) from None
     except (McapError, *_READ_ERRORS) as exc:
-        raise InputFileError(f"damaged or truncated MCAP file ({type(exc).__name__}: {exc})", file=path) from None
+        raise InputFileError(f"damaged or truncated MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
+    except Exception as exc:  # third-party reader and CDR decoder on damaged bytes: wrap whatever they raise
+        raise InputFileError(f"damaged MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     traj = _trajectory(path, states, accels)
     if ATTACHMENT_HERMITE in attachments:
         traj.mesh, traj.coeffs = _hermite(path, attachments[ATTACHMENT_HERMITE], traj.joints)
     return PlanFile(path=path, task_text=attachments[ATTACHMENT_TASK].decode("utf-8", "replace"),
                     urdf_text=attachments[ATTACHMENT_URDF].decode("utf-8", "replace"),
                     metadata=metadata, trajectory=traj, attachments=attachments)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:200] if text else ""
 
 
 def _trajectory(path: Path, states: list, accels: list) -> Trajectory:

@@ -107,7 +107,10 @@ class _Checker:
     def number(self, value: Any, key: str, *, positive: bool = False, what: str = "a finite number") -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(key, what, value)
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond the range of a double
+            raise self.fail(key, what, value) from None
         if not math.isfinite(x):
             raise self.fail(key, what, value)
         if positive and x <= 0:
@@ -171,10 +174,19 @@ def _show(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _stat_ok(path: Path) -> bool:
+    """Whether ``path`` exists; False (not an OSError) for a name the system cannot look up (too long...)."""
+    try:
+        path.stat()
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
     """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
     path = Path(path)
-    if not path.exists():
+    if not _stat_ok(path):
         raise TaskError("file not found (expected a task YAML file)", file=path)
     if path.is_dir():
         raise TaskError("is a directory (expected a task YAML file)", file=path)
@@ -211,7 +223,7 @@ def parse_task(doc: Any, *, path: Path, text: str = "", purpose: str = "plan") -
     robot_path = Path(robot)
     if not robot_path.is_absolute():
         robot_path = path.parent / robot_path
-    if not robot_path.is_file():
+    if not _stat_ok(robot_path) or not robot_path.is_file():
         raise TaskError(f"URDF file not found: {str(robot_path)!r}", file=path, key="robot")
 
     joints = None
