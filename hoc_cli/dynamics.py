@@ -267,10 +267,9 @@ def _rnea(model: RobotModel, q, dq, ddq, gravity: bool, keep: bool = False) -> _
     for i in reversed(C.order):
         tau[i] = F[i][2, C.part[i]]
         p = C.parent[i]
-        if p >= 0 or keep:
+        if p >= 0:
             RF[i] = _shift_out(F[i], q[i]) if C.prism[i] else _rot_out(F[i], P.c[i], P.s[i])
-            if p >= 0:
-                F[p] += _mm(C.XT[i], RF[i])
+            F[p] += _mm(C.XT[i], RF[i])
     P.W, P.Wc, P.G, P.RF, P.tau = W, Wc, Gs, RF, tau
     return P
 
