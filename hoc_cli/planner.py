@@ -5,6 +5,7 @@
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -12,7 +13,8 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.optimize import IterLog, OptimizeResult, minimize
+from hoc_cli.errors import NumericalError
+from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
 from hoc_cli.problem import ControlProblem, Evaluation
 from hoc_cli.system import System
 
@@ -63,8 +65,14 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         problem = ControlProblem(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G)
         x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
 
+        failures: list[NumericalError] = []
+
         def evaluate(x: np.ndarray):
-            ev = problem.evaluate(x)
+            try:
+                ev = problem.evaluate(x)
+            except NumericalError as exc:  # NaN/inf cost or singular M at a trial point: the line search steps back
+                failures.append(exc)
+                return math.inf, np.full(x.shape, np.nan), None
             return ev.J, ev.grad, ev
 
         if precondition:
@@ -75,6 +83,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
             pre = final = None
         res = minimize(evaluate, x0, precondition=pre, final_precondition=final, switch=1e-6, method=method,
                        tol=tol, max_iter=max_iter - total_iters, callback=callback, noise=lambda ev: ev.noise)
+        if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
+            raise failures[0]  # the starting trajectory itself cannot be evaluated
         total_iters += res.iterations
         total_evals += res.n_evals
         total_pre += res.n_precond

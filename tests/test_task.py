@@ -93,6 +93,8 @@ MALFORMED = [
     ("state without q", GOOD.replace("x0: {q: [0.0, 0.1]}", "x0: {dq: [0.0, 0.1]}"), "x0.q: missing required key"),
     ("output rate negative", GOOD + "output: {rate: -5}\n", "output.rate: expected a sample rate > 0"),
     ("duplicate joints", GOOD.replace("[a, b]", "[a, a]"), "joints: expected distinct joint names"),
+    ("duplicate key", GOOD + "T: 2.0\n", "duplicate key 'T'"),
+    ("N too large", GOOD.replace("N: 16", "N: 1000000000"), "N: expected an integer >= 1 and <= 100000"),
 ]
 
 

@@ -327,7 +327,11 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
         raise InputFileError(f"damaged or truncated MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     except Exception as exc:  # third-party reader and CDR decoder on damaged bytes: wrap whatever they raise
         raise InputFileError(f"damaged MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
-    traj = _trajectory(path, states, accels)
+    try:
+        traj = _trajectory(path, states, accels)
+    except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # a message decoded into the wrong shape
+        raise InputFileError(f"damaged {TOPIC_JOINT_STATES}/{TOPIC_ACCELERATIONS} messages ({_first_line(exc)})",
+                             file=path) from None
     if ATTACHMENT_HERMITE in attachments:
         traj.mesh, traj.coeffs = _hermite(path, attachments[ATTACHMENT_HERMITE], traj.joints)
     return PlanFile(path=path, task_text=attachments[ATTACHMENT_TASK].decode("utf-8", "replace"),

@@ -25,6 +25,7 @@ STATE_KEYS = ("q", "dq")
 SOLVER_KEYS = ("method", "tol", "max_iter")
 OUTPUT_KEYS = ("rate",)
 
+MAX_ELEMENTS = 100_000  # beyond this the quadrature arrays alone exceed a workstation's memory
 DEFAULT_TOL = 1e-10
 DEFAULT_MAX_ITER = 5000
 DEFAULT_RATE = 100.0
@@ -41,6 +42,25 @@ _Loader.add_implicit_resolver(
     re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
     list("-+0123456789"),
 )
+
+
+def _mapping_without_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: set = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            duplicate = key in seen
+            seen.add(key)
+        except TypeError:  # unhashable key: let the default constructor report it
+            duplicate = False
+        if duplicate:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key {key!r} (a later value would silently replace the earlier)",
+                key_node.start_mark)
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping_without_duplicates)
 
 
 def load_yaml(text: str):
@@ -117,14 +137,15 @@ class _Checker:
             raise self.fail(key, what, value)
         return x
 
-    def integer(self, value: Any, key: str, minimum: int) -> int:
+    def integer(self, value: Any, key: str, minimum: int, maximum: int | None = None) -> int:
+        what = f"an integer >= {minimum}" if maximum is None else f"an integer >= {minimum} and <= {maximum}"
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer() and math.isfinite(value):
                 value = int(value)
             else:
-                raise self.fail(key, f"an integer >= {minimum}", value)
-        if value < minimum:
-            raise self.fail(key, f"an integer >= {minimum}", value)
+                raise self.fail(key, what, value)
+        if value < minimum or (maximum is not None and value > maximum):
+            raise self.fail(key, what, value)
         return int(value)
 
     def choice(self, value: Any, key: str, choices: tuple[str, ...]) -> str:
@@ -258,7 +279,7 @@ def parse_task(doc: Any, *, path: Path, text: str = "", purpose: str = "plan") -
     x0 = c.state(top["x0"], "x0")
     x1 = c.state(top["x1"], "x1") if top.get("x1") is not None else None
     T = c.number(top["T"], "T", positive=True, what="a duration T > 0 in seconds")
-    N = c.integer(top["N"], "N", 1)
+    N = c.integer(top["N"], "N", 1, MAX_ELEMENTS)
     order = c.choice(top.get("order", "quintic"), "order", ORDERS)
     cost = c.choice(top.get("cost", "covariant"), "cost", COSTS)
 
@@ -308,7 +329,7 @@ def apply_overrides(task: Task, **overrides: Any) -> Task:
             continue
         opt = names.get(key, key)
         if key == "N":
-            changes[key] = c.integer(value, opt, 1)
+            changes[key] = c.integer(value, opt, 1, MAX_ELEMENTS)
         elif key == "T":
             changes[key] = c.number(value, opt, positive=True, what="a duration > 0 in seconds")
         elif key == "tol":
