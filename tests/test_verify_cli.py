@@ -18,3 +18,13 @@ def test_verify_json_reports_interpolation_orders_and_passes():
 def test_verify_rejects_an_unknown_check_with_exit_2():
     r = CliRunner().invoke(app, ["verify", "--only", "nonsense"])
     assert r.exit_code == 2 and "--only" in r.stderr
+
+
+def test_full_verify_json_passes_and_covers_every_claim_of_the_paper():
+    r = CliRunner().invoke(app, ["verify", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    claims = " ".join(m["claim"] for m in doc["measurements"])
+    for topic in ("interpolation", "validation", "pendulum period", "2-link arm"):
+        assert topic in claims
+    assert doc["passed"] and all(m["passed"] for m in doc["measurements"])
