@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.elements import ORDERS, HermiteMesh, error_norm
+from hoc_cli.resources import shipped_robot
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,11 @@ class Measurement:
         d["passed"] = self.passed
         d["expectation"] = self.expectation
         return d
+
+
+def _missing(claim: str, urdf: str) -> Measurement:
+    """A failed measurement for a check whose shipped robot cannot be found (never a silent skip)."""
+    return Measurement(claim, float("nan"), 0.0, 0.0, note=f"shipped robot {urdf} not found")
 
 
 def convergence_order(h: np.ndarray, err: np.ndarray) -> float:
@@ -124,16 +130,14 @@ def check_cost_comparison() -> list[Measurement]:
 
     Measured as the relative excess of the other optimum's cost: must be >= 0 for both.
     """
-    from pathlib import Path
-
     from hoc_cli.model import load_robot
     from hoc_cli.planner import plan
     from hoc_cli.problem import ControlProblem
     from hoc_cli.system import RobotSystem
 
-    urdf = Path(__file__).resolve().parent.parent / "robots" / "two_link.urdf"
-    if not urdf.exists():  # installed without the repository's robots/
-        return []
+    urdf = shipped_robot("two_link.urdf")
+    if urdf is None:
+        return [_missing("2-link arm cost comparison", "two_link.urdf")]
     S = RobotSystem(load_robot(urdf))
     mesh = HermiteMesh("quintic", 1.5, 16)
     b = ([0.0, 0.0], [0.0, 0.0], [1.2, -0.6], [0.0, 0.0])
@@ -159,17 +163,15 @@ def check_pendulum() -> list[Measurement]:
     (scipy.special.ellipk takes m = k²). The paper prints 2.03452 s, which its own formula does not give.
     """
     import math
-    from pathlib import Path
-
     from scipy.special import ellipk
 
     from hoc_cli.model import load_robot
     from hoc_cli.simulate import oscillation_period, simulate_hermite, zero_torque
     from hoc_cli.system import RobotSystem
 
-    urdf = Path(__file__).resolve().parent.parent / "robots" / "pendulum.urdf"
-    if not urdf.exists():
-        return []
+    urdf = shipped_robot("pendulum.urdf")
+    if urdf is None:
+        return [_missing("pendulum period", "pendulum.urdf")]
     S = RobotSystem(load_robot(urdf))
     q0 = math.pi / 12
     # ω² = (∂g/∂q)(0) / M(0) from the model itself: gravity torque slope at the bottom over the inertia
