@@ -64,7 +64,7 @@ def plan(
     duration: DurationOpt = None,
     tol: Annotated[Optional[float], typer.Option("--tol", help="Override solver.tol (> 0).")] = None,
     max_iter: Annotated[Optional[int], typer.Option("--max-iter", help="Override solver.max_iter (>= 1).")] = None,
-    method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | gauss-newton.")] = None,
+    method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | newton.")] = None,
     cost: Annotated[Optional[str], typer.Option("--cost", help="Override the cost: covariant | torque.")] = None,
     init: Annotated[Optional[Path], typer.Option("--init", help="Warm start from an earlier plan's MCAP.")] = None,
     debug: DebugOpt = False,

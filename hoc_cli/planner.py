@@ -49,22 +49,41 @@ def _cost_with(system: System, mesh: HermiteMesh, boundary, cost: str, G: int, C
     return p.value(p.layout.pack(C))
 
 
+def continuation_levels(N: int, factor: int = 4, coarsest: int = 3) -> list[int]:
+    """Element counts of the coarse-to-fine sequence ending at N: N, ⌈N/4⌉, ⌈N/16⌉, … while > ``coarsest``.
+
+    E.g. 36 → [3, 9, 36], 16 → [4, 16], 8 → [2, 8], 3 → [3].
+    """
+    levels = [N]
+    while levels[-1] > coarsest:
+        levels.append(max(1, -(-levels[-1] // factor)))
+    return levels[::-1]
+
+
+def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.ndarray:
+    """Coefficients on ``mesh_to`` taking q, q̇ (, q̈) of the trajectory (mesh_from, C) at its nodes; (N+1, m, n)."""
+    t = mesh_to.nodes
+    return np.stack([mesh_from.evaluate(C, t, r) for r in range(mesh_to.m)], axis=1)
+
+
 def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "covariant", method: str = "pr-cg",
          tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
-         precondition: bool = True, callback: Callable[[IterLog], None] | None = None) -> PlanResult:
+         precondition: bool = True, continuation: bool = True,
+         callback: Callable[[IterLog], None] | None = None) -> PlanResult:
     """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
 
-    After convergence the cost is recomputed with 4 more Gauss points per element; while it changes
-    by more than 1e-12 relative (and by more than the rounding level of J), G grows by 4 and the
-    solve continues from the solution.
+    Coarse to fine (``continuation``, unless ``C_init`` is given): the problem is first solved on
+    ⌈N/16⌉, ⌈N/4⌉, … elements to a relative tolerance max(tol, 1e-6), each solution resampled at
+    the next mesh's nodes as its starting point; most iterations then happen where an evaluation
+    is cheap, and the fine mesh needs a few Newton steps. After convergence on the fine mesh the
+    cost is recomputed with 4 more Gauss points per element; while it changes by more than 1e-12
+    relative (and by more than the rounding level of J), G grows by 4 and the solve continues.
     """
     start = time.perf_counter()
-    total_iters = total_evals = total_pre = 0
+    totals = {"it": 0, "ev": 0, "pre": 0}
     history: list[IterLog] = []
-    while True:
-        problem = ControlProblem(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G)
-        x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
 
+    def solve(problem: ControlProblem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         failures: list[NumericalError] = []
 
         def evaluate(x: np.ndarray):
@@ -75,20 +94,32 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
                 return math.inf, np.full(x.shape, np.nan), None
             return ev.J, ev.grad, ev
 
-        if precondition:
-            # Gauss-Newton preconditioner while far from the optimum; the exact (banded) Newton matrix
-            # once the decrement is below 1e-6·|J| and to confirm the stopping test
-            pre, final = problem.gauss_newton, problem.newton
-        else:
-            pre = final = None
-        res = minimize(evaluate, x0, precondition=pre, final_precondition=final, switch=1e-6, method=method,
-                       tol=tol, max_iter=max_iter - total_iters, callback=callback, noise=lambda ev: ev.noise)
+        res = minimize(evaluate, x0, precondition=problem.newton if precondition else None, method=method,
+                       tol=tol_level, max_iter=max(max_iter - totals["it"], 0), callback=callback,
+                       noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
-        total_iters += res.iterations
-        total_evals += res.n_evals
-        total_pre += res.n_precond
-        history += res.history
+        totals["it"] += res.iterations
+        totals["ev"] += res.n_evals
+        totals["pre"] += res.n_precond
+        history.extend(res.history)
+        return res
+
+    if C_init is None and continuation and precondition:
+        coarse_mesh, C_coarse = None, None
+        for N in continuation_levels(mesh.N)[:-1]:
+            level = HermiteMesh(mesh.order, mesh.T, N)
+            problem = ControlProblem(system, level, q0, dq0, q1, dq1, cost=cost, G=G)
+            x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
+            res = solve(problem, x0, max(tol, 1e-6))
+            coarse_mesh, C_coarse = level, problem.coefficients(res.x)
+        if coarse_mesh is not None:
+            C_init = resample(coarse_mesh, C_coarse, mesh)
+
+    while True:
+        problem = ControlProblem(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G)
+        x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+        res = solve(problem, x0, tol)
         C = problem.coefficients(res.x)
         J4 = _cost_with(system, mesh, problem.boundary, cost, problem.G + 4, C)
         change = abs(J4 - res.fun) / max(abs(J4), 1e-300)
@@ -97,6 +128,6 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         if resolved or not res.converged or problem.G >= 32:
             break
         G, C_init = problem.G + 4, C
-    res.iterations, res.n_evals, res.n_precond, res.history = total_iters, total_evals, total_pre, history
+    res.iterations, res.n_evals, res.n_precond, res.history = totals["it"], totals["ev"], totals["pre"], history
     return PlanResult(mesh=mesh, coeffs=C, J=res.fun, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem)

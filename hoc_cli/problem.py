@@ -128,13 +128,14 @@ class ControlProblem:
     """
 
     def __init__(self, system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, cost: str = "covariant",
-                 G: int | None = None) -> None:
+                 G: int | None = None, G_h_extra: int | None = None) -> None:
         if cost not in COSTS:
             raise ValueError(f"cost must be one of {COSTS}, got {cost!r}")
         self.system, self.mesh, self.cost = system, mesh, cost
         self.n = system.n
         self.G = G or default_gauss_points(mesh.order)
         self.op: QuadratureOperator = mesh.quadrature(self.G)
+        self.op_h: QuadratureOperator = mesh.quadrature(min(self.G, mesh.m + 3 + (G_h_extra or 0)))
         self.layout = Layout.build(mesh, self.n)
         self.C_fixed = boundary_coefficients(mesh, q0, dq0, q1, dq1)
         self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
@@ -194,47 +195,51 @@ class ControlProblem:
         """I(q_h) alone (no gradient)."""
         return self.evaluate(x, grad=False).J
 
-    # -- Newton matrix -------------------------------------------------------------------------------------
-    def sample_hessians(self, ev: Evaluation, rel_step: float = 1e-6) -> np.ndarray:
-        """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), by central differences of the
-        analytic per-sample gradient in q and q̇ (all samples and all 4n perturbations in one batched
-        call); the q̈ columns follow by symmetry, and ∂²L/∂q̈² = M (covariant) or M² (torque) exactly."""
-        q, dq, ddq = ev.samples
+    # -- Newton and Gauss-Newton matrices -------------------------------------------------------------
+    # Both are assembled on their own, coarser quadrature (``self.op_h``, G_h = m + 3 points per
+    # element: exact for the degree-(2·5) polynomial part of a quintic element's integrand). They
+    # only precondition and estimate the decrement; the cost and gradient keep the full quadrature.
+    def _preconditioner_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.op_h.apply(self.coefficients(ev.x))
+
+    def sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, rel_step: float = 1e-8) -> np.ndarray:
+        """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), at samples (K, n) ×3.
+
+        Columns for q and q̇ by forward differences of the analytic per-sample gradient (all samples and
+        all 2n perturbations in one batched call, relative step 1e-8: error ~1e-8 relative); the q̈
+        columns follow by symmetry, and ∂²L/∂q̈² = M (covariant) or M² (torque) exactly.
+        """
         K, n = q.shape
-        Jq, Jv, M = ev.jac
         eps_q = rel_step * (1.0 + np.abs(q))  # (K, n)
         eps_v = rel_step * (1.0 + np.abs(dq))
         E = np.eye(n)
-        # batch of 4n perturbed copies: (+q_j, −q_j, +dq_j, −dq_j) for j = 0..n−1
-        sign = np.array([1.0, -1.0])
-        Qp = q[None, None] + sign[:, None, None, None] * (E[None, :, None, :] * eps_q[None, None])  # (2, n, K, n)
-        Vp = dq[None, None] + sign[:, None, None, None] * (E[None, :, None, :] * eps_v[None, None])
-        Qb = np.concatenate([Qp, np.broadcast_to(q, Qp.shape)], axis=0).reshape(-1, n)
-        Vb = np.concatenate([np.broadcast_to(dq, Vp.shape), Vp], axis=0).reshape(-1, n)
-        Ab = np.broadcast_to(ddq, (4, n, K, n)).reshape(-1, n)
-        s = self.sample_gradients(Qb, Vb, Ab)
-        G = np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1).reshape(4, n, K, 3 * n)
-        dq_cols = (G[0] - G[1]) / (2 * eps_q.T[:, :, None])  # (n_j, K, 3n): column j of ∂(gq, gdq, gddq)/∂q_j
-        dv_cols = (G[2] - G[3]) / (2 * eps_v.T[:, :, None])
+        Qb = np.concatenate([q[None] + E[:, None, :] * eps_q[None], np.broadcast_to(q, (n, K, n)), q[None]])
+        Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
+        Ab = np.broadcast_to(ddq, (2 * n + 1, K, n))
+        s = self.sample_gradients(Qb.reshape(-1, n), Vb.reshape(-1, n), Ab.reshape(-1, n))
+        G = np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1).reshape(2 * n + 1, K, 3 * n)
+        base = G[-1]
+        M = s["M"].reshape(2 * n + 1, K, n, n)[-1]
         H = np.empty((K, 3 * n, 3 * n))
-        H[:, :, :n] = np.transpose(dq_cols, (1, 2, 0))
-        H[:, :, n : 2 * n] = np.transpose(dv_cols, (1, 2, 0))
+        H[:, :, :n] = np.transpose((G[:n] - base) / eps_q.T[:, :, None], (1, 2, 0))
+        H[:, :, n : 2 * n] = np.transpose((G[n : 2 * n] - base) / eps_v.T[:, :, None], (1, 2, 0))
         H[:, 2 * n :, 2 * n :] = M if self.cost == "covariant" else np.einsum("kij,kil->kjl", M, M)
         H[:, : 2 * n, 2 * n :] = np.swapaxes(H[:, 2 * n :, : 2 * n], 1, 2)
         return 0.5 * (H + np.swapaxes(H, 1, 2))
 
     def newton(self, ev: Evaluation) -> "BandedSPD":
-        """The exact Hessian of I on the free coefficients (block-banded), made positive definite.
+        """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
         Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
-        with μ = 1e-3, 1e-2, … until the banded Cholesky factorisation succeeds.
+        with μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation succeeds.
         """
-        Hs = self.sample_hessians(ev)
-        H = self._element_blocks(Hs)
+        q, dq, ddq = self._preconditioner_samples(ev)
+        Hs = self.sample_hessians(q, dq, ddq)
+        H = self._element_blocks(self.op_h, Hs)
         try:
             return self._banded(H)
         except NumericalError:
-            GN = self._gauss_newton_blocks(ev)
+            GN = self._gauss_newton_blocks(self.op_h, q, dq, ddq)
             mu = 1e-3 * np.trace(H.sum(axis=0)) / np.trace(GN.sum(axis=0))
             for _ in range(12):
                 try:
@@ -243,36 +248,28 @@ class ControlProblem:
                     mu *= 10
             return self._banded(GN)
 
-    # -- Gauss-Newton matrix and banded assembly ---------------------------------------------------------
     def gauss_newton(self, ev: Evaluation) -> "BandedSPD":
         """The block-banded Gauss-Newton matrix Σ_k w_k A_kᵀ S_k A_k on the free coefficients.
 
         A_k = ∂u_k/∂C (n × 2mn per element), S = M⁻¹ (covariant) or I (torque). Each element
         couples only its two nodes, so the matrix has half-bandwidth 2mn − 1 in the global order.
         """
-        return self._banded(self._gauss_newton_blocks(ev))
+        return self._banded(self._gauss_newton_blocks(self.op_h, *self._preconditioner_samples(ev)))
 
-    def _operator_rows(self) -> np.ndarray:
-        """B at every sample: (3, K, 2m), derivative r of the local shape functions (h-scaled)."""
-        op = self.op
-        return np.repeat(op.B[:, None], self.mesh.N, axis=1).reshape(3, op.K, 2 * self.mesh.m)
-
-    def _gauss_newton_blocks(self, ev: Evaluation) -> np.ndarray:
-        if ev.jac is None:
-            raise ValueError("the evaluation has no Jacobians (evaluate with grad=True)")
-        Jq, Jv, M = ev.jac
-        op, n, m, N, G = self.op, self.n, self.mesh.m, self.mesh.N, self.G
+    def _gauss_newton_blocks(self, op: QuadratureOperator, q, dq, ddq) -> np.ndarray:
+        _, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
+        n, m, N, G = self.n, self.mesh.m, self.mesh.N, op.G
         L = 2 * m * n
-        Bx = self._operator_rows()
+        Bx = _operator_rows(op)
         A = (np.einsum("kij,kl->kilj", Jq, Bx[0]) + np.einsum("kij,kl->kilj", Jv, Bx[1])
              + np.einsum("kij,kl->kilj", M, Bx[2])).reshape(op.K, n, L)
         SA = np.linalg.solve(M, A) if self.cost == "covariant" else A
         return np.einsum("kia,kib->kab", A * op.w[:, None, None], SA).reshape(N, G, L, L).sum(axis=1)
 
-    def _element_blocks(self, Hs: np.ndarray) -> np.ndarray:
+    def _element_blocks(self, op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
         """Σ_g w_g Ãᵀ Hs_g Ã per element, (N, 2mn, 2mn), for per-sample Hessians Hs (K, 3n, 3n)."""
-        op, n, m, N, G = self.op, self.n, self.mesh.m, self.mesh.N, self.G
-        Bx = self._operator_rows()  # (3, K, 2m)
+        n, m, N, G = self.n, self.mesh.m, self.mesh.N, op.G
+        Bx = _operator_rows(op)  # (3, K, 2m)
         H5 = Hs.reshape(op.K, 3, n, 3, n) * op.w[:, None, None, None, None]
         T = np.einsum("rka,krisj->kaisj", Bx, H5)  # (K, 2m, n, 3, n)
         E = np.einsum("kaisj,skb->kaibj", T, Bx)  # (K, 2m, n, 2m, n)
@@ -281,6 +278,11 @@ class ControlProblem:
     def _banded(self, blocks: np.ndarray) -> "BandedSPD":
         mn = self.mesh.m * self.n
         return BandedSPD.assemble(blocks, stride=mn, size=(self.mesh.N + 1) * mn, free=self.layout.free, shift=1e-12)
+
+
+def _operator_rows(op: QuadratureOperator) -> np.ndarray:
+    """B at every sample: (3, K, 2m), derivative r of the local shape functions (h-scaled)."""
+    return np.repeat(op.B[:, None], op.mesh.N, axis=1).reshape(3, op.K, op.B.shape[-1])
 
 
 def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -59,7 +59,7 @@ SCALARS = (
     st.none() | st.booleans() | st.integers(min_value=-10, max_value=10)
     | st.integers(min_value=-(10 ** 400), max_value=10 ** 400)
     | st.floats(allow_nan=True, allow_infinity=True)
-    | st.sampled_from(["quintic", "cubic", "covariant", "torque", "pr-cg", "gauss-newton", "zero", "r.urdf", ""])
+    | st.sampled_from(["quintic", "cubic", "covariant", "torque", "pr-cg", "newton", "zero", "r.urdf", ""])
     | st.text(max_size=8)
 )
 VALUES = st.recursive(

@@ -19,7 +19,7 @@ from hoc_cli.errors import TaskError
 
 ORDERS = ("quintic", "cubic")
 COSTS = ("covariant", "torque")
-METHODS = ("pr-cg", "gauss-newton")
+METHODS = ("pr-cg", "newton")
 TOP_KEYS = ("robot", "joints", "locked", "gravity", "x0", "x1", "T", "N", "order", "cost", "solver", "output", "torque")
 STATE_KEYS = ("q", "dq")
 SOLVER_KEYS = ("method", "tol", "max_iter")

@@ -6,8 +6,8 @@ Polak & Ribière 1969; PR+ truncation β = max(0, ·) after Gilbert & Nocedal 19
     d_0 = −z_0,   β_k = max(0, z_kᵀ (g_k − g_{k−1}) / (z_{k−1}ᵀ g_{k−1})),   d_k = −z_k + β_k d_{k−1}
 
 and each step x_{k+1} = x_k + α_k d_k satisfies the strong Wolfe conditions. With P = I this is
-the paper's plain Polak-Ribière method. ``method="gauss-newton"`` sets β = 0 and refreshes P
-(the Gauss-Newton matrix) every iteration.
+the paper's plain Polak-Ribière method. ``method="newton"`` sets β = 0 and refreshes P every
+iteration: with P the (modified) Hessian, a line-searched Newton method.
 
 Stopping test: the decrement ½ gᵀP⁻¹g estimates J − J* when P approximates the Hessian;
 we stop when ½ gᵀP⁻¹g <= max(tol·|J|, J_noise) where J_noise is the rounding level of J
@@ -44,10 +44,10 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
     ----------
     evaluate : x (P,) -> (J, ∇J (P,), payload); the payload is handed to ``precondition``
     precondition : payload -> SPD solver with ``solve(g)``; None for no preconditioning
-    method : "pr-cg" (PR+ conjugate gradient) or "gauss-newton" (β = 0)
+    method : "pr-cg" (PR+ conjugate gradient) or "newton" (β = 0)
     tol : relative tolerance of the stopping test on J (see the module docstring)
     max_iter : iteration limit; reaching it returns status MAX_ITER with the best iterate
-    refresh : recompute the preconditioner every ``refresh`` iterations (always for gauss-newton)
+    refresh : recompute the preconditioner every ``refresh`` iterations (always for newton)
     callback : called with an ``IterLog`` after every iteration (progress display)
     noise : payload -> rounding level of J at that point; the stopping test also holds when the
         decrement is below it (J cannot be resolved further in double precision)
@@ -55,11 +55,11 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         moment the decrement falls below ``switch``·|J|, and always to confirm the stopping test:
         with it P is refreshed every iteration, so the decrement estimates J − J* reliably
     """
-    if method not in ("pr-cg", "gauss-newton"):
-        raise ValueError(f"method must be 'pr-cg' or 'gauss-newton', got {method!r}")
+    if method not in ("pr-cg", "newton"):
+        raise ValueError(f"method must be 'pr-cg' or 'newton', got {method!r}")
     if not tol > 0:
         raise ValueError(f"tol must be > 0, got {tol}")
-    if method == "gauss-newton":
+    if method == "newton":
         refresh = 1
     evals = 0
     n_precond = 0
@@ -165,7 +165,7 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
             P = make_precond(payload)
         z_new = P.solve(g_new)
         gz_new = float(g_new @ z_new)
-        if method == "gauss-newton" or not ls.ok:
+        if method == "newton" or not ls.ok:
             beta = 0.0
         else:
             beta = max(0.0, float(z_new @ (g_new - g)) / gz) if gz > 0 else 0.0
