@@ -5,6 +5,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -49,14 +50,14 @@ def _cost_with(system: System, mesh: HermiteMesh, boundary, cost: str, G: int, C
     return p.value(p.layout.pack(C))
 
 
-def continuation_levels(N: int, factor: int = 4, coarsest: int = 3) -> list[int]:
-    """Element counts of the coarse-to-fine sequence ending at N: N, ⌈N/4⌉, ⌈N/16⌉, … while > ``coarsest``.
+def continuation_levels(N: int, factor: int = 4, coarsest: int = 2) -> list[int]:
+    """Element counts of the coarse-to-fine sequence ending at N: …, ⌈N/16⌉, ⌈N/4⌉, N, none below ``coarsest``.
 
     E.g. 36 → [3, 9, 36], 16 → [4, 16], 8 → [2, 8], 3 → [3].
     """
     levels = [N]
-    while levels[-1] > coarsest:
-        levels.append(max(1, -(-levels[-1] // factor)))
+    while -(-levels[-1] // factor) >= coarsest:
+        levels.append(-(-levels[-1] // factor))
     return levels[::-1]
 
 
@@ -94,15 +95,21 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
                 return math.inf, np.full(x.shape, np.nan), None
             return ev.J, ev.grad, ev
 
+        def report(log: IterLog) -> None:  # cumulative counts across levels, tagged with the level's N
+            if callback is not None:
+                callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
+                                             n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
+
         res = minimize(evaluate, x0, precondition=problem.newton if precondition else None, method=method,
-                       tol=tol_level, max_iter=max(max_iter - totals["it"], 0), callback=callback,
+                       tol=tol_level, max_iter=max(max_iter - totals["it"], 0), callback=report,
                        noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
         totals["it"] += res.iterations
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
-        history.extend(res.history)
+        history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
+                                           level=problem.mesh.N) for h in res.history)
         return res
 
     if C_init is None and continuation and precondition:

@@ -143,3 +143,25 @@ def test_work_counts_on_the_two_link_arm_do_not_grow():
     r = plan(RobotSystem(model), HermiteMesh("quintic", 1.5, 16), [0, 0], [0, 0], [1.2, -0.6], [0, 0])
     assert r.converged
     assert r.optimizer.iterations <= 7 and r.optimizer.n_evals <= 12
+
+
+def test_continuation_levels_refine_by_four_and_end_at_the_requested_mesh():
+    from hoc_cli.planner import continuation_levels
+
+    assert continuation_levels(36) == [3, 9, 36]
+    assert continuation_levels(16) == [4, 16]
+    assert continuation_levels(8) == [2, 8]
+    assert continuation_levels(3) == [3]
+
+
+def test_coarse_to_fine_and_single_mesh_solves_reach_the_same_optimum():
+    model = load_robot(ROBOTS / "two_link.urdf")
+    S = RobotSystem(model)
+    mesh = HermiteMesh("quintic", 1.5, 16)
+    a = plan(S, mesh, [0, 0], [0, 0], [1.2, -0.6], [0, 0], continuation=True)
+    b = plan(S, mesh, [0, 0], [0, 0], [1.2, -0.6], [0, 0], continuation=False)
+    assert a.converged and b.converged
+    assert a.J == pytest.approx(b.J, rel=1e-10)
+    # J to 1e-10 leaves the coefficients accurate to about its square root in the softest directions
+    np.testing.assert_allclose(a.coeffs[:, 0], b.coeffs[:, 0], atol=1e-5)
+    np.testing.assert_allclose(a.coeffs, b.coeffs, rtol=1e-3, atol=1e-3)

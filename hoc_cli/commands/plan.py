@@ -41,7 +41,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
 
     def report(log) -> None:
         if show:
-            console.print(f"iter {log.iteration:4d}  J {log.J:<18.12g} |g| {log.grad_norm:.1e}  "
+            console.print(f"iter {log.iteration:4d}  N {log.level:4d}  J {log.J:<18.12g} |g| {log.grad_norm:.1e}  "
                           f"dec {log.decrement:.1e}  evals {log.n_evals:4d} {time.perf_counter() - start:6.2f}s",
                           highlight=False, soft_wrap=True)
 

@@ -24,7 +24,7 @@ MESSAGES = {
 
 @dataclass(frozen=True)
 class IterLog:
-    """One iteration: cost J, gradient norm ‖g‖∞, decrement ½gᵀP⁻¹g, step α, evaluations so far."""
+    """One iteration: cost J, gradient norm ‖g‖∞, decrement ½gᵀP⁻¹g, step α, evaluations so far, mesh level."""
 
     iteration: int
     J: float
@@ -32,6 +32,7 @@ class IterLog:
     decrement: float
     alpha: float
     n_evals: int
+    level: int = 0  # number of elements of the mesh being solved (coarse-to-fine), 0 if not applicable
 
 
 @dataclass(eq=False)
