@@ -3,6 +3,9 @@
 The public Python API (no CLI, terminal or file-format imports here):
 
 - ``HermiteMesh``, ``QuadratureOperator``: cubic/quintic Hermite elements (``hoc_cli.elements``)
+- ``load_robot`` (URDF → ``RobotModel``), ``RobotSystem``, ``LinearOscillator``, ``System`` (``hoc_cli.system``)
+- ``plan`` → ``PlanResult``, ``ControlProblem`` (cost, gradient, banded Newton matrix)
+- ``simulate_hermite``, ``simulate_reference`` (``hoc_cli.simulate``)
 - ``HocError`` and its subclasses (``hoc_cli.errors``)
 """
 import os as _os
@@ -14,13 +17,43 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
 from hoc_cli.elements import HermiteMesh, QuadratureOperator  # noqa: E402
-from hoc_cli.errors import HocError  # noqa: E402, InputFileError, ModelError, NumericalError, OutputError, TaskError
+from hoc_cli.errors import (  # noqa: E402
+    HocError,
+    InputFileError,
+    ModelError,
+    NumericalError,
+    OutputError,
+    TaskError,
+)
+from hoc_cli.planner import PlanResult, plan  # noqa: E402
+from hoc_cli.problem import ControlProblem  # noqa: E402
+from hoc_cli.simulate import simulate_hermite, simulate_reference  # noqa: E402
+from hoc_cli.system import LinearOscillator, RobotSystem, System  # noqa: E402
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str):
+    """``hoc_cli.load_robot`` without importing yourdfpy until it is used."""
+    if name == "load_robot":
+        from hoc_cli.model import load_robot
+
+        return load_robot
+    raise AttributeError(f"module 'hoc_cli' has no attribute {name!r}")
+
+
 __all__ = [
+    "ControlProblem",
     "HermiteMesh",
+    "LinearOscillator",
+    "PlanResult",
     "QuadratureOperator",
+    "RobotSystem",
+    "System",
+    "load_robot",
+    "plan",
+    "simulate_hermite",
+    "simulate_reference",
     "HocError",
     "InputFileError",
     "ModelError",

@@ -47,3 +47,7 @@ class NumericalError(HocError):
     """The computation failed numerically (NaN cost, singular mass matrix, stalled line search)."""
 
     exit_code = 1
+
+
+class HocWarning(UserWarning):
+    """Something the user should know but that does not stop the run (printed as one line)."""

@@ -244,3 +244,25 @@ def test_inspect_tables_list_every_raw_joint_and_link():
     links = urdf_link_table(ROBOTS / "dual_arm.urdf")
     assert sum(row["mass"] for row in links) == pytest.approx(20.2)
     assert next(row for row in links if row["name"] == "torso")["com"] == [0.02, 0.0, 0.25]
+
+
+def test_a_robot_without_movable_joints_is_a_model_error(tmp_path):
+    path = write(tmp_path, link("base"), link("a"), joint("fix", "base", "a", kind="fixed"))
+    with pytest.raises(ModelError, match="no movable joints"):
+        load_robot(path)
+
+
+def test_a_mimic_joint_of_an_unknown_master_is_a_model_error(tmp_path):
+    path = write(tmp_path, link("base"), link("a"), link("b"), joint("j1", "base", "a"),
+                 joint("j2", "a", "b", extra='<mimic joint="nope" multiplier="1"/>'))
+    with pytest.raises(ModelError, match="mimics 'nope'"):
+        load_robot(path)
+
+
+def test_moving_the_master_of_a_mimic_joint_warns_that_the_coupling_is_not_modelled(tmp_path):
+    from hoc_cli.errors import HocWarning
+
+    path = write(tmp_path, link("base"), link("a"), link("b"), joint("j1", "base", "a"),
+                 joint("j2", "a", "b", extra='<mimic joint="j1" multiplier="1"/>'))
+    with pytest.warns(HocWarning, match="mimics task joint 'j1'"):
+        load_robot(path)

@@ -156,3 +156,18 @@ def test_reported_cost_equals_pinocchios_integral_of_the_covariant_effort(task, 
         M = np.triu(M) + np.triu(M, 1).T
         L[k] = 0.5 * u @ np.linalg.solve(M, u)
     assert simpson(L, x=t) == pytest.approx(J, rel=1e-9)
+
+
+def test_an_unexpected_exception_is_one_line_exit_1_and_a_traceback_with_debug(task, monkeypatch):
+    import hoc_cli.commands.plan as cmd
+
+    def boom(*a, **k):
+        raise ZeroDivisionError("simulated bug")
+
+    monkeypatch.setattr(cmd, "plan", boom)
+    r = invoke("plan", task)
+    assert r.exit_code == 1
+    assert r.stderr.strip().splitlines() == [
+        "hoc: error: internal error (ZeroDivisionError: simulated bug); please report it with the output of --debug"]
+    r = invoke("plan", task, "--debug")
+    assert isinstance(r.exception, ZeroDivisionError)

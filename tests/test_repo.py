@@ -22,3 +22,13 @@ def test_hoc_version_and_help_work_through_the_cli():
     assert r.exit_code == 0
     for command in ("plan", "simulate", "inspect", "verify", "plot"):
         assert command in r.stdout
+
+
+def test_every_public_name_exists_and_importing_the_package_does_not_load_yourdfpy():
+    import subprocess
+    import sys
+
+    code = ("import sys, hoc_cli; missing = [n for n in hoc_cli.__all__ if not hasattr(hoc_cli, n)]; "
+            "print(missing, 'yourdfpy' in sys.modules, 'typer' in sys.modules, 'mcap' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[] False False False"

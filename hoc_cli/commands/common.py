@@ -10,6 +10,7 @@ import os
 import signal
 import sys
 import tempfile
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import Any, Callable, Iterator
 
 from rich.console import Console
 
-from hoc_cli.errors import HocError, OutputError
+from hoc_cli.errors import HocError, HocWarning, OutputError
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 130, 143
 OUTPUT_KINDS = {".csv": "csv", ".mcap": "mcap"}
@@ -38,6 +39,12 @@ def report_error(message: str) -> None:
     sys.stderr.flush()
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one line on standard error (HocWarning only; others are silenced without --debug)."""
+    sys.stderr.write(f"hoc: warning: {message}\n")
+    sys.stderr.flush()
+
+
 def run_guarded(body: Callable[[], int], debug: bool = False) -> int:
     """Run a command body and map failures to exit codes; tracebacks only with ``debug``."""
     previous = signal.getsignal(signal.SIGTERM)
@@ -50,12 +57,22 @@ def run_guarded(body: Callable[[], int], debug: bool = False) -> int:
     except ValueError:  # not in the main thread (e.g. some test runners)
         previous = None
     try:
-        return body()
+        with warnings.catch_warnings():
+            warnings.simplefilter("always" if debug else "ignore")
+            warnings.simplefilter("always", HocWarning)
+            warnings.showwarning = _show_warning if not debug else warnings.showwarning
+            return body()
     except HocError as exc:
         if debug:
             raise
         report_error(str(exc))
         return exc.exit_code
+    except Exception as exc:  # a bug: still one line, and the traceback with --debug
+        if debug:
+            raise
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        report_error(f"internal error ({type(exc).__name__}: {first}); please report it with the output of --debug")
+        return EXIT_UNMET
     except KeyboardInterrupt:
         report_error("interrupted; no output was changed")
         return EXIT_SIGINT

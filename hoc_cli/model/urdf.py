@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import HocWarning, ModelError
 from .spatial import align_z, joint_motion, motion_transform, spatial_inertia
 from .tree import JOINT_TYPES, RobotModel
 
@@ -250,6 +251,21 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
         if not math.isfinite(value):
             raise ModelError(f"locked value {value} is not finite", file=path, key=key)
         locked[name] = value
+
+    if not joints:
+        raise ModelError(f"has no movable joints to plan (expected at least one revolute, continuous or "
+                         f"prismatic joint; movable joints: {movable})", file=path, key="joints")
+    for joint in robot.joints:
+        if joint.mimic is None:
+            continue
+        master = joint.mimic.joint
+        if master not in by_name or by_name[master].type not in MOVABLE:
+            raise ModelError(f"mimics {master!r}, which is not a movable joint of the URDF", file=path,
+                             key=f"joint {joint.name!r}")
+        if master in joints:
+            warnings.warn(HocWarning(f"{path}: joint {joint.name!r} mimics task joint {master!r} but hoc holds it "
+                                     f"fixed (mimic coupling is not modelled); lock {master!r} for exact dynamics"),
+                          stacklevel=2)
 
     index = {name: i for i, name in enumerate(joints)}
     n = len(joints)
