@@ -99,6 +99,8 @@ def simulate(
     method: Annotated[str, typer.Option("--method", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = "hermite",
     torque: Annotated[Optional[Path], typer.Option("--torque", help="Torque history from a plan's CSV or MCAP (interpolated in time).")] = None,
     check: Annotated[Optional[float], typer.Option("--check", help="Exit 1 when the final state misses x1 by more than this.")] = None,
+    tol: Annotated[Optional[float], typer.Option("--tol", help="Accepted for symmetry with plan (solver.tol); validated, unused by the integrators.")] = None,
+    max_iter: Annotated[Optional[int], typer.Option("--max-iter", help="Accepted for symmetry with plan (solver.max_iter); validated, unused.")] = None,
     debug: DebugOpt = False,
 ) -> None:
     """Integrate the motion forward from x0 under a torque history.
@@ -110,7 +112,8 @@ def simulate(
     code = run_guarded(
         lambda: cmd.run(
             source, outputs=output, as_json=json_, quiet=quiet, progress=progress,
-            overrides=dict(N=elements, order=order, T=duration), method=method, torque=torque, check=check,
+            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter), method=method,
+            torque=torque, check=check,
         ),
         debug=debug,
     )

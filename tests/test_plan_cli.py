@@ -171,3 +171,19 @@ def test_an_unexpected_exception_is_one_line_exit_1_and_a_traceback_with_debug(t
         "hoc: error: internal error (ZeroDivisionError: simulated bug); please report it with the output of --debug"]
     r = invoke("plan", task, "--debug")
     assert isinstance(r.exception, ZeroDivisionError)
+
+
+@pytest.mark.parametrize("outs", [["-", "-"], ["a.csv", "./a.csv"]])
+def test_the_same_output_twice_is_a_usage_error(task, tmp_path, outs):
+    args = [x for o in outs for x in ("-o", o)]
+    r = invoke("plan", task, *args)
+    assert r.exit_code == 2 and "is given twice" in r.stderr and r.stdout == ""
+    assert not (tmp_path / "a.csv").exists()
+
+
+def test_an_output_rate_that_would_write_millions_of_samples_is_refused(task, tmp_path):
+    task.write_text(task.read_text() + "")
+    text = task.read_text().replace("output: {rate: 100}", "output: {rate: 1.0e+9}")
+    task.write_text(text)
+    r = invoke("plan", task)
+    assert r.exit_code == 2 and "output.rate" in r.stderr and "1000000" in r.stderr

@@ -101,11 +101,18 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
     if not outputs:
         outputs = [f"{stem}.mcap", f"{stem}.csv"]
     targets: list[OutputTarget] = []
+    seen: set = set()
     for raw in outputs:
+        identity = "-" if raw == "-" else os.path.realpath(raw)
+        if identity in seen:
+            raise OutputError("is given twice (expected each output once)", file=raw, key="--output")
+        seen.add(identity)
         if raw == "-":
             targets.append(OutputTarget(None, "csv"))
             continue
         path = Path(raw)
+        if path.is_dir():
+            raise OutputError("is a directory (expected a file path)", file=path, key="--output")
         kind = OUTPUT_KINDS.get(path.suffix.lower())
         if kind is None:
             raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)", file=path, key="--output")

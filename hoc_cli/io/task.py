@@ -25,6 +25,7 @@ STATE_KEYS = ("q", "dq")
 SOLVER_KEYS = ("method", "tol", "max_iter")
 OUTPUT_KEYS = ("rate",)
 
+MAX_SAMPLES = 1_000_000  # output samples T·rate + 1: beyond this CSV and MCAP reach hundreds of MB
 MAX_ELEMENTS = 100_000  # beyond this the quadrature arrays alone exceed a workstation's memory
 DEFAULT_TOL = 1e-10
 DEFAULT_MAX_ITER = 5000
@@ -298,6 +299,8 @@ def parse_task(doc: Any, *, path: Path, text: str = "", purpose: str = "plan") -
         if "rate" in o:
             rate = c.number(o["rate"], "output.rate", positive=True, what="a sample rate > 0 in Hz")
 
+    _check_samples(c, T, rate, "output.rate")
+
     torque: str | Values | None = None
     if top.get("torque") is not None:
         tq = top["torque"]
@@ -344,7 +347,16 @@ def apply_overrides(task: Task, **overrides: Any) -> Task:
             changes[key] = c.choice(value, opt, COSTS)
         else:
             raise ValueError(f"unknown override {key}")
-    return replace(task, **changes)
+    new = replace(task, **changes)
+    if "T" in changes:
+        _check_samples(c, new.T, new.rate, "--duration")
+    return new
+
+
+def _check_samples(c: _Checker, T: float, rate: float, key: str) -> None:
+    if T * rate + 1 > MAX_SAMPLES:
+        raise TaskError(f"T·rate = {T:g} s × {rate:g} Hz gives more than {MAX_SAMPLES} output samples "
+                        f"(expected a lower output.rate or a shorter T)", file=c.path, key=key)
 
 
 def _vector(c: _Checker, values: Values | None, key: str, joints: tuple[str, ...]) -> np.ndarray | None:
