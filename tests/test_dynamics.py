@@ -19,8 +19,7 @@ _MODELS: dict = {}
 def model_of(case: str):
     if case not in _MODELS:
         path, kw = CASES[case]
-        if not path.is_file():
-            pytest.skip(f"{path} not installed (pip install example-robot-data)")
+        assert path.is_file(), f"{path} missing: the test extra installs example-robot-data"
         _MODELS[case] = load_robot(path, **kw)
     return _MODELS[case]
 

@@ -298,13 +298,14 @@ def joints_without_mimic_masters(model_mod, path):
 
 
 @pytest.mark.parametrize("path", [
-    pytest.param(p, id=p.stem, marks=pytest.mark.skipif(not p.exists(), reason=f"{p.name} not present"))
+    pytest.param(p, id=p.stem)
     for p in FK_CASES])
 def test_tf_matches_forward_kinematics_computed_independently_by_yourdfpy(path):
     """Oracle: yourdfpy's own scene graph (trimesh transform tree), yourdfpy 0.0.5x/0.0.6x."""
-    dynamics = pytest.importorskip("hoc_cli.dynamics")
-    model_mod = pytest.importorskip("hoc_cli.model")
-    yourdfpy = pytest.importorskip("yourdfpy")
+    import yourdfpy
+
+    import hoc_cli.model as model_mod
+    from hoc_cli import dynamics
 
     model = model_mod.load_robot(path, joints=joints_without_mimic_masters(model_mod, path))
     rng = np.random.default_rng(12)

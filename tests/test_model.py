@@ -106,8 +106,7 @@ def test_locked_joints_merge_into_their_parent_body(tmp_path):
 
 def test_mimic_joints_are_always_locked_and_follow_their_locked_master():
     path = ERD / "panda_description" / "urdf" / "panda.urdf"
-    if not path.is_file():
-        pytest.skip("example-robot-data not installed")
+    assert path.is_file(), "the test extra installs example-robot-data"
     model = load_robot(path, joints=[f"panda_joint{i}" for i in range(1, 8)],
                        locked={"panda_finger_joint1": 0.03})
     assert model.locked == {"panda_finger_joint1": 0.03, "panda_finger_joint2": 0.03}

@@ -187,3 +187,52 @@ def test_an_output_rate_that_would_write_millions_of_samples_is_refused(task, tm
     task.write_text(text)
     r = invoke("plan", task)
     assert r.exit_code == 2 and "output.rate" in r.stderr and "1000000" in r.stderr
+
+
+def test_a_7dof_plans_mcap_decodes_with_the_ros2_decoder_and_tf_matches_yourdfpy(tmp_path, monkeypatch):
+    """Read back with mcap's reader and mcap_ros2's decoder (not hoc's reader): one JointState per CSV
+    row with equal values, the URDF on /robot_description, /tf equal to yourdfpy's forward kinematics
+    (an independent oracle), the `hoc` metadata and the three attachments."""
+    import yourdfpy
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from scipy.spatial.transform import Rotation
+
+    monkeypatch.chdir(tmp_path)
+    urdf = ROOT / "robots" / "lbr7.urdf"
+    (tmp_path / "t.yaml").write_text(
+        (ROOT / "configs" / "lbr7_reach.yaml").read_text().replace("../robots/lbr7.urdf", str(urdf))
+        .replace("N: 16", "N: 4") + "output: {rate: 20}\n")
+    assert invoke("plan", tmp_path / "t.yaml", "-o", "p.mcap", "-o", "p.csv", "-q").exit_code == 0
+    csv = read_csv(tmp_path / "p.csv")
+    by_topic: dict = {}
+    with open(tmp_path / "p.mcap", "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            by_topic.setdefault(channel.topic, []).append((message.log_time, decoded))
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        attachments = {a.name for a in reader.iter_attachments()}
+    js = by_topic["/joint_states"]
+    assert len(js) == csv.K
+    for k, (log_time, m) in enumerate(js):
+        assert list(m.name) == list(csv.joints)
+        assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == log_time == round(csv.t[k] * 1e9)
+        np.testing.assert_array_equal(m.position, csv.q[k])
+        np.testing.assert_array_equal(m.velocity, csv.dq[k])
+        np.testing.assert_array_equal(m.effort, csv.u[k])
+    assert by_topic["/robot_description"][0][1].data == urdf.read_text()
+    assert "task" in metadata["hoc"] and "summary" in metadata["hoc"]
+    assert attachments == {"robot.urdf", "task.yaml", "hermite.json"}
+    oracle = yourdfpy.URDF.load(str(urdf), build_scene_graph=True, load_meshes=False,
+                                build_collision_scene_graph=False, load_collision_meshes=False)
+    tf = by_topic["/tf"]
+    assert len(tf) == csv.K
+    for k in (0, csv.K // 2, csv.K - 1):
+        oracle.update_cfg(dict(zip(csv.joints, csv.q[k].tolist())))
+        for ts in tf[k][1].transforms:
+            r, p = ts.transform.rotation, ts.transform.translation
+            A = np.eye(4)
+            A[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+            A[:3, 3] = [p.x, p.y, p.z]
+            expected = oracle.get_transform(frame_to=ts.child_frame_id, frame_from=ts.header.frame_id)
+            np.testing.assert_allclose(A, expected, atol=1e-12)

@@ -63,7 +63,6 @@ def test_plot_writes_a_png_that_opens(files, tmp_path, source):
 
 
 def test_the_limits_of_an_mcap_come_from_its_attached_urdf(files):
-    pytest.importorskip("hoc_cli.model")
     from hoc_cli.commands.plot import read_for_plot
     from hoc_cli.plotting import JointLimits
 

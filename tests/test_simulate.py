@@ -139,8 +139,6 @@ class CoupledVanDerPol:
 
 def robot(name: str, **kwargs):
     path = ROBOTS / name
-    if not path.exists():
-        pytest.skip(f"{path} not present yet")
     from hoc_cli.model import load_robot
     from hoc_cli.system import RobotSystem
 
