@@ -110,7 +110,6 @@ class Evaluation:
     J: float
     grad: np.ndarray | None
     u: np.ndarray  # (K, n)
-    jac: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # ∂u/∂q, ∂u/∂q̇, M, each (K, n, n)
     noise: float = 0.0  # rounding level of J: u = M q̈ + h loses ~eps·(|M q̈| + |h|) to cancellation
     samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # q, q̇, q̈ at the Gauss points
 
@@ -150,14 +149,23 @@ class ControlProblem:
         return self.layout.unpack(x, self.C_fixed)
 
     # -- cost and gradient -----------------------------------------------------------------------------
-    def sample_gradients(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> dict:
-        """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ (each (K, n)), with u, w, Jacobians."""
-        u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
+    def sample_gradients(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, jacobians: bool = True) -> dict:
+        """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ (each (K, n)), with u, w, M and,
+        with ``jacobians``, ∂u/∂q and ∂u/∂q̇ (K, n, n); without, the gradient comes from a cheaper
+        vector-Jacobian product (RNEA reverse sweep) instead of the full Jacobians."""
+        if jacobians:
+            u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
+        else:
+            u, M = self.system.inverse_dynamics(q, dq, ddq), self.system.mass_matrix(q)
+            Jq = Jv = None
         w = _spd_solve(M, u) if self.cost == "covariant" else u
-        gq = np.einsum("kij,ki->kj", Jq, w)
-        gdq = np.einsum("kij,ki->kj", Jv, w)
+        if jacobians:
+            gq = np.einsum("kij,ki->kj", Jq, w)
+            gdq = np.einsum("kij,ki->kj", Jv, w)
+        else:
+            _, gq, gdq = self.system.id_vjp(q, dq, ddq, w)
         if self.cost == "covariant":
-            gq -= 0.5 * self.system.mass_quadratic_grad(q, w)
+            gq = gq - 0.5 * self.system.mass_quadratic_grad(q, w)
             gddq = u
         else:
             gddq = np.einsum("kij,ki->kj", M, w)
@@ -177,7 +185,7 @@ class ControlProblem:
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
             return Evaluation(x=x, J=J, grad=None, u=u)
-        s = self.sample_gradients(q, dq, ddq)
+        s = self.sample_gradients(q, dq, ddq, jacobians=False)
         J = float(np.dot(wt, s["L"]))
         if not np.isfinite(J):
             raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
@@ -187,7 +195,7 @@ class ControlProblem:
         Mddq = np.einsum("kij,kj->ki", M, ddq)
         size = np.abs(Mddq) + np.abs(u - Mddq)
         noise = 64 * np.finfo(float).eps * float(np.dot(wt, np.einsum("ki,ki->k", np.abs(w), size)))
-        ev = Evaluation(x=x, J=J, grad=g, u=u, jac=(s["Jq"], s["Jv"], M), noise=noise, samples=(q, dq, ddq))
+        ev = Evaluation(x=x, J=J, grad=g, u=u, noise=noise, samples=(q, dq, ddq))
         self.last = ev
         return ev
 
@@ -216,7 +224,7 @@ class ControlProblem:
         Qb = np.concatenate([q[None] + E[:, None, :] * eps_q[None], np.broadcast_to(q, (n, K, n)), q[None]])
         Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
         Ab = np.broadcast_to(ddq, (2 * n + 1, K, n))
-        s = self.sample_gradients(Qb.reshape(-1, n), Vb.reshape(-1, n), Ab.reshape(-1, n))
+        s = self.sample_gradients(Qb.reshape(-1, n), Vb.reshape(-1, n), Ab.reshape(-1, n), jacobians=False)
         G = np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1).reshape(2 * n + 1, K, 3 * n)
         base = G[-1]
         M = s["M"].reshape(2 * n + 1, K, n, n)[-1]
