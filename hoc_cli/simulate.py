@@ -440,7 +440,8 @@ def _newton(
 
 
 def _where(e: int, h: float, what: str) -> str:
-    return f"Hermite simulation failed in element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s): {what}"
+    return (f"Hermite simulation failed in element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s): {what}; "
+            f"shorter elements (more of them: -N) or --method rk may get through")
 
 
 # --------------------------------------------------------------------------- reference integrator

@@ -236,3 +236,12 @@ def test_a_7dof_plans_mcap_decodes_with_the_ros2_decoder_and_tf_matches_yourdfpy
             A[:3, 3] = [p.x, p.y, p.z]
             expected = oracle.get_transform(frame_to=ts.child_frame_id, frame_from=ts.header.frame_id)
             np.testing.assert_allclose(A, expected, atol=1e-12)
+
+
+def test_an_output_that_is_a_symlink_is_written_through_the_link(task, tmp_path):
+    target = tmp_path / "real.csv"
+    target.write_text("old")
+    (tmp_path / "link.csv").symlink_to(target)
+    assert invoke("plan", task, "-o", "link.csv", "-q").exit_code == 0
+    assert (tmp_path / "link.csv").is_symlink()
+    assert target.read_text().startswith("t,q.shoulder")

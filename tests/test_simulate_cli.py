@@ -224,3 +224,10 @@ def test_the_7dof_arm_accepts_joint_name_mappings_for_x0_and_torque(tmp_path):
     docs = [json.loads(invoke(task, "--json", "--method", m, "-o", tmp_path / "a.csv").stdout) for m in ("hermite", "rk")]
     np.testing.assert_allclose(docs[0]["final_state"]["q"], docs[1]["final_state"]["q"], atol=1e-8)
     assert docs[0]["joints"] == names
+
+
+def test_a_csv_as_the_simulation_source_points_to_the_torque_option(tmp_path):
+    p = tmp_path / "plan.csv"
+    p.write_text("t,q.a,dq.a,ddq.a,u.a\n0,0,0,0,0\n")
+    r = invoke(p)
+    assert r.exit_code == 2 and "--torque" in r.stderr and len(r.stderr.strip().splitlines()) == 1

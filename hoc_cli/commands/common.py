@@ -174,6 +174,8 @@ def atomic_output(path: Path) -> Iterator[Any]:
     removed and an existing ``path`` is left untouched. Inside ``output_transaction`` the rename
     waits for the end of the transaction.
     """
+    if path.is_symlink():  # write through the link, as a plain `open(path, "w")` would
+        path = Path(os.path.realpath(path))
     parent = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
     try:

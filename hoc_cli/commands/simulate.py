@@ -77,6 +77,9 @@ def run(
 
     with tempfile.TemporaryDirectory(prefix="hoc-simulate-") as scratch:
         plan = None
+        if source.suffix.lower() == ".csv":
+            raise InputFileError("a CSV cannot be the simulation source (expected a task YAML or a plan's MCAP); "
+                                 "give a torque CSV with --torque", file=source)
         if source.suffix.lower() == ".mcap":
             from hoc_cli.io.mcap import read_plan
 
