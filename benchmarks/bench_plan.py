@@ -3,8 +3,8 @@
 Run:  python benchmarks/bench_plan.py            (a few minutes on 2 cores)
       python benchmarks/bench_plan.py --quick    (fewer mesh sizes, one timing run)
 
-Task: configs/lbr7_reach.yaml (robots/lbr7.urdf, rest to rest in T = 1.5 s from
-x0.q = [0, 0.6, 0, -1.4, 0, 0.9, 0] to x1.q = [1.0, 0.3, 0.3, -1.0, 0.2, 1.2, 0.4]) with the covariant
+Task: configs/lbr7_reach.yaml by default (`--task` for another rest-to-rest task on robots/lbr7.urdf,
+e.g. configs/lbr7_swing.yaml, the long non-convex swing) with the covariant
 cost J = ∫ ½ uᵀ M(q)⁻¹ u dt, u = M(q) q̈ + C(q, q̇) q̇ + g(q).
 
 Baseline (benchmark-only dependency: casadi with IPOPT + MUMPS). Flipped Legendre-Gauss-Radau
@@ -21,10 +21,10 @@ RNEA (benchmarks/_casadi_robot.py) is built from hoc's frozen RobotModel and che
 ``hoc_cli.dynamics`` at random states. Both methods start from the minimum-jerk quintic per joint
 (q, q̇ from x0 and x1, q̈ = 0 at both ends); for IPOPT w starts consistent (w = q̈ + M⁻¹ h).
 
-Protocol. The task is non-convex, and from the SAME minimum-jerk guess the two methods reach
-DIFFERENT local optima (measured, printed): hoc J ≈ 407.8668 (joint 6 swings to 3.77 rad, past its
-URDF limit), IPOPT J ≈ 424.0591 (within limits); some coarse IPOPT meshes land on a third one. So each
-method gets its own reference J*, from its two finest meshes (hoc quintic N = 64, 128 at tol 1e-13;
+Protocol. The task may be non-convex: on configs/lbr7_swing.yaml, from the SAME minimum-jerk guess,
+the two methods reach DIFFERENT local optima (measured, printed): hoc J ≈ 407.8668 (joint 6 swings to
+3.77 rad, past its URDF limit), IPOPT J ≈ 424.0591 (within limits). So each method gets its own
+reference J*, from its two finest meshes (hoc quintic N = 64, 128 at tol 1e-13;
 IPOPT LGR K = 16, 24 at d = 7), and cross-checks show that each optimum is also an optimum of the
 other transcription, with the same J (started there, the other method stays, to 1e-10 or better).
 For each method, the cheapest discretisation of a sweep whose J is within TARGET = 1e-8 of its J*
@@ -57,6 +57,7 @@ from hoc_cli import dynamics  # noqa: E402
 from hoc_cli.elements import HermiteMesh  # noqa: E402
 from hoc_cli.model import load_robot  # noqa: E402
 from hoc_cli.planner import plan  # noqa: E402
+from hoc_cli.io.task import load_task, resolve  # noqa: E402
 from hoc_cli.problem import ControlProblem  # noqa: E402
 from hoc_cli.system import RobotSystem  # noqa: E402
 
@@ -254,7 +255,15 @@ def say(*args) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer mesh sizes and one timing run")
+    ap.add_argument("--task", default=str(ROOT / "configs" / "lbr7_reach.yaml"),
+                    help="a task on robots/lbr7.urdf, rest to rest (default: configs/lbr7_reach.yaml)")
     args = ap.parse_args()
+    global T, Q0, Q1
+    task = load_task(args.task)
+    states = resolve(task, load_robot(task.robot).joint_names)
+    T, Q0, Q1 = task.T, states.q0, states.q1
+    if np.any(states.dq0) or np.any(states.dq1) or task.cost != "covariant":
+        sys.exit(f"{args.task}: the benchmark transcribes rest-to-rest tasks with the covariant cost")
     runs = 1 if args.quick else 3
     total = time.perf_counter()
     model = load_robot(ROOT / "robots" / "lbr7.urdf")
@@ -264,7 +273,7 @@ def main() -> None:
                                 text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         commit = "?"
-    say(f"lbr7 reach: n = {model.n}, T = {T} s, covariant cost; hoc at commit {commit}, "
+    say(f"{Path(args.task).name}: n = {model.n}, T = {T} s, covariant cost; hoc at commit {commit}, "
         f"casadi {ca.__version__} (IPOPT + MUMPS), threads: OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
     say(f"CasADi RNEA, M, wᵀMw vs hoc_cli.dynamics at 50 random states: max relative difference "
         f"{check_dynamics(model):.1e} (<= 1e-10 required)")
@@ -284,9 +293,13 @@ def main() -> None:
             f"{gap(sol, fine[Kd].times, hoc_path(ref[128])):.3f} rad")
     say(f"  |ΔJ|/J between the two IPOPT meshes = {rel(fine_sol[(16, 7)]['J'], J_ip):.1e}   -> J*_ipopt = {J_ip:.10f}")
     q6 = lambda path: float(path(np.linspace(0, T, 3001), 0)[:, 5].max())  # noqa: E731
-    say(f"NOT the same local optimum: J*_ipopt - J*_hoc = {J_ip - J_hoc:.4f}. hoc's optimum swings joint 6 to "
-        f"q6 = {q6(hoc_path(ref[128])):.2f} rad (URDF limit {model.upper[5]:.2f}); IPOPT's stays at q6 <= "
-        f"{q6(ipopt_path(fine_sol[(24, 7)], fine[(24, 7)].times)):.2f} rad.")
+    same = gap(fine_sol[(24, 7)], fine[(24, 7)].times, hoc_path(ref[128])) < SAME
+    if same:
+        say(f"the same local optimum: |J*_ipopt - J*_hoc|/J = {rel(J_ip, J_hoc):.1e}")
+    else:
+        say(f"NOT the same local optimum: J*_ipopt - J*_hoc = {J_ip - J_hoc:.4f}. hoc's optimum reaches "
+            f"q6 = {q6(hoc_path(ref[128])):.2f} rad (URDF limit {model.upper[5]:.2f}); IPOPT's "
+            f"q6 <= {q6(ipopt_path(fine_sol[(24, 7)], fine[(24, 7)].times)):.2f} rad.")
 
     # ---- cross-checks: each optimum is an optimum of the other transcription
     say("\n== cross-checks: each method started from the other's optimum ==")
@@ -307,9 +320,10 @@ def main() -> None:
     # ---- sweeps: cheapest discretisation within TARGET of its own converged value
     say(f"\n== sweeps from the minimum-jerk guess: J within {TARGET:.0e} (relative) of the method's J* ==")
     rows = []
-    sweeps = {"quintic": (24, 28, 32, 36, 40, 48, 56), "cubic": (128, 160, 192, 224, 256, 320)}
+    sweeps = {"quintic": (4, 6, 8, 12, 16, 24, 28, 32, 36, 40, 48, 56),
+              "cubic": (16, 24, 32, 48, 64, 96, 128, 160, 192, 224, 256, 320)}
     if args.quick:
-        sweeps = {"quintic": (32, 36, 40, 48), "cubic": (192, 224, 256, 320)}
+        sweeps = {"quintic": (8, 16, 32, 36, 40, 48), "cubic": (64, 128, 192, 224, 256, 320)}
     for order, Ns in sweeps.items():
         for N in Ns:
             r = hoc_solve(system, order, N)
@@ -371,7 +385,8 @@ def main() -> None:
         say(f"{t['method']:36s} {t['disc']:9s} {t['unknowns']:8d} {t['J']:16.10f} {t['err']:9.1e} {t['iters']:5d} "
             f"{t['evals']:>20s} {t['wall']:9.3f} {t['setup']:9.2f}")
     ip = table[-1]
-    say(f"J*: hoc {J_hoc:.10f} (quintic N=128), IPOPT {J_ip:.10f} (LGR K=24 d=7): different local optima, see above")
+    say(f"J*: hoc {J_hoc:.10f} (quintic N=128), IPOPT {J_ip:.10f} (LGR K=24 d=7): "
+        + ("the same optimum" if same else "different local optima, see above"))
     say("\ntargets (issue 4):")
     for t in table[:-1]:
         ratio = t["wall"] / ip["wall"]

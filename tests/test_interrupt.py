@@ -40,7 +40,7 @@ def _default_sigint() -> None:
 
 
 def start_long_plan(d: Path) -> tuple[subprocess.Popen, "queue.Queue[str]"]:
-    text = (ROOT / "configs" / "lbr7_reach.yaml").read_text()
+    text = (ROOT / "configs" / "lbr7_swing.yaml").read_text()  # the long, non-convex task
     (d / "reach.yaml").write_text(text.replace("../robots/lbr7.urdf", str(ROOT / "robots" / "lbr7.urdf")))
     for name, data in KEEP.items():
         (d / name).write_bytes(data)
