@@ -169,3 +169,18 @@ def test_coarse_to_fine_and_single_mesh_solves_reach_the_same_optimum():
     # J to 1e-10 leaves the coefficients accurate to about its square root in the softest directions
     np.testing.assert_allclose(a.coeffs[:, 0], b.coeffs[:, 0], atol=1e-5)
     np.testing.assert_allclose(a.coeffs, b.coeffs, rtol=1e-3, atol=1e-3)
+
+
+@pytest.mark.parametrize("config", ["two_link.yaml", "dual_arm.yaml", "lbr7_swing.yaml"])
+def test_the_default_tolerance_gives_J_within_1e_10_of_a_much_tighter_solve(config):
+    from hoc_cli.io.task import load_task, resolve
+
+    task = load_task(ROBOTS.parent / "configs" / config)
+    model = load_robot(task.robot)
+    s = resolve(task, model.joint_names)
+    S = RobotSystem(model)
+    mesh = HermiteMesh(task.order, task.T, min(task.N, 8))
+    default = plan(S, mesh, s.q0, s.dq0, s.q1, s.dq1)
+    tight = plan(S, mesh, s.q0, s.dq0, s.q1, s.dq1, tol=1e-15, G=default.G)
+    assert default.converged and tight.converged
+    assert abs(default.J - tight.J) <= 1e-10 * tight.J
