@@ -27,7 +27,7 @@ app = typer.Typer(
 
 OutputOpt = Annotated[
     Optional[list[str]],
-    typer.Option("-o", "--output", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
                  "Default: <task stem>.mcap and <task stem>.csv in the current directory."),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
@@ -54,7 +54,7 @@ def main(
 
 @app.command()
 def plan(
-    task: Annotated[Path, typer.Argument(help="Task YAML file (see the README's task-file reference).")],
+    task: Annotated[Path, typer.Argument(metavar="TASK.yaml", help="Task YAML file (see the README's task-file reference).")],
     output: OutputOpt = None,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
@@ -88,7 +88,7 @@ def plan(
 
 @app.command()
 def simulate(
-    source: Annotated[Path, typer.Argument(help="Task YAML (with optional torque:) or a plan's MCAP file.")],
+    source: Annotated[Path, typer.Argument(metavar="SOURCE", help="Task YAML (with optional torque:) or a plan's MCAP file.")],
     output: OutputOpt = None,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
@@ -122,7 +122,7 @@ def simulate(
 
 @app.command()
 def inspect(
-    robot: Annotated[Path, typer.Argument(help="URDF file.")],
+    robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file.")],
     json_: JsonOpt = False,
     debug: DebugOpt = False,
 ) -> None:
@@ -153,7 +153,7 @@ def verify(
 
 @app.command()
 def plot(
-    file: Annotated[Path, typer.Argument(help="A plan or simulation CSV or MCAP.")],
+    file: Annotated[Path, typer.Argument(metavar="FILE", help="A plan or simulation CSV or MCAP.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG (or PDF/SVG) file to write.")] = Path("plot.png"),
     debug: DebugOpt = False,
 ) -> None:
