@@ -21,11 +21,15 @@ X      (6, 6) Plücker transform of a joint's constant part (``model.tree_motion
 ====== ================================================================================
 
 Implementation. Every joint moves about or along its body's local z axis (see
-:mod:`hoc_cli.model.tree`), so the q-dependent part of a joint transform is a plane rotation of
-the x/y components (cos q, sin q) or a shift along z. Internally arrays are stored *sample axis
-last*, as ``(3, 2, ..., K)`` (x/y/z × angular/linear × channels × samples), so that each numpy
-operation streams over K contiguous values and the constant 6 × 6 transforms and inertias apply as
-one BLAS product ``(6, 6) @ (6, ·)``; the only Python loops are over bodies.
+:mod:`hoc_cli.model.tree`), so the q-dependent part of a joint transform mixes only the x/y
+components: m ← α m + β D m with (α, β) = (cos q, sin q) (revolute) or (1, q) (prismatic) and D a
+constant generator. Internally arrays are stored *sample axis last*, per body as
+``(rows, channels, K)``, and every body's arrays are slices of one ``(n, rows, channels, K)``
+array, so that (a) each numpy operation streams over K contiguous values, (b) a joint step is one
+BLAS product with a constant matrix that stacks the 6 × 6 transform with its D product, plus two
+or three element-wise operations, and (c) everything that is not a recursion (body forces, the
+adjoints of the velocity products, the gradient read-out) runs for all bodies in one batched
+operation. The only Python loops are the recursions over bodies.
 
 * ``inverse_dynamics``: the recursive Newton-Euler algorithm (Featherstone, *Rigid Body Dynamics
   Algorithms*, 2008, ch. 5), velocity and acceleration carried together.
@@ -34,6 +38,9 @@ one BLAS product ``(6, 6) @ (6, ·)``; the only Python loops are over bodies.
 * ``id_vjp``, ``mass_quadratic_grad``: one reverse (adjoint) sweep of the recursion, O(n) per
   sample; ``id_derivatives``: the same sweep seeded with the n unit vectors, giving ∂u/∂q, ∂u/∂q̇
   and ∂u/∂q̈ = M row by row.
+* ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
+  the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
+  shifted acceleration q̈ − ½ w.
 """
 from __future__ import annotations
 
@@ -45,9 +52,9 @@ import numpy as np
 from .model.tree import RobotModel
 
 #: samples processed together (bounds the temporaries; tuned on a 7-DOF arm, 2-core x86 machine)
-ID_CHUNK = 512      # inverse_dynamics, bias_forces, gravity_forces: keeps the sweep in cache
-DERIV_CHUNK = 256   # id_derivatives: (3, 2, 2, n, K) adjoints per body
-MASS_CHUNK = 1024   # mass_matrix: (3, 2, n, K) columns per body
+ID_CHUNK = 2048     # inverse_dynamics, bias_forces, gravity_forces
+DERIV_CHUNK = 256   # id_derivatives: n seeds per sample in the reverse sweep
+MASS_CHUNK = 1024   # mass_matrix, forward_dynamics, covariant_gradient_terms: n columns per body
 VJP_CHUNK = 2048    # id_vjp, mass_quadratic_grad: one seed
 
 
@@ -84,44 +91,122 @@ def _shape_out(x: np.ndarray, one_d: bool) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- layout and constants
-# A spatial motion or force array has shape (3, 2, ..., K): axis 0 is x/y/z, axis 1 is
-# angular/linear (ω, v) or (n, f), then any channels (velocity/acceleration, derivative directions),
-# then the samples. Rows of the constant 6 × 6 matrices are permuted to match (row = 2·xyz + part),
-# so that ``X @ m.reshape(6, -1)`` applies them, and the x and y blocks ``m[0]``, ``m[1]`` that a
-# joint rotation mixes are contiguous.
+# A spatial motion or force of a body is 6 rows in the order (x, y, z) × (angular, linear):
+# rows 0-3 are the x/y components that a joint's rotation mixes, rows 4-5 the z components. The
+# constant 6 × 6 transforms and inertias are permuted to match. Per body, arrays are stored
+# (rows, channels, [seeds,] K): channels are velocity/acceleration/unit-acceleration columns, K the
+# samples (contiguous), so that every constant matrix applies as one BLAS product on (rows, ·).
+#
+# The q-dependent part of joint i acts on the x/y rows only. Into the moved frame (motions, and the
+# force adjoints of the reverse sweep): m = α y + β D y; out of it (forces, motion adjoints):
+# F ← α F + β Dᵀ F, with (α, β) = (cos q, sin q) for a revolute joint and (1, q) for a prismatic one,
+# and D a constant 4 × 4 generator (revolute: (Dm)_x = m_y, (Dm)_y = −m_x; prismatic: the linear
+# x/y rows get ±q × the angular y/x rows). ∂m/∂q = D m, and the joint-velocity term of the
+# acceleration is q̇ D v. Each constant transform is stacked with its D product, so a joint step is
+# one BLAS product (10 × 6 or 6 × 10) plus two or three element-wise operations.
 _PERM = np.array([0, 3, 1, 4, 2, 5])
+_XY = slice(0, 4)
+_PI1 = np.array([1, 2, 0])  # (a × b)_x = a_π1 b_π2 − a_π2 b_π1
+_PI2 = np.array([2, 0, 1])
+
+
+def _perm_rows(M9: np.ndarray, perm: np.ndarray) -> np.ndarray:
+    """Rows 3·x + j of a (9, ·) matrix with the xyz index x replaced by perm[x]."""
+    return M9.reshape(3, 3, -1)[perm].reshape(9, -1)
 
 
 class _Consts:
-    """Per-model constants of the kernels (permuted transforms, ancestor lists), computed once."""
+    """Per-model constants of the kernels, computed once per model (cached weakly by model)."""
 
     def __init__(self, model: RobotModel) -> None:
+        n = model.n
         ix = np.ix_(_PERM, _PERM)
-        self.X = [np.ascontiguousarray(X[ix]) for X in model.tree_motion]
-        self.XT = [np.ascontiguousarray(X[ix].T) for X in model.tree_motion]
-        self.I = [np.ascontiguousarray(I[ix]) for I in model.inertia]
-        # velocity-product force v ×* (I v) = S (A v × B v): A v = (ω, v_lin, ω) and
-        # B v = (L, p, p) = rows of I v, stacked (xyz, 3, K); S sums (ω × L + v_lin × p, ω × p).
+        X = [np.asarray(Xi)[ix] for Xi in model.tree_motion]
+        I = [np.asarray(Ii)[ix] for Ii in model.inertia]
+        self.n = n
+        self.prism = [t == "prismatic" for t in model.joint_types]
+        self.rev = [not p for p in self.prism]
+        self.t = [1 if p else 0 for p in self.prism]  # joint axis: angular (0) or linear (1) z
+        self.zrow = np.array([4 + t for t in self.t], dtype=np.intp)
+        self.order = [int(i) for i in model.order]
+        self.parent = [int(p) for p in model.parent]
+        self.ar = np.arange(n)
+        # generators D (6 × 6, acting on the x/y rows) and the (2, 2) sign patterns of their
+        # (reversed-view) application, see _dview
+        self.sgn = np.zeros((n, 2, 2))
+        self.sgnT = np.zeros((n, 2, 2))
+        D = np.zeros((n, 6, 6))
+        for i in range(n):
+            if self.prism[i]:
+                D[i, 1, 2], D[i, 3, 0] = 1.0, -1.0
+                self.sgn[i] = [[0.0, 1.0], [0.0, -1.0]]
+                self.sgnT[i] = [[-1.0, 0.0], [1.0, 0.0]]
+            else:
+                D[i, 0, 2] = D[i, 1, 3] = 1.0
+                D[i, 2, 0] = D[i, 3, 1] = -1.0
+                self.sgn[i] = [[1.0, 1.0], [-1.0, -1.0]]
+                self.sgnT[i] = [[-1.0, -1.0], [1.0, 1.0]]
+        # gather form of D and Dᵀ on the x/y rows, for operations on all bodies at once
+        self.src = np.zeros((n, 4), dtype=np.intp)
+        self.srcT = np.zeros((n, 4), dtype=np.intp)
+        self.sg4 = np.zeros((n, 4))
+        self.sgT4 = np.zeros((n, 4))
+        for i in range(n):
+            for r in range(4):
+                for c in range(4):
+                    if D[i, r, c]:
+                        self.src[i, r], self.sg4[i, r] = c, D[i, r, c]
+                        self.srcT[i, c], self.sgT4[i, c] = r, D[i, r, c]
+        self.ar4 = np.arange(n)[:, None]
+        # joint steps: into body i, T = ZF @ m_parent, m = α T[4:8] + β T[0:4] (x/y), T[8:10] (z);
+        # out of it, Xᵀ (α F + β Dᵀ F) = Zb @ (F_z, α F_xy, β F_xy)
+        self.ZF = [np.ascontiguousarray(np.vstack([(D[i] @ X[i])[_XY], X[i]])) for i in range(n)]
+        self.Zb = [np.ascontiguousarray(np.hstack([X[i].T[:, 4:6], X[i].T[:, _XY],
+                                                   X[i].T[:, _XY] @ D[i][_XY, _XY].T])) for i in range(n)]
+        base = np.zeros(6)
+        base[[1, 3, 5]] = -np.asarray(model.gravity, dtype=float)
+        self.zfg = [Z @ base for Z in self.ZF]  # the base's (gravity) acceleration moved into a root body
+        # velocity-product force v ×* (I v) = S (A v × B v), A v = (ω, v_lin, ω) and B v = (L, p, p)
+        # = rows of I v, stacked (xyz, 3); S sums (ω × L + v_lin × p, ω × p).
         A9 = np.zeros((9, 6))
         S = np.zeros((6, 9))
         for x in range(3):
             A9[3 * x, 2 * x] = A9[3 * x + 1, 2 * x + 1] = A9[3 * x + 2, 2 * x] = 1.0
             S[2 * x, 3 * x] = S[2 * x, 3 * x + 1] = S[2 * x + 1, 3 * x + 2] = 1.0
         rows = np.array([[2 * x, 2 * x + 1, 2 * x + 1] for x in range(3)]).ravel()
-        self.AB = [np.ascontiguousarray(np.vstack([A9, I[rows]])) for I in self.I]
-        self.IS = [np.ascontiguousarray(np.hstack([I, S])) for I in self.I]
-        self.prism = [t == "prismatic" for t in model.joint_types]
-        self.part = [1 if p else 0 for p in self.prism]  # joint axis: angular (0) or linear (1) z
-        self.order = [int(i) for i in model.order]
-        self.parent = [int(p) for p in model.parent]
-        anc = [None] * model.n
+        St = S.T
+        self.I = np.ascontiguousarray(np.stack(I)) if n else np.zeros((0, 6, 6))
+        ABq, ISf, ISb, AB9T = [], [], [], []
+        for i in range(n):
+            B9 = I[i][rows]
+            # Gq = (Bπ1, Bπ2, Aπ2, Aπ1) v: Gq[18:] * Gq[:18] = (Aπ2 Bπ1, Aπ1 Bπ2), cross = 2nd − 1st
+            ABq.append(np.vstack([_perm_rows(B9, _PI1), _perm_rows(B9, _PI2),
+                                  _perm_rows(A9, _PI2), _perm_rows(A9, _PI1)]))
+            ISf.append(np.hstack([I[i], -S, S]))
+            # adjoint: (I f̄, g_π2, g_π1, g_π1, g_π2) with g = Sᵀ f̄
+            ISb.append(np.vstack([I[i], _perm_rows(St, _PI2), _perm_rows(St, _PI1),
+                                  _perm_rows(St, _PI1), _perm_rows(St, _PI2)]))
+            AB9T.append(np.vstack([A9, B9]).T)
+        stack = (lambda L, shape: np.ascontiguousarray(np.stack(L)) if n else np.zeros((0,) + shape))
+        self.ABq = stack(ABq, (36, 6))
+        self.ISf = stack(ISf, (6, 24))
+        self.ISb = stack(ISb, (42, 6))
+        self.AB9T = stack(AB9T, (6, 18))
+        # ancestors (self included); mass columns: body i carries the columns [0, hi[i]) (all its
+        # ancestors), its parent's range hi_par[i]
+        anc = [None] * n
         for i in self.order:
             p = self.parent[i]
             anc[i] = [i] if p < 0 else anc[p] + [i]
         self.anc = anc
-        # index of the ancestors in a full direction axis: a slice when they are contiguous
-        self.anc_index = [slice(a[0], a[0] + len(a)) if a == list(range(a[0], a[0] + len(a))) else np.array(a)
-                          for a in anc]
+        self.hi = [max(a) + 1 for a in anc]
+        self.hi_par = [0 if self.parent[i] < 0 else self.hi[self.parent[i]] for i in range(n)]
+        mask = np.zeros((n, n), dtype=bool)
+        for i in range(n):
+            mask[i, anc[i]] = True
+        self.anc_mask = mask                         # [i, j]: j is i or an ancestor of i
+        self.desc_mask = mask.T & ~np.eye(n, dtype=bool)  # [i, j]: j is a strict descendant of i
+        self.all_rev = all(self.rev)
 
 
 _CONSTS: "weakref.WeakKeyDictionary[RobotModel, _Consts]" = weakref.WeakKeyDictionary()
@@ -134,292 +219,293 @@ def _consts(model: RobotModel) -> _Consts:
     return c
 
 
-def _mm(X: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """(6, 6) @ (3, 2, ...) as one BLAS product, same shape out."""
-    return (X @ m.reshape(6, -1)).reshape(m.shape)
+def _dview(x: np.ndarray, rev: bool) -> np.ndarray:
+    """(2, 2, ...) view of the x/y rows (4, ...) reordered so that ``sgn * _dview(x)`` is D x."""
+    x2 = x.reshape((2, 2) + x.shape[1:])
+    return x2[::-1] if rev else x2[::-1, ::-1]
 
 
-def _rot_in(m: np.ndarray, c, s) -> None:
-    """In place: rotate the x/y blocks by Rz(q)ᵀ (into a revolute joint's moved frame)."""
-    K = m.shape[-1]
-    rows = math.prod(m.shape[1:-1])
-    x = m[0].reshape(rows, K)
-    y = m[1].reshape(rows, K)
-    t = c * x
-    t += s * y
-    y *= c
-    y -= s * x
-    x[...] = t
+def _dall(C: _Consts, x: np.ndarray, transpose: bool = False) -> np.ndarray:
+    """D x (or Dᵀ x) for the x/y rows x (n, 4, ...) of every body at once (a new array)."""
+    if C.all_rev:  # D x = (x_y, −x_x); Dᵀ = −D
+        y = np.empty(x.shape)
+        if transpose:
+            np.negative(x[:, 2:4], out=y[:, 0:2])
+            y[:, 2:4] = x[:, 0:2]
+        else:
+            y[:, 0:2] = x[:, 2:4]
+            np.negative(x[:, 0:2], out=y[:, 2:4])
+        return y
+    if transpose:
+        src, sg = C.srcT, C.sgT4
+    else:
+        src, sg = C.src, C.sg4
+    y = x[C.ar4, src]
+    y *= sg.reshape(sg.shape + (1,) * (x.ndim - 2))
+    return y
 
 
-def _shift_in(m: np.ndarray, q) -> None:
-    """In place: motion into a prismatic joint's moved frame, v ← v − q e_z × ω."""
-    m[0, 1] += q * m[1, 0]
-    m[1, 1] -= q * m[0, 0]
+def _sx(x: np.ndarray, S: int) -> np.ndarray:
+    """View the merged (seeds × samples) last axis as (S, K) when there are several seeds."""
+    return x if S == 1 else x.reshape(x.shape[:-1] + (S, -1))
 
 
-def _rot_out(f: np.ndarray, c, s) -> np.ndarray:
-    """Forces out of a revolute joint's moved frame: Rz(q) f (new array)."""
-    K = f.shape[-1]
-    rows = math.prod(f.shape[1:-1])
-    out = np.empty(f.shape)
-    x = f[0].reshape(rows, K)
-    y = f[1].reshape(rows, K)
-    ox = out[0].reshape(rows, K)
-    oy = out[1].reshape(rows, K)
-    np.multiply(c, x, out=ox)
-    ox -= s * y
-    np.multiply(s, x, out=oy)
-    oy += c * y
-    out[2] = f[2]
-    return out
+def _kx(g: np.ndarray, S: int) -> np.ndarray:
+    """A per-sample factor (..., K) broadcast over the seeds of a _sx view."""
+    return g if S == 1 else g[..., None, :]
 
 
-def _shift_out(f: np.ndarray, q) -> np.ndarray:
-    """Forces out of a prismatic joint's moved frame: n ← n + q e_z × f (new array)."""
-    out = f.copy()
-    out[0, 0] -= q * f[1, 1]
-    out[1, 0] += q * f[0, 1]
-    return out
-
-
-def _cos_sin(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _cos_sin(q: np.ndarray, out: np.ndarray | None = None):
     """(cos q, sin q) from t = tan(q/2): c = (1 − t²)/(1 + t²), s = 2t/(1 + t²); within
-    3e-16 of np.cos/np.sin (checked for |q| ≤ 1000 rad) and about 3× faster than calling both."""
+    3e-16 of np.cos/np.sin (checked for |q| ≤ 1000 rad) and about 3× faster than calling both.
+    With ``out`` (2, ...) the pair is written there."""
     t = np.tan(0.5 * q)
     t2 = t * t
     d = 1.0 / (1.0 + t2)
-    c = 1.0 - t2
-    c *= d
-    d *= 2.0
-    d *= t
-    return c, d
-
-
-def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """a × b along axis 0 (length 3), broadcasting the other axes."""
     if out is None:
-        out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-        np.multiply(a[j], b[k], out=out[i])
-        out[i] -= a[k] * b[j]
-    return out
+        out = np.empty((2,) + q.shape)
+    c, s = out[0], out[1]
+    np.subtract(1.0, t2, out=c)
+    c *= d
+    np.multiply(t, 2.0, out=s)
+    s *= d
+    return c, s
+
+
+def _alpha_beta(C: _Consts, q: np.ndarray) -> np.ndarray:
+    """(n, 2, K): per body (α, β) = (cos q, sin q) (revolute) or (1, q) (prismatic)."""
+    n, K = q.shape
+    CS = np.empty((2, n, K))
+    _cos_sin(q, out=CS)
+    for i in range(n):
+        if C.prism[i]:
+            CS[0, i] = 1.0
+            CS[1, i] = q[i]
+    return CS.transpose(1, 0, 2)
 
 
 # --------------------------------------------------------------------------- recursions
 class _Pass:
-    """Nominal RNEA quantities of one batch, kept for the adjoint (derivative) sweep."""
+    """One batch's forward (Newton-Euler) quantities, kept for the reverse sweep.
 
-    __slots__ = ("c", "s", "q", "dq", "W", "Wc", "G", "RF", "tau")
+    TT (n, 10, ch, K): rows 4-9 the motion of each body (channels: [velocity], [acceleration],
+    [unit-acceleration columns]), rows 0-3 scratch. FF (n, 14, fch, K): rows 0-5 the force
+    transmitted through each joint (subtree sum; channels: [acceleration], [columns]), rows 6-13
+    scratch. Gq (n, 36, K): the velocity-product factors.
+    """
+
+    __slots__ = ("q", "dq", "CS", "TT", "FF", "Gq", "U", "hv", "ha", "nb", "cols", "K")
 
 
-def _rnea(model: RobotModel, q, dq, ddq, gravity: bool, keep: bool = False) -> _Pass:
-    """Recursive Newton-Euler on (n, K) arrays; ``dq`` may be None (zero velocity), ``ddq`` None
-    (zero acceleration). ``keep`` stores what the adjoint sweep :func:`_vjp` needs."""
-    C = _consts(model)
+def _forward(C: _Consts, q, dq, acc, gravity: bool, cols: bool) -> _Pass:
+    """Motions of every body, root to leaves. ``dq`` None: no velocity channel; ``acc`` None and
+    no gravity: no acceleration channel; ``cols``: carry the n unit joint accelerations too."""
     n, K = q.shape
     P = _Pass()
-    P.q = q
-    P.dq = dq
-    P.c, P.s = _cos_sin(q)
-    W = [None] * n  # (3, 2, 2, K): [..., 0, :] velocity, [..., 1, :] acceleration
-    Wc = [None] * n
-    Gs = [None] * n  # (A v, B v) of the velocity-product force, for the adjoint
-    F = [None] * n
-    base = np.zeros((3, 2, 2, K))
-    if gravity:
-        base[:, 1, 1] = -model.gravity[:, None]
+    P.q, P.dq, P.K = q, dq, K
+    P.CS = CS = _alpha_beta(C, q)
+    hv = dq is not None
+    ha = acc is not None or gravity or hv
+    nb = int(hv) + int(ha)
+    ch = nb + (n if cols else 0)
+    P.hv, P.ha, P.nb, P.cols = hv, ha, nb, cols
+    ac = nb - 1  # acceleration channel
+    TT = np.empty((n, 10, ch, K))
+    SCin = CS[:, ::-1, None, None, :]  # (β, α) for (D y, y)
+    if hv:
+        WS = C.sgn[:, :, :, None] * dq[:, None, None, :]  # (n, 2, 2, K): q̇ D, as a view's signs
     for i in C.order:
         p = C.parent[i]
-        m = _mm(C.X[i], base if p < 0 else W[p])
-        if C.prism[i]:
-            _shift_in(m, q[i])
+        Ti = TT[i]
+        t = C.t[i]
+        if cols:
+            cp, ci = nb + C.hi_par[i], nb + C.hi[i]
         else:
-            _rot_in(m, P.c[i], P.s[i])
-        if keep:
-            Wc[i] = m.copy()
-        t = C.part[i]
-        if dq is not None:
-            w = dq[i]
-            if C.prism[i]:
-                m[0, 1, 1] += w * m[1, 0, 0]
-                m[1, 1, 1] -= w * m[0, 0, 0]
-            else:
-                m[0, :, 1] += w * m[1, :, 0]
-                m[1, :, 1] -= w * m[0, :, 0]
-            m[2, t, 0] += w
-        if ddq is not None:
-            m[2, t, 1] += ddq[i]
-        W[i] = m
-        m6 = m.reshape(6, 2, K)
-        if dq is None:
-            f = C.I[i] @ m6[:, 1]
+            cp = ci = ch
+        if p < 0:
+            Ti[4:10] = 0.0
+            if gravity:
+                Ta = Ti[:, ac]
+                Ta[...] = C.zfg[i][:, None]
+                V = Ta[0:8].reshape(2, 4, K)
+                V *= CS[i, ::-1, None, :]
+                Ta[4:8] += Ta[0:4]
         else:
-            G = (C.AB[i] @ m6[:, 0]).reshape(2, 3, 3, K)
-            U = np.empty((15, K))
-            U[:6] = m6[:, 1]
-            _cross(G[0], G[1], out=U[6:].reshape(3, 3, K))
-            f = C.IS[i] @ U
-            Gs[i] = G
-        F[i] = f.reshape(3, 2, K)
-    tau = np.empty((n, K))
-    RF = [None] * n
-    for i in reversed(C.order):
-        tau[i] = F[i][2, C.part[i]]
-        p = C.parent[i]
-        if p >= 0:
-            RF[i] = _shift_out(F[i], q[i]) if C.prism[i] else _rot_out(F[i], P.c[i], P.s[i])
-            F[p] += _mm(C.XT[i], RF[i])
-    P.W, P.Wc, P.G, P.RF, P.tau = W, Wc, Gs, RF, tau
+            dst = Ti[:, :cp]
+            np.matmul(C.ZF[i], TT[p, 4:10, :cp].reshape(6, cp * K), out=dst.reshape(10, cp * K))
+            V = dst[0:8].reshape(2, 4, cp, K)
+            V *= SCin[i]
+            dst[4:8] += dst[0:4]
+            if cols:
+                Ti[4:10, cp:] = 0.0
+            if hv:
+                m = Ti[4:8]
+                a = m[:, 1].reshape(2, 2, K)
+                a += _dview(m[:, 0], C.rev[i]) * WS[i]
+        if cols:
+            Ti[8 + t, nb + i] = 1.0
+        if hv:
+            Ti[8 + t, 0] += dq[i]
+        if acc is not None:
+            Ti[8 + t, ac] += acc[i]
+    P.TT = TT
     return P
 
 
-def _mass_columns(model: RobotModel, q, c, s) -> np.ndarray:
-    """Mass matrix by propagating the n unit accelerations q̈ = e_j together (no velocity, no
-    gravity): the Newton-Euler response to e_j is column j of M. Returns M as (n, n, K).
-
-    Each body carries only the columns of its Na ancestors, arrays (3, 2, Na, K): a joint
-    accelerates only its subtree, and M[i, j] for j below i is M[j, i] by symmetry (and 0 for
-    joints on other branches).
-    """
-    Cst = _consts(model)
-    n, K = q.shape
-    dA = [None] * n
-    for i in Cst.order:
-        p = Cst.parent[i]
-        Na = len(Cst.anc[i])
-        a = np.empty((3, 2, Na, K))
-        a[:, :, Na - 1] = 0.0
-        if p >= 0:
-            a[:, :, :Na - 1] = _mm(Cst.X[i], dA[p])
-            if Cst.prism[i]:
-                _shift_in(a, q[i])
-            else:
-                _rot_in(a, c[i], s[i])
-        a[2, Cst.part[i], Na - 1] += 1.0
-        dA[i] = a
-    M = np.zeros((n, n, K))
-    F = [None] * n
-    for i in reversed(Cst.order):
-        f = (Cst.I[i] @ dA[i].reshape(6, -1)).reshape(dA[i].shape)
-        if F[i] is None:
-            F[i] = f
+def _forces(C: _Consts, P: _Pass, only_acc: bool = False) -> None:
+    """Body forces f = I a + v ×* (I v) of every body at once (into P.FF rows 0-5)."""
+    n, K = P.q.shape
+    TT = P.TT
+    ch = TT.shape[2]
+    hv = P.hv
+    fch = 1 if only_acc else ch - hv
+    FF = np.empty((n, 14, fch, K))
+    if hv:
+        if only_acc:
+            Gq = P.Gq
         else:
-            F[i] += f
-        Na = f.shape[2]
-        row = F[i][2, Cst.part[i]]  # M[i, j] for the ancestors j of i; M is symmetric
-        idx = Cst.anc_index[i]
-        M[i, idx] = row
-        M[idx, i] = row
-        p = Cst.parent[i]
-        if p >= 0:
-            Fi = F[i][:, :, :Na - 1]  # the parent needs only its own ancestors' columns
-            r = _shift_out(Fi, q[i]) if Cst.prism[i] else _rot_out(Fi, c[i], s[i])
-            contribution = _mm(Cst.XT[i], r)
-            if F[p] is None:
-                F[p] = contribution
-            else:
-                F[p] += contribution
-    return M
+            P.Gq = Gq = np.matmul(C.ABq, TT[:, 4:10, 0])
+        U = np.empty((n, 24, K))
+        U[:, :6] = TT[:, 4:10, 1]
+        np.multiply(Gq[:, 18:], Gq[:, :18], out=U[:, 6:])
+        np.matmul(C.ISf, U, out=FF[:, 0:6, 0])
+        if fch > 1:
+            np.matmul(C.I, TT[:, 4:10, 2:].reshape(n, 6, (ch - 2) * K),
+                      out=FF[:, 0:6, 1:].reshape(n, 6, (fch - 1) * K))
+    else:
+        np.matmul(C.I, TT[:, 4:10].reshape(n, 6, ch * K), out=FF[:, 0:6].reshape(n, 6, fch * K))
+    P.FF = FF
 
 
-def _vjp(model: RobotModel, P: _Pass, lam: np.ndarray | None):
-    """Reverse-mode sweep of :func:`_rnea` (its adjoint) for S weight vectors at once.
+def _backward(C: _Consts, P: _Pass) -> None:
+    """Subtree sums F_parent += Xᵀ (joint out) F_child, leaves to root, in place in P.FF."""
+    FF = P.FF
+    n, _, fch, K = FF.shape
+    CSo = P.CS[:, :, None, None, :]
+    tmp = np.empty(6 * fch * K)
+    na = fch if not P.cols or fch == 1 else int(P.ha)  # force channels besides the columns
+    for i in reversed(C.order):
+        p = C.parent[i]
+        if p < 0:
+            continue
+        fc = na + C.hi_par[i] if (P.cols and fch > 1) else fch
+        Fi = FF[i]
+        np.multiply(Fi[0:4, :fc], CSo[i], out=Fi[6:14, :fc].reshape(2, 4, fc, K))
+        t6 = tmp[:6 * fc * K].reshape(6, fc * K)
+        np.matmul(C.Zb[i], Fi[4:14, :fc].reshape(10, fc * K), out=t6)
+        FF[p, 0:6, :fc] += t6.reshape(6, fc, K)
+
+
+def _mass_from(C: _Consts, P: _Pass, out: np.ndarray) -> None:
+    """M (K, n, n) into ``out`` from the column channels of a finished pass: row i of the force
+    at joint i holds M[i, j] for the ancestors j of i, the rest follows by symmetry (0 off-branch)."""
+    off = int(P.ha)
+    R = P.FF[C.ar, C.zrow, off:off + C.n].transpose(2, 0, 1)  # (K, i, j)
+    np.copyto(out, np.where(C.desc_mask, R.transpose(0, 2, 1), 0.0))
+    np.copyto(out, R, where=C.anc_mask)
+
+
+def _keep(C: _Consts, P: _Pass) -> tuple:
+    """D applied to what the reverse sweep needs: (Dv (n, 4, K) or None, D mc (n, 4, ch, K), Dᵀ F)."""
+    TT = P.TT
+    hv = P.hv
+    ac = P.nb - 1
+    n, K = P.q.shape
+    DMC = np.empty((n, 4, 2 if hv else 1, K))
+    DMC[:, :, -1] = _dall(C, TT[:, 4:8, ac])
+    if hv:
+        Dv = _dall(C, TT[:, 4:8, 0])
+        DMC[:, :, 0] = Dv
+        # mc (before the joint-velocity term) = a − q̇ D v, so D mc = D a − q̇ D D v
+        if C.all_rev:  # D D = −1
+            DDv = TT[:, 4:8, 0] * P.dq[:, None, :]
+            DMC[:, :, 1] += DDv
+        else:
+            DDv = _dall(C, Dv)
+            DDv *= P.dq[:, None, :]
+            DMC[:, :, 1] -= DDv
+    else:
+        Dv = None
+    DtF = _dall(C, P.FF[:, 0:4, 0], transpose=True)
+    return Dv, DMC, DtF
+
+
+def _vjp(C: _Consts, P: _Pass, lam: np.ndarray):
+    """Reverse-mode sweep of the Newton-Euler pass P (acceleration channel) for S seeds at once.
 
     Args:
-        lam: (n, S, K) weights λ (S "seeds"), or None for the n unit seeds λ = e_j (full
-            Jacobians; then sweep 1 only carries each body's ancestors, the only nonzero seeds).
+        lam: (n, S, K) weights λ (may be a broadcast view).
     Returns:
         (gq, gdq, gddq), each (n, S, K): ``gq[j, s] = λ_sᵀ ∂τ/∂q_j``; likewise ∂/∂q̇ (None without
-        nominal velocity) and ∂/∂q̈ (= (M λ_s)_j).
+        velocity) and ∂/∂q̈ (= (M λ_s)_j).
 
-    Sweep 1 (root to leaves) carries the force adjoints F̄_i = s_i λ_i + (the parent's F̄ moved
-    into body i), motion-like vectors; sweep 2 (leaves to root) carries the adjoints of each body's
-    velocity and acceleration back through f = I a + v ×* (I v) and the joint terms, accumulating
-    ∂/∂q_i wherever the joint's rotation (or shift) acts and ∂/∂q̇_i, ∂/∂q̈_i where they enter.
+    Sweep 1 (root to leaves) carries the force adjoints f̄_i = λ_i e_z + (the parent's moved into
+    body i), motion-like; they give every body's local motion adjoints at once (through
+    f = I a + v ×* I v); sweep 2 (leaves to root) sums those over subtrees. The q, q̇, q̈ gradients
+    are then read off for all joints at once: ∂/∂q_i from D (the joint generator) applied to the
+    kept motions and forces, ∂/∂q̇_i, ∂/∂q̈_i where they enter. Seeds and samples share the last
+    axis (S·K) so that most operations are 3-D.
     """
-    Cst = _consts(model)
-    n, K = P.q.shape
-    unit = lam is None
-    S = n if unit else lam.shape[1]
-    has_v = P.dq is not None
-    gq = np.zeros((n, S, K))
-    gdq = np.empty((n, S, K)) if has_v else None
-    gddq = np.empty((n, S, K))
-    Fb = [None] * n  # (3, 2, Na or S, K)
-    for i in Cst.order:
-        p = Cst.parent[i]
-        t = Cst.part[i]
-        Na = len(Cst.anc[i]) if unit else S
-        b = np.empty((3, 2, Na, K))
+    n, S, K = lam.shape
+    SK = S * K
+    hv = P.hv
+    Dv, DMC, DtF = _keep(C, P)
+    B = np.empty((n, 10, SK))
+    SCin = P.CS[:, ::-1, None, :]  # (n, 2, 1, K)
+    for i in C.order:
+        p = C.parent[i]
+        Bi = B[i]
         if p < 0:
-            b[...] = 0.0
+            Bi[4:10] = 0.0
         else:
-            y = b[:, :, :Na - 1] if unit else b
-            y[...] = _mm(Cst.X[i], Fb[p])
-            fo = P.RF[i][:, :, None, :]
-            cols = Cst.anc_index[p] if unit else slice(None)
-            if Cst.prism[i]:
-                gq[i, cols] += y[1, 0] * fo[0, 1] - y[0, 0] * fo[1, 1]
-            else:
-                gq[i, cols] += (y[1] * fo[0] - y[0] * fo[1]).sum(axis=0)
-            if unit:
-                b[:, :, Na - 1] = 0.0
-            if Cst.prism[i]:
-                _shift_in(b, P.q[i])
-            else:
-                _rot_in(b, P.c[i], P.s[i])
-        if unit:
-            b[2, t, Na - 1] += 1.0
-        else:
-            b[2, t] += lam[i]
-        Fb[i] = b
-    Wb = [None] * n  # adjoint of (v, a) of each body, (3, 2, 2, S, K), from its children
-    for i in reversed(Cst.order):
-        t = Cst.part[i]
-        Na = Fb[i].shape[2]
-        Y = Cst.IS[i].T @ Fb[i].reshape(6, Na * K)  # (I f̄, Sᵀ f̄)
-        mb = Wb[i]
-        if mb is None:
-            mb = np.zeros((3, 2, 2, S, K))
-        cols = Cst.anc_index[i] if unit else slice(None)
-        if has_v:
-            G = P.G[i][:, :, :, None, :]
-            g = Y[6:].reshape(3, 3, Na, K)
-            Z = np.empty((18, Na, K))
-            _cross(G[1], g, out=Z[:9].reshape(3, 3, Na, K))
-            _cross(g, G[0], out=Z[9:].reshape(3, 3, Na, K))
-            mb[:, :, 0, cols] += (Cst.AB[i].T @ Z.reshape(18, Na * K)).reshape(3, 2, Na, K)
-        mb[:, :, 1, cols] += Y[:6].reshape(3, 2, Na, K)
-        vb = mb[:, :, 0]
-        ab = mb[:, :, 1]
-        gddq[i] = ab[2, t]
-        if has_v:
-            w = P.dq[i]
-            v = P.W[i][:, :, 0, None, :]
-            if Cst.prism[i]:
-                gdq[i] = ab[0, 1] * v[1, 0] - ab[1, 1] * v[0, 0] + vb[2, 1]
-                vb[0, 0] -= w * ab[1, 1]
-                vb[1, 0] += w * ab[0, 1]
-            else:
-                gdq[i] = (ab[0] * v[1] - ab[1] * v[0]).sum(axis=0) + vb[2, 0]
-                vb[0] -= w * ab[1]
-                vb[1] += w * ab[0]
-        mc = P.Wc[i][:, :, :, None, :]
-        if Cst.prism[i]:
-            gq[i] += (mb[0, 1] * mc[1, 0] - mb[1, 1] * mc[0, 0]).sum(axis=0)
-            r = _shift_out(mb, P.q[i])
-        else:
-            gq[i] += (mb[0] * mc[1] - mb[1] * mc[0]).sum(axis=(0, 1))
-            r = _rot_out(mb, P.c[i], P.s[i])
-        p = Cst.parent[i]
-        if p >= 0:
-            contribution = _mm(Cst.XT[i], r)
-            if Wb[p] is None:
-                Wb[p] = contribution
-            else:
-                Wb[p] += contribution
-    return gq, gdq, gddq
+            np.matmul(C.ZF[i], B[p, 4:10], out=Bi)
+            V = _sx(Bi[0:8].reshape(2, 4, SK), S)
+            V *= _kx(SCin[i], S)
+            Bi[4:8] += Bi[0:4]
+        zr = _sx(Bi[8 + C.t[i]], S)
+        zr += lam[i] if S > 1 else lam[i, 0]
+    b = B[:, 4:10]
+    ch = 2 if hv else 1
+    MB = np.empty((n, 14, ch, SK))
+    if hv:
+        Y = np.matmul(C.ISb, b)  # (I f̄, g_π2, g_π1, g_π1, g_π2)
+        MB[:, 0:6, 1] = Y[:, :6]
+        Pm = Y[:, 6:]
+        _sx(Pm, S)[...] *= _kx(P.Gq, S)
+        ZZ = np.empty((n, 18, SK))  # (Bv × g, g × Av)
+        np.subtract(Pm[:, 0:9], Pm[:, 9:18], out=ZZ[:, 0:9])
+        np.subtract(Pm[:, 18:27], Pm[:, 27:36], out=ZZ[:, 9:18])
+        np.matmul(C.AB9T, ZZ, out=MB[:, 0:6, 0])
+        WT = C.sgnT[:, :, :, None] * P.dq[:, None, None, :]  # (n, 2, 2, K)
+    else:
+        np.matmul(C.I, b, out=MB[:, 0:6, 0])
+    gq = _sx(b[:, 0:4], S) * _kx(DtF, S)
+    gq = gq.sum(axis=1)
+    CSo = P.CS[:, :, None, :]
+    tmp = np.empty((6, ch * SK))
+    for i in reversed(C.order):
+        Mi = MB[i]
+        if hv:
+            vb = _sx(Mi[0:4, 0].reshape(2, 2, SK), S)
+            vb += _sx(_dview(Mi[0:4, 1], C.rev[i]), S) * _kx(WT[i], S)
+        p = C.parent[i]
+        if p < 0:
+            continue
+        out8 = Mi[6:14].reshape(2, 4 * ch, SK)
+        np.multiply(_sx(Mi[0:4].reshape(1, 4 * ch, SK), S), _kx(CSo[i], S), out=_sx(out8, S))
+        np.matmul(C.Zb[i], Mi[4:14].reshape(10, ch * SK), out=tmp)
+        MB[p, 0:6] += tmp.reshape(6, ch, SK)
+    g2 = _sx(MB[:, 0:4].reshape(n, 4 * ch, SK), S) * _kx(DMC.reshape(n, 4 * ch, K), S)
+    gq += g2.sum(axis=1)
+    gddq = MB[C.ar, C.zrow, ch - 1]
+    if hv:
+        g3 = _sx(MB[:, 0:4, 1], S) * _kx(Dv, S)
+        gdq = g3.sum(axis=1)
+        gdq += _sx(MB[C.ar, C.zrow, 0], S)
+        gdq = gdq.reshape(n, S, K)
+    else:
+        gdq = None
+    return gq.reshape(n, S, K), gdq, gddq.reshape(n, S, K)
 
 
 def _chunks(K: int, size: int):
@@ -427,14 +513,26 @@ def _chunks(K: int, size: int):
         yield slice(start, min(K, start + size))
 
 
+def _tau_of(C: _Consts, P: _Pass) -> np.ndarray:
+    """(n, K) joint torques of a finished pass (acceleration channel)."""
+    return P.FF[C.ar, C.zrow, 0]
+
+
 # --------------------------------------------------------------------------- public kernels
 def _tau(model: RobotModel, q, dq, ddq, gravity: bool) -> np.ndarray:
     """RNEA torques (K, n) from (n, K) inputs (dq, ddq may be None), in cache-sized chunks."""
+    C = _consts(model)
     n, K = q.shape
     out = np.empty((K, n))
     for sl in _chunks(K, ID_CHUNK):
-        out[sl] = _rnea(model, q[:, sl], None if dq is None else dq[:, sl],
-                        None if ddq is None else ddq[:, sl], gravity).tau.T
+        P = _forward(C, q[:, sl], None if dq is None else dq[:, sl],
+                     None if ddq is None else ddq[:, sl], gravity, cols=False)
+        if not P.ha:  # no velocity, acceleration or gravity: zero torques
+            out[sl] = 0.0
+            continue
+        _forces(C, P)
+        _backward(C, P)
+        out[sl] = _tau_of(C, P).T
     return out
 
 
@@ -468,14 +566,28 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
     """Joint-space mass matrix M (K, n, n) at positions q (K, n); symmetric positive definite.
 
     Column j is the (gravity-free, zero-velocity) Newton-Euler response to q̈ = e_j, all columns
-    propagated together.
+    propagated together (each body carrying only its ancestors' columns).
     """
     (qT,), K, one_d = _inputs(model, q=q)
+    C = _consts(model)
     out = np.empty((K, model.n, model.n))
-    for sl in _chunks(K, MASS_CHUNK):
-        qs = qT[:, sl]
-        out[sl] = np.transpose(_mass_columns(model, qs, *_cos_sin(qs)), (2, 0, 1))
+    if model.n:
+        for sl in _chunks(K, MASS_CHUNK):
+            P = _forward(C, qT[:, sl], None, None, False, cols=True)
+            _forces(C, P)
+            _backward(C, P)
+            _mass_from(C, P, out[sl])
     return _shape_out(out, one_d)
+
+
+def _h_and_mass(C: _Consts, q, dq, acc, out_u, out_M) -> _Pass:
+    """One pass for ID(q, q̇, acc) (K, n) and M (K, n, n) (into out_u, out_M)."""
+    P = _forward(C, q, dq, acc, True, cols=True)
+    _forces(C, P)
+    _backward(C, P)
+    out_u[...] = _tau_of(C, P).T
+    _mass_from(C, P, out_M)
+    return P
 
 
 def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
@@ -487,8 +599,13 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
         numpy.linalg.LinAlgError: if M is not positive definite at some sample.
     """
     (qT, dqT, uT), K, one_d = _inputs(model, q=q, dq=dq, u=u)
-    h = _tau(model, qT, dqT, None, True)
-    M = mass_matrix(model, qT.T)
+    C = _consts(model)
+    n = model.n
+    h = np.empty((K, n))
+    M = np.empty((K, n, n))
+    if n:
+        for sl in _chunks(K, MASS_CHUNK):
+            _h_and_mass(C, qT[:, sl], dqT[:, sl], None, h[sl], M[sl])
     L = np.linalg.cholesky(M)
     rhs = (uT.T - h)[:, :, None]
     y = np.linalg.solve(L, rhs)
@@ -505,15 +622,20 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
         M (K, n, n) = ∂u/∂q̈, the mass matrix.
     """
     (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    C = _consts(model)
     n = model.n
     u = np.empty((K, n))
     du_dq = np.empty((K, n, n))
     du_ddq = np.empty((K, n, n))
     M = np.empty((K, n, n))
+    eye = np.eye(n)[:, :, None]
     for sl in _chunks(K, DERIV_CHUNK):
-        P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
-        gq, gdq, gddq = _vjp(model, P, None)  # [j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
-        u[sl] = P.tau.T
+        P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
+        _forces(C, P)
+        _backward(C, P)
+        lam = np.broadcast_to(eye, (n, n, P.K))
+        gq, gdq, gddq = _vjp(C, P, lam)  # [j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
+        u[sl] = _tau_of(C, P).T
         du_dq[sl] = np.transpose(gq, (2, 1, 0))
         du_ddq[sl] = np.transpose(gdq, (2, 1, 0))
         M[sl] = np.transpose(gddq, (2, 1, 0))
@@ -529,17 +651,19 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
         (u, gq, gdq): u (K, n); gq (K, n) = λᵀ ∂u/∂q; gdq (K, n) = λᵀ ∂u/∂q̇, per sample.
     """
     (qT, dqT, ddqT, lT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq, lam=lam)
+    C = _consts(model)
     n = model.n
     u = np.empty((K, n))
     gq = np.empty((K, n))
     gdq = np.empty((K, n))
     for sl in _chunks(K, VJP_CHUNK):
-        P = _rnea(model, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, keep=True)
-        gqT, gdqT, _ = _vjp(model, P, lT[:, None, sl])
-        gqT, gdqT = gqT[:, 0], gdqT[:, 0]
-        u[sl] = P.tau.T
-        gq[sl] = gqT.T
-        gdq[sl] = gdqT.T
+        P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
+        _forces(C, P)
+        _backward(C, P)
+        gqT, gdqT, _ = _vjp(C, P, lT[:, None, sl])
+        u[sl] = _tau_of(C, P).T
+        gq[sl] = gqT[:, 0].T
+        gdq[sl] = gdqT[:, 0].T
     return tuple(_shape_out(x, one_d) for x in (u, gq, gdq))
 
 
@@ -549,11 +673,65 @@ def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
     Since M(q) v = ID(q, 0, v) without gravity, the gradient is vᵀ ∂ID(q, 0, v)/∂q (factor 1).
     """
     (qT, vT), K, one_d = _inputs(model, q=q, v=v)
+    C = _consts(model)
     out = np.empty((K, model.n))
     for sl in _chunks(K, VJP_CHUNK):
-        P = _rnea(model, qT[:, sl], None, vT[:, sl], False, keep=True)
-        out[sl] = _vjp(model, P, vT[:, None, sl])[0][:, 0].T
+        P = _forward(C, qT[:, sl], None, vT[:, sl], False, cols=False)
+        _forces(C, P)
+        _backward(C, P)
+        out[sl] = _vjp(C, P, vT[:, None, sl])[0][:, 0].T
     return _shape_out(out, one_d)
+
+
+def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = False):
+    """Everything the covariant cost L = ½ uᵀ M(q)⁻¹ u needs per sample, in one fused pass.
+
+    With u = ID(q, q̇, q̈) (gravity included) and w = M⁻¹ u:
+        gq  = wᵀ ∂u/∂q − ½ ∂(wᵀ M w)/∂q   (= ∂L/∂q),
+        gdq = wᵀ ∂u/∂q̇                     (= ∂L/∂q̇);   ∂L/∂q̈ = u.
+    Because ID is affine in q̈, both are one vector-Jacobian product of ID at the shifted
+    acceleration q̈ − ½ w (same velocity), with weights w. The mass matrix is computed in the same
+    forward/backward pass as u (its unit-acceleration columns ride along), and the shifted pass
+    reuses the velocities and velocity products.
+
+    Args:
+        q, dq, ddq: (K, n) (or (n,)) positions, velocities, accelerations.
+        return_w: also return w = M⁻¹ u (K, n).
+    Returns:
+        (u, M, gq, gdq) — u (K, n), M (K, n, n), gq (K, n), gdq (K, n) — plus w if ``return_w``.
+        Equal (to rounding) to inverse_dynamics, mass_matrix, id_vjp(q, q̇, q̈, w)[1:] and
+        id_vjp(..)[1] − ½ mass_quadratic_grad(q, w).
+    Raises:
+        numpy.linalg.LinAlgError: if M is not positive definite at some sample.
+    """
+    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    C = _consts(model)
+    n = model.n
+    u = np.empty((K, n))
+    M = np.empty((K, n, n))
+    w = np.empty((K, n))
+    gq = np.empty((K, n))
+    gdq = np.empty((K, n))
+    if n:
+        for sl in _chunks(K, MASS_CHUNK):
+            P = _h_and_mass(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], u[sl], M[sl])
+            Lc = np.linalg.cholesky(M[sl])
+            y = np.linalg.solve(Lc, u[sl, :, None])
+            ws = np.linalg.solve(np.swapaxes(Lc, 1, 2), y)[:, :, 0]
+            w[sl] = ws
+            wT = np.ascontiguousarray(ws.T)
+            # acceleration at q̈ − ½ w: a ← a − ½ Σ_j w_j (column j); then the forces again
+            TT = P.TT
+            da = TT[:, 4:10, 2:] * wT
+            TT[:, 4:10, 1] -= 0.5 * da.sum(axis=2)
+            _forces(C, P, only_acc=True)
+            P.cols = False
+            _backward(C, P)
+            gqT, gdqT, _ = _vjp(C, P, wT[:, None, :])
+            gq[sl] = gqT[:, 0].T
+            gdq[sl] = gdqT[:, 0].T
+    res = (u, M, gq, gdq, w) if return_w else (u, M, gq, gdq)
+    return tuple(_shape_out(x, one_d) for x in res)
 
 
 def link_poses(model: RobotModel, q) -> dict[str, np.ndarray]:
