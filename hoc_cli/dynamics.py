@@ -51,11 +51,13 @@ import numpy as np
 
 from .model.tree import RobotModel
 
-#: samples processed together (bounds the temporaries; tuned on a 7-DOF arm, 2-core x86 machine)
-ID_CHUNK = 2048     # inverse_dynamics, bias_forces, gravity_forces
+#: samples processed together. Bounds the temporaries: every body's arrays are allocated together,
+#: and above a few MB per array the allocator hands back fresh pages on every call (page faults
+#: cost more than the arithmetic). Tuned on a 7-DOF arm, 2-core x86 machine, inside the planner.
+ID_CHUNK = 512      # inverse_dynamics, bias_forces, gravity_forces
 DERIV_CHUNK = 256   # id_derivatives: n seeds per sample in the reverse sweep
-MASS_CHUNK = 1024   # mass_matrix, forward_dynamics, covariant_gradient_terms: n columns per body
-VJP_CHUNK = 2048    # id_vjp, mass_quadratic_grad: one seed
+MASS_CHUNK = 512    # mass_matrix, forward_dynamics, covariant_gradient_terms: n columns per body
+VJP_CHUNK = 512     # id_vjp, mass_quadratic_grad: one seed
 
 
 # --------------------------------------------------------------------------- input checking
