@@ -153,6 +153,13 @@ class ControlProblem:
         """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ (each (K, n)), with u, w, M and,
         with ``jacobians``, ∂u/∂q and ∂u/∂q̇ (K, n, n); without, the gradient comes from a cheaper
         vector-Jacobian product (RNEA reverse sweep) instead of the full Jacobians."""
+        if not jacobians and self.cost == "covariant":  # the fused reverse sweep
+            try:
+                u, M, gq, gdq, w = self.system.covariant_gradient_terms(q, dq, ddq)
+            except np.linalg.LinAlgError:
+                raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
+            L = 0.5 * np.einsum("ki,ki->k", u, w)
+            return dict(L=L, gq=gq, gdq=gdq, gddq=u, u=u, w=w, Jq=None, Jv=None, M=M)
         if jacobians:
             u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
         else:

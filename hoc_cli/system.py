@@ -41,6 +41,12 @@ class System(Protocol):
     def mass_quadratic_grad(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """∂(vᵀ M(q) v)/∂q with v held fixed, (K, n)."""
 
+    def covariant_gradient_terms(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(u, M, gq, gdq, w) for L = ½ uᵀM⁻¹u: w = M⁻¹u, gq = ∂L/∂q, gdq = ∂L/∂q̇ (∂L/∂q̈ = u).
+
+        Raises numpy.linalg.LinAlgError when M is not positive definite.
+        """
+
 
 class LinearOscillator:
     """q̈ + ω² q = u for n independent unit masses (the paper's validation system with ω = 1)."""
@@ -75,6 +81,10 @@ class LinearOscillator:
 
     def mass_quadratic_grad(self, q, v):
         return np.zeros_like(np.asarray(q, float))
+
+    def covariant_gradient_terms(self, q, dq, ddq):
+        u = self.inverse_dynamics(q, dq, ddq)
+        return u, self.mass_matrix(q), self.omega2 * u, np.zeros_like(u), u.copy()
 
 
 class RobotSystem:
@@ -117,3 +127,9 @@ class RobotSystem:
         from hoc_cli import dynamics
 
         return dynamics.mass_quadratic_grad(self.model, q, v)
+
+    def covariant_gradient_terms(self, q, dq, ddq):
+        from hoc_cli import dynamics
+
+        u, M, gq, gdq, w = dynamics.covariant_gradient_terms(self.model, q, dq, ddq, return_w=True)
+        return u, M, gq, gdq, w

@@ -439,6 +439,11 @@ def test_a_singular_mass_matrix_along_the_path_exits_1_with_one_line(workdir, mo
 
     monkeypatch.setattr(RobotSystem, "id_derivatives", singular)
     monkeypatch.setattr(RobotSystem, "mass_matrix", lambda self, q: np.zeros((len(q), self.n, self.n)))
+
+    def not_positive_definite(self, q, dq, ddq):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(RobotSystem, "covariant_gradient_terms", not_positive_definite)
     before = snapshot(workdir)
     r = invoke(plan_args())
     assert r.exit_code == 1
