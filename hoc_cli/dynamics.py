@@ -37,7 +37,8 @@ operation. The only Python loops are the recursions over bodies.
   velocity off), each body carrying only the columns of its ancestors.
 * ``id_vjp``, ``mass_quadratic_grad``: one reverse (adjoint) sweep of the recursion, O(n) per
   sample; ``id_derivatives``: the same sweep seeded with the n unit vectors, giving ∂u/∂q, ∂u/∂q̇
-  and ∂u/∂q̈ = M row by row.
+  and ∂u/∂q̈ = M row by row (from 32 samples on, the root-to-leaves half and the local adjoints
+  carry at each body only the seeds of its ancestors, the only nonzero ones).
 * ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
   the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
   shifted acceleration q̈ − ½ w.
@@ -55,7 +56,8 @@ from .model.tree import RobotModel
 #: and above a few MB per array the allocator hands back fresh pages on every call (page faults
 #: cost more than the arithmetic). Tuned on a 7-DOF arm, 2-core x86 machine, inside the planner.
 ID_CHUNK = 512      # inverse_dynamics, bias_forces, gravity_forces
-DERIV_CHUNK = 256   # id_derivatives: n seeds per sample in the reverse sweep
+DERIV_CHUNK = 512   # id_derivatives at n ≤ 7 (scratch ∝ n² K): DERIV_CHUNK · 49 / n² samples above
+JAC_MIN_K = 32      # id_derivatives: below, the plain n-seed reverse sweep (fewer numpy calls)
 MASS_CHUNK = 512    # mass_matrix, forward_dynamics, covariant_gradient_terms: n columns per body
 VJP_CHUNK = 512     # id_vjp, mass_quadratic_grad: one seed
 
@@ -615,6 +617,90 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
     return _shape_out(ddq, one_d)
 
 
+def _jac(C: _Consts, P: _Pass, gq, gdq, gddq, work: np.ndarray) -> None:
+    """Full Jacobians of a finished Newton-Euler pass P (with velocity): the reverse sweep of
+    :func:`_vjp` seeded with the n unit vectors λ = e_s, into gq, gdq, gddq (n, n, K) with
+    ``gq[j, s] = ∂u_s/∂q_j`` (likewise q̇, q̈).
+
+    Seed s's force adjoint is nonzero only in the subtree of joint s, so in sweep 1 (and in the
+    local motion adjoints, the expensive part) body i carries only the seeds [0, hi[i]) (its
+    ancestors, as the mass-matrix columns); sweep 2 carries all n. The local steps go one body at
+    a time (ragged seed counts); every temporary is carved out of ``work``.
+    """
+    n, K = P.q.shape
+    nK = n * K
+    Dv, DMC, DtF = _keep(C, P)
+    hi, hp_ = C.hi, C.hi_par
+    # work layout: B (per body (10, hi, K)), MB (n, 14, 2, n, K), Y (36, n K), ZZ (18, n K)
+    offs = [0]
+    for h in hi:
+        offs.append(offs[-1] + 10 * h * K)
+    nb = offs[-1]
+    MB = work[nb:nb + n * 28 * nK].reshape(n, 14, 2, n, K)
+    o = nb + n * 28 * nK
+    Yb = work[o:o + 36 * nK]
+    ZZb = work[o + 36 * nK:o + 54 * nK]
+    Bs = [work[offs[i]:offs[i + 1]].reshape(10, hi[i], K) for i in range(n)]
+    SCin = P.CS[:, ::-1, None, None, :]  # (n, 2, 1, 1, K): (β, α) for (D y, y)
+    g1 = gddq  # scratch until the end: the force term of ∂/∂q
+    g1[...] = 0.0
+    for i in C.order:
+        p = C.parent[i]
+        h, hp = hi[i], hp_[i]
+        Bi = Bs[i]
+        if p < 0:
+            Bi[4:10] = 0.0
+        else:
+            dst = Bi[:, :hp]
+            np.matmul(C.ZF[i], Bs[p][4:10].reshape(6, hp * K), out=dst.reshape(10, hp * K))
+            V = dst[0:8].reshape(2, 4, hp, K)
+            V *= SCin[i]
+            dst[4:8] += dst[0:4]
+            Bi[4:10, hp:] = 0.0
+        Bi[8 + C.t[i], i] += 1.0
+        # local motion adjoints of body i (seeds [0, h)): ā = I f̄, v̄ from the velocity product
+        b = Bi[4:10].reshape(6, h * K)
+        Mi = MB[i]
+        np.matmul(C.I[i], b, out=Mi[0:6, 1, :h].reshape(6, h * K))
+        Pm = Yb[:36 * h * K].reshape(36, h * K)
+        np.matmul(C.ISb[i, 6:], b, out=Pm)
+        Pm3 = Pm.reshape(36, h, K)
+        Pm3 *= P.Gq[i][:, None, :]
+        ZZ = ZZb[:18 * h * K].reshape(18, h * K)
+        np.subtract(Pm[0:9], Pm[9:18], out=ZZ[0:9])
+        np.subtract(Pm[18:27], Pm[27:36], out=ZZ[9:18])
+        np.matmul(C.AB9T[i], ZZ, out=Mi[0:6, 0, :h].reshape(6, h * K))
+        Mi[0:6, :, h:] = 0.0
+        # ∂/∂q_i through the joint's motion transform (forces): f̄_xy · Dᵀ F
+        t4 = Yb[:4 * h * K].reshape(4, h, K)
+        np.multiply(Bi[4:8], DtF[i][:, None, :], out=t4)
+        t4.sum(axis=0, out=g1[i, :h])
+    WT = C.sgnT[:, :, :, None, None] * P.dq[:, None, None, None, :]  # (n, 2, 2, 1, K)
+    CSo = P.CS[:, :, None, None, :]  # (n, 2, 1, 1, K)
+    tmp = Yb[:12 * nK].reshape(6, 2 * nK)
+    for i in reversed(C.order):
+        Mi = MB[i]
+        vb = Mi[0:4, 0].reshape(2, 2, n, K)
+        vb += _dview(Mi[0:4, 1], C.rev[i]) * WT[i]
+        p = C.parent[i]
+        if p < 0:
+            continue
+        np.multiply(Mi[0:4].reshape(1, 8, n, K), CSo[i], out=Mi[6:14].reshape(2, 8, n, K))
+        np.matmul(C.Zb[i], Mi[4:14].reshape(10, 2 * nK), out=tmp)
+        MB[p, 0:6] += tmp.reshape(6, 2, n, K)
+    # ∂/∂q_i through the joint's force transform (motions): (v̄, ā)_xy · D (v, a − q̇ D v)
+    np.einsum("ircsk,irck->isk", MB[:, 0:4], DMC, out=gq)
+    gq += g1
+    gddq[...] = MB[C.ar, C.zrow, 1]
+    np.einsum("irsk,irk->isk", MB[:, 0:4, 1], Dv, out=gdq)
+    gdq += MB[C.ar, C.zrow, 0]
+
+
+def _jac_work(C: _Consts, K: int) -> np.ndarray:
+    """Scratch for :func:`_jac` at K samples (one buffer, shared by all chunks of a call)."""
+    return np.empty(10 * sum(C.hi) * K + (28 * C.n + 54) * C.n * K)
+
+
 def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     """Inverse dynamics and its partial derivatives.
 
@@ -630,17 +716,24 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     du_dq = np.empty((K, n, n))
     du_ddq = np.empty((K, n, n))
     M = np.empty((K, n, n))
-    eye = np.eye(n)[:, :, None]
-    for sl in _chunks(K, DERIV_CHUNK):
-        P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
-        _forces(C, P)
-        _backward(C, P)
-        lam = np.broadcast_to(eye, (n, n, P.K))
-        gq, gdq, gddq = _vjp(C, P, lam)  # [j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
-        u[sl] = _tau_of(C, P).T
-        du_dq[sl] = np.transpose(gq, (2, 1, 0))
-        du_ddq[sl] = np.transpose(gdq, (2, 1, 0))
-        M[sl] = np.transpose(gddq, (2, 1, 0))
+    if n and K:
+        chunk = max(JAC_MIN_K, min(DERIV_CHUNK, DERIV_CHUNK * 49 // (n * n)))
+        work = _jac_work(C, min(K, chunk)) if K >= JAC_MIN_K else None
+        eye = np.eye(n)[:, :, None]
+        for sl in _chunks(K, chunk):
+            P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
+            _forces(C, P)
+            _backward(C, P)
+            # Gs[:, j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
+            if P.K < JAC_MIN_K:  # few samples: fewer numpy calls with all seeds on all bodies
+                Gs = _vjp(C, P, np.broadcast_to(eye, (n, n, P.K)))
+            else:
+                Gs = np.empty((3, n, n, P.K))
+                _jac(C, P, Gs[0], Gs[1], Gs[2], work)
+            u[sl] = _tau_of(C, P).T
+            du_dq[sl] = np.transpose(Gs[0], (2, 1, 0))
+            du_ddq[sl] = np.transpose(Gs[1], (2, 1, 0))
+            M[sl] = np.transpose(Gs[2], (2, 1, 0))
     return tuple(_shape_out(x, one_d) for x in (u, du_dq, du_ddq, M))
 
 
