@@ -16,7 +16,7 @@ import numpy as np
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
-from hoc_cli.problem import ControlProblem, Evaluation
+from hoc_cli.problem import ControlProblem
 from hoc_cli.system import System
 
 QUADRATURE_RTOL = 1e-12

@@ -323,7 +323,7 @@ def simulate_hermite(
     names the element and its time interval.
     """
     started = time.perf_counter()
-    m, N, h = mesh.m, mesh.N, mesh.h
+    m = mesh.m
     q0 = np.asarray(q0, dtype=float).reshape(-1)
     dq0 = np.asarray(dq0, dtype=float).reshape(-1)
     n = q0.size

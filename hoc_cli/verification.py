@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from hoc_cli.elements import ORDERS, HermiteMesh, error_norm
+from hoc_cli.elements import HermiteMesh, error_norm
 from hoc_cli.resources import shipped_robot
 
 

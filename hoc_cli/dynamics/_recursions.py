@@ -1,56 +1,13 @@
-"""Batched rigid-body dynamics of a :class:`~hoc_cli.model.RobotModel`: inverse dynamics (recursive
-Newton-Euler), mass matrix, forward dynamics, analytic derivatives and link poses.
-
-Symbols (SI units; sample axis first in every public array):
-
-====== ================================================================================
-K      number of samples (time instants) evaluated together
-n      number of movable joints (= bodies); column order = ``model.joint_names``
-q      (K, n) joint positions, rad (revolute, continuous) or m (prismatic)
-dq     (K, n) joint velocities q̇, rad/s or m/s
-ddq    (K, n) joint accelerations q̈, rad/s² or m/s²
-u      (K, n) joint torques (N·m) or forces (N): u = M(q) q̈ + h(q, q̇)
-M      (K, n, n) joint-space mass matrix, symmetric positive definite, kg·m² / kg·m / kg
-h      (K, n) bias forces C(q, q̇) q̇ + g(q): u at q̈ = 0
-g      gravity, (3,) m/s² in the root frame (``model.gravity``)
-λ      (K, n) weights of a vector-Jacobian product λᵀ ∂u/∂q
-v, a   spatial velocity / acceleration (ω, v) of a body, in its own frame
-f, F   spatial force (n, f) on one body / transmitted through its joint (subtree sum)
-I      (6, 6) spatial inertia of a body about its frame origin
-X      (6, 6) Plücker transform of a joint's constant part (``model.tree_motion``)
-====== ================================================================================
-
-Implementation. Every joint moves about or along its body's local z axis (see
-:mod:`hoc_cli.model.tree`), so the q-dependent part of a joint transform mixes only the x/y
-components: m ← α m + β D m with (α, β) = (cos q, sin q) (revolute) or (1, q) (prismatic) and D a
-constant generator. Internally arrays are stored *sample axis last*, per body as
-``(rows, channels, K)``, and every body's arrays are slices of one ``(n, rows, channels, K)``
-array, so that (a) each numpy operation streams over K contiguous values, (b) a joint step is one
-BLAS product with a constant matrix that stacks the 6 × 6 transform with its D product, plus two
-or three element-wise operations, and (c) everything that is not a recursion (body forces, the
-adjoints of the velocity products, the gradient read-out) runs for all bodies in one batched
-operation. The only Python loops are the recursions over bodies.
-
-* ``inverse_dynamics``: the recursive Newton-Euler algorithm (Featherstone, *Rigid Body Dynamics
-  Algorithms*, 2008, ch. 5), velocity and acceleration carried together.
-* ``mass_matrix``: the same recursion applied to the n unit accelerations at once (gravity and
-  velocity off), each body carrying only the columns of its ancestors.
-* ``id_vjp``, ``mass_quadratic_grad``: one reverse (adjoint) sweep of the recursion, O(n) per
-  sample; ``id_derivatives``: the same sweep seeded with the n unit vectors, giving ∂u/∂q, ∂u/∂q̇
-  and ∂u/∂q̈ = M row by row (from 32 samples on, the root-to-leaves half and the local adjoints
-  carry at each body only the seeds of its ancestors, the only nonzero ones).
-* ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
-  the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
-  shifted acceleration q̈ − ½ w.
-"""
+"""Internals of :mod:`hoc_cli.dynamics`: input checks, the sample-axis-last layout, per-model
+constants and the Newton-Euler recursions (forward, backward, adjoint). See the package docstring
+for the symbols and the layout."""
 from __future__ import annotations
 
-import math
 import weakref
 
 import numpy as np
 
-from .model.tree import RobotModel
+from ..model.tree import RobotModel
 
 #: samples processed together. Bounds the temporaries: every body's arrays are allocated together,
 #: and above a few MB per array the allocator hands back fresh pages on every call (page faults
@@ -94,7 +51,6 @@ def _shape_out(x: np.ndarray, one_d: bool) -> np.ndarray:
     return x[0] if one_d else x
 
 
-# --------------------------------------------------------------------------- layout and constants
 # A spatial motion or force of a body is 6 rows in the order (x, y, z) × (angular, linear):
 # rows 0-3 are the x/y components that a joint's rotation mixes, rows 4-5 the z components. The
 # constant 6 × 6 transforms and inertias are permuted to match. Per body, arrays are stored
@@ -109,8 +65,14 @@ def _shape_out(x: np.ndarray, one_d: bool) -> np.ndarray:
 # acceleration is q̇ D v. Each constant transform is stacked with its D product, so a joint step is
 # one BLAS product (10 × 6 or 6 × 10) plus two or three element-wise operations.
 _PERM = np.array([0, 3, 1, 4, 2, 5])
+
+
 _XY = slice(0, 4)
+
+
 _PI1 = np.array([1, 2, 0])  # (a × b)_x = a_π1 b_π2 − a_π2 b_π1
+
+
 _PI2 = np.array([2, 0, 1])
 
 
@@ -288,7 +250,6 @@ def _alpha_beta(C: _Consts, q: np.ndarray) -> np.ndarray:
     return CS.transpose(1, 0, 2)
 
 
-# --------------------------------------------------------------------------- recursions
 class _Pass:
     """One batch's forward (Newton-Euler) quantities, kept for the reverse sweep.
 
@@ -522,7 +483,6 @@ def _tau_of(C: _Consts, P: _Pass) -> np.ndarray:
     return P.FF[C.ar, C.zrow, 0]
 
 
-# --------------------------------------------------------------------------- public kernels
 def _tau(model: RobotModel, q, dq, ddq, gravity: bool) -> np.ndarray:
     """RNEA torques (K, n) from (n, K) inputs (dq, ddq may be None), in cache-sized chunks."""
     C = _consts(model)
@@ -540,50 +500,6 @@ def _tau(model: RobotModel, q, dq, ddq, gravity: bool) -> np.ndarray:
     return out
 
 
-def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.ndarray:
-    """Joint torques u (K, n) = M(q) q̈ + C(q, q̇) q̇ + g(q), by recursive Newton-Euler.
-
-    Args:
-        q, dq, ddq: (K, n) positions, velocities, accelerations (or (n,) for one sample, then
-            the result is (n,)).
-        gravity: False drops the gravity term g(q).
-    Returns:
-        u: (K, n) N·m (revolute) or N (prismatic).
-    """
-    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
-    return _shape_out(_tau(model, qT, dqT, ddqT, gravity), one_d)
-
-
-def bias_forces(model: RobotModel, q, dq) -> np.ndarray:
-    """Bias forces h (K, n) = C(q, q̇) q̇ + g(q) = ID(q, q̇, 0), N·m or N."""
-    (qT, dqT), K, one_d = _inputs(model, q=q, dq=dq)
-    return _shape_out(_tau(model, qT, dqT, None, True), one_d)
-
-
-def gravity_forces(model: RobotModel, q) -> np.ndarray:
-    """Gravity torques g (K, n) = ID(q, 0, 0), N·m or N."""
-    (qT,), K, one_d = _inputs(model, q=q)
-    return _shape_out(_tau(model, qT, None, None, True), one_d)
-
-
-def mass_matrix(model: RobotModel, q) -> np.ndarray:
-    """Joint-space mass matrix M (K, n, n) at positions q (K, n); symmetric positive definite.
-
-    Column j is the (gravity-free, zero-velocity) Newton-Euler response to q̈ = e_j, all columns
-    propagated together (each body carrying only its ancestors' columns).
-    """
-    (qT,), K, one_d = _inputs(model, q=q)
-    C = _consts(model)
-    out = np.empty((K, model.n, model.n))
-    if model.n:
-        for sl in _chunks(K, MASS_CHUNK):
-            P = _forward(C, qT[:, sl], None, None, False, cols=True)
-            _forces(C, P)
-            _backward(C, P)
-            _mass_from(C, P, out[sl])
-    return _shape_out(out, one_d)
-
-
 def _h_and_mass(C: _Consts, q, dq, acc, out_u, out_M) -> _Pass:
     """One pass for ID(q, q̇, acc) (K, n) and M (K, n, n) (into out_u, out_M)."""
     P = _forward(C, q, dq, acc, True, cols=True)
@@ -592,29 +508,6 @@ def _h_and_mass(C: _Consts, q, dq, acc, out_u, out_M) -> _Pass:
     out_u[...] = _tau_of(C, P).T
     _mass_from(C, P, out_M)
     return P
-
-
-def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
-    """Joint accelerations q̈ (K, n) = M(q)⁻¹ (u − h(q, q̇)) by a Cholesky solve per sample.
-
-    Args:
-        q, dq: (K, n) state; u: (K, n) applied joint torques/forces (N·m or N).
-    Raises:
-        numpy.linalg.LinAlgError: if M is not positive definite at some sample.
-    """
-    (qT, dqT, uT), K, one_d = _inputs(model, q=q, dq=dq, u=u)
-    C = _consts(model)
-    n = model.n
-    h = np.empty((K, n))
-    M = np.empty((K, n, n))
-    if n:
-        for sl in _chunks(K, MASS_CHUNK):
-            _h_and_mass(C, qT[:, sl], dqT[:, sl], None, h[sl], M[sl])
-    L = np.linalg.cholesky(M)
-    rhs = (uT.T - h)[:, :, None]
-    y = np.linalg.solve(L, rhs)
-    ddq = np.linalg.solve(np.swapaxes(L, 1, 2), y)[:, :, 0]
-    return _shape_out(ddq, one_d)
 
 
 def _jac(C: _Consts, P: _Pass, gq, gdq, gddq, work: np.ndarray) -> None:
@@ -700,159 +593,3 @@ def _jac_work(C: _Consts, K: int) -> np.ndarray:
     """Scratch for :func:`_jac` at K samples (one buffer, shared by all chunks of a call)."""
     return np.empty(10 * sum(C.hi) * K + (28 * C.n + 54) * C.n * K)
 
-
-def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
-    """Inverse dynamics and its partial derivatives.
-
-    Returns:
-        (u, du_dq, du_ddq, M): u (K, n); du_dq (K, n, n) with ``du_dq[k, i, j] = ∂u_i/∂q_j``;
-        du_ddq (K, n, n) = ∂u/∂q̇ (derivative with respect to the *velocity* ``dq``);
-        M (K, n, n) = ∂u/∂q̈, the mass matrix.
-    """
-    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
-    C = _consts(model)
-    n = model.n
-    u = np.empty((K, n))
-    du_dq = np.empty((K, n, n))
-    du_ddq = np.empty((K, n, n))
-    M = np.empty((K, n, n))
-    if n and K:
-        chunk = max(JAC_MIN_K, min(DERIV_CHUNK, DERIV_CHUNK * 49 // (n * n)))
-        work = _jac_work(C, min(K, chunk)) if K >= JAC_MIN_K else None
-        eye = np.eye(n)[:, :, None]
-        for sl in _chunks(K, chunk):
-            P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
-            _forces(C, P)
-            _backward(C, P)
-            # Gs[:, j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
-            if P.K < JAC_MIN_K:  # few samples: fewer numpy calls with all seeds on all bodies
-                Gs = _vjp(C, P, np.broadcast_to(eye, (n, n, P.K)))
-            else:
-                Gs = np.empty((3, n, n, P.K))
-                _jac(C, P, Gs[0], Gs[1], Gs[2], work)
-            u[sl] = _tau_of(C, P).T
-            du_dq[sl] = np.transpose(Gs[0], (2, 1, 0))
-            du_ddq[sl] = np.transpose(Gs[1], (2, 1, 0))
-            M[sl] = np.transpose(Gs[2], (2, 1, 0))
-    return tuple(_shape_out(x, one_d) for x in (u, du_dq, du_ddq, M))
-
-
-def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
-    """Vector-Jacobian products of inverse dynamics.
-
-    Args:
-        q, dq, ddq: (K, n) state and acceleration; lam: (K, n) weights λ.
-    Returns:
-        (u, gq, gdq): u (K, n); gq (K, n) = λᵀ ∂u/∂q; gdq (K, n) = λᵀ ∂u/∂q̇, per sample.
-    """
-    (qT, dqT, ddqT, lT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq, lam=lam)
-    C = _consts(model)
-    n = model.n
-    u = np.empty((K, n))
-    gq = np.empty((K, n))
-    gdq = np.empty((K, n))
-    for sl in _chunks(K, VJP_CHUNK):
-        P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
-        _forces(C, P)
-        _backward(C, P)
-        gqT, gdqT, _ = _vjp(C, P, lT[:, None, sl])
-        u[sl] = _tau_of(C, P).T
-        gq[sl] = gqT[:, 0].T
-        gdq[sl] = gdqT[:, 0].T
-    return tuple(_shape_out(x, one_d) for x in (u, gq, gdq))
-
-
-def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
-    """∂/∂q (vᵀ M(q) v) (K, n) with v (K, n) held fixed.
-
-    Since M(q) v = ID(q, 0, v) without gravity, the gradient is vᵀ ∂ID(q, 0, v)/∂q (factor 1).
-    """
-    (qT, vT), K, one_d = _inputs(model, q=q, v=v)
-    C = _consts(model)
-    out = np.empty((K, model.n))
-    for sl in _chunks(K, VJP_CHUNK):
-        P = _forward(C, qT[:, sl], None, vT[:, sl], False, cols=False)
-        _forces(C, P)
-        _backward(C, P)
-        out[sl] = _vjp(C, P, vT[:, None, sl])[0][:, 0].T
-    return _shape_out(out, one_d)
-
-
-def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = False):
-    """Everything the covariant cost L = ½ uᵀ M(q)⁻¹ u needs per sample, in one fused pass.
-
-    With u = ID(q, q̇, q̈) (gravity included) and w = M⁻¹ u:
-        gq  = wᵀ ∂u/∂q − ½ ∂(wᵀ M w)/∂q   (= ∂L/∂q),
-        gdq = wᵀ ∂u/∂q̇                     (= ∂L/∂q̇);   ∂L/∂q̈ = u.
-    Because ID is affine in q̈, both are one vector-Jacobian product of ID at the shifted
-    acceleration q̈ − ½ w (same velocity), with weights w. The mass matrix is computed in the same
-    forward/backward pass as u (its unit-acceleration columns ride along), and the shifted pass
-    reuses the velocities and velocity products.
-
-    Args:
-        q, dq, ddq: (K, n) (or (n,)) positions, velocities, accelerations.
-        return_w: also return w = M⁻¹ u (K, n).
-    Returns:
-        (u, M, gq, gdq) — u (K, n), M (K, n, n), gq (K, n), gdq (K, n) — plus w if ``return_w``.
-        Equal (to rounding) to inverse_dynamics, mass_matrix, id_vjp(q, q̇, q̈, w)[1:] and
-        id_vjp(..)[1] − ½ mass_quadratic_grad(q, w).
-    Raises:
-        numpy.linalg.LinAlgError: if M is not positive definite at some sample.
-    """
-    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
-    C = _consts(model)
-    n = model.n
-    u = np.empty((K, n))
-    M = np.empty((K, n, n))
-    w = np.empty((K, n))
-    gq = np.empty((K, n))
-    gdq = np.empty((K, n))
-    if n:
-        for sl in _chunks(K, MASS_CHUNK):
-            P = _h_and_mass(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], u[sl], M[sl])
-            Lc = np.linalg.cholesky(M[sl])
-            y = np.linalg.solve(Lc, u[sl, :, None])
-            ws = np.linalg.solve(np.swapaxes(Lc, 1, 2), y)[:, :, 0]
-            w[sl] = ws
-            wT = np.ascontiguousarray(ws.T)
-            # acceleration at q̈ − ½ w: a ← a − ½ Σ_j w_j (column j); then the forces again
-            TT = P.TT
-            da = TT[:, 4:10, 2:] * wT
-            TT[:, 4:10, 1] -= 0.5 * da.sum(axis=2)
-            _forces(C, P, only_acc=True)
-            P.cols = False
-            _backward(C, P)
-            gqT, gdqT, _ = _vjp(C, P, wT[:, None, :])
-            gq[sl] = gqT[:, 0].T
-            gdq[sl] = gdqT[:, 0].T
-    res = (u, M, gq, gdq, w) if return_w else (u, M, gq, gdq)
-    return tuple(_shape_out(x, one_d) for x in res)
-
-
-def link_poses(model: RobotModel, q) -> dict[str, np.ndarray]:
-    """Pose (K, 4, 4) of every URDF link (merged and fixed-base links included) in the root-link
-    frame, keyed by link name; translations in m."""
-    (qT,), K, one_d = _inputs(model, q=q)
-    n = model.n
-    body = [None] * n
-    c, s = _cos_sin(qT)
-    for i in model.order:
-        J = np.zeros((K, 4, 4))
-        J[:, 3, 3] = 1.0
-        if model.joint_types[i] == "prismatic":
-            J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = 1.0
-            J[:, 2, 3] = qT[i]
-        else:
-            J[:, 0, 0] = c[i]
-            J[:, 0, 1] = -s[i]
-            J[:, 1, 0] = s[i]
-            J[:, 1, 1] = c[i]
-            J[:, 2, 2] = 1.0
-        p = model.parent[i]
-        base = model.tree_transform[i] if p < 0 else body[p] @ model.tree_transform[i]
-        body[i] = base @ J
-    out = {}
-    for name, b, offset in zip(model.link_names, model.link_body, model.link_offset):
-        T = np.broadcast_to(offset, (K, 4, 4)).copy() if b < 0 else body[b] @ offset
-        out[name] = _shape_out(T, one_d)
-    return out
