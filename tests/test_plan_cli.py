@@ -245,3 +245,30 @@ def test_an_output_that_is_a_symlink_is_written_through_the_link(task, tmp_path)
     assert invoke("plan", task, "-o", "link.csv", "-q").exit_code == 0
     assert (tmp_path / "link.csv").is_symlink()
     assert target.read_text().startswith("t,q.shoulder")
+
+
+def test_planning_a_third_party_ur5_gives_torques_equal_to_pinocchios_rnea(tmp_path, monkeypatch):
+    """A real URDF from example-robot-data, through the CLI, checked against Pinocchio."""
+    import sysconfig
+
+    pin = pytest.importorskip("pinocchio")
+    urdf = (Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
+            / "ur_description" / "urdf" / "ur5_robot.urdf")
+    assert urdf.is_file(), "the test extra installs example-robot-data"
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ur5.yaml").write_text(
+        f"robot: {urdf}\nx0: {{q: [0.0, -1.2, 1.2, -1.5, -1.5, 0.0]}}\n"
+        "x1: {q: [1.0, -1.0, 1.0, -1.3, -1.2, 0.5]}\nT: 1.5\nN: 8\noutput: {rate: 20}\n")
+    r = invoke("plan", "ur5.yaml", "-o", "ur5.csv", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["converged"] is True
+    tr = read_csv(tmp_path / "ur5.csv")
+    model = pin.buildModelFromUrdf(str(urdf))
+    data = model.createData()
+    names = [model.names[i] for i in range(1, model.njoints)]
+    idx = [names.index(j) for j in tr.joints]
+    for k in range(tr.K):
+        q, v, a = (np.zeros(model.nq) for _ in range(3))
+        q[idx], v[idx], a[idx] = tr.q[k], tr.dq[k], tr.ddq[k]
+        tau = pin.rnea(model, data, q, v, a)[idx]
+        np.testing.assert_allclose(tr.u[k], tau, rtol=1e-10, atol=1e-10 * np.abs(tau).max())
