@@ -11,7 +11,8 @@ iteration: with P the (modified) Hessian, a line-searched Newton method.
 
 Stopping test: the decrement ½ gᵀP⁻¹g estimates J − J* when P approximates the Hessian;
 we stop when ½ gᵀP⁻¹g <= max(tol·|J|, J_noise) where J_noise is the rounding level of J
-supplied by the caller (with P = I: when ‖g‖∞ <= tol·max(|J|, 1)).
+supplied by the caller (with P = I: when ‖g‖∞ <= tol·max(|J|, 1)). P is the matrix built at the
+current iterate, or at the previous one when that one already passes the test (a rebuild saved).
 """
 from __future__ import annotations
 
@@ -159,12 +160,19 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         if not (math.isfinite(J) and np.all(np.isfinite(g_new))):
             status = Status.NOT_FINITE
             break
-        if final:
-            P = make_final(payload)
-        elif it % refresh == 0:
-            P = make_precond(payload)
         z_new = P.solve(g_new)
         gz_new = float(g_new @ z_new)
+        # When the matrix built one step ago already finds the decrement below tol·|J| (near the
+        # optimum it differs from the current one by O(step)), the stopping test is taken with it and
+        # the rebuild is skipped; otherwise P is refreshed as scheduled.
+        settled = precondition is not None and 0.5 * gz_new <= tol * abs(J)
+        if not settled:
+            if final:
+                P = make_final(payload)
+            elif it % refresh == 0:
+                P = make_precond(payload)
+            z_new = P.solve(g_new)
+            gz_new = float(g_new @ z_new)
         if method == "newton" or not ls.ok:
             beta = 0.0
         else:
