@@ -220,6 +220,11 @@ def test_a_7dof_plans_mcap_decodes_with_the_ros2_decoder_and_tf_matches_yourdfpy
         np.testing.assert_array_equal(m.position, csv.q[k])
         np.testing.assert_array_equal(m.velocity, csv.dq[k])
         np.testing.assert_array_equal(m.effort, csv.u[k])
+    acc = by_topic["/joint_accelerations"]
+    assert len(acc) == csv.K
+    for k, (log_time, m) in enumerate(acc):
+        assert list(m.joint_names) == list(csv.joints) and log_time == js[k][0]
+        np.testing.assert_array_equal(m.points[0].accelerations, csv.ddq[k])
     assert by_topic["/robot_description"][0][1].data == urdf.read_text()
     assert "task" in metadata["hoc"] and "summary" in metadata["hoc"]
     assert attachments == {"robot.urdf", "task.yaml", "hermite.json"}
