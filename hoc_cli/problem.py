@@ -220,10 +220,13 @@ class ControlProblem:
     def sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, rel_step: float = 1e-8) -> np.ndarray:
         """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), at samples (K, n) ×3.
 
-        Columns for q and q̇ by forward differences of the analytic per-sample gradient (all samples and
-        all 2n perturbations in one batched call, relative step 1e-8: error ~1e-8 relative); the q̈
-        columns follow by symmetry, and ∂²L/∂q̈² = M (covariant) or M² (torque) exactly.
+        Covariant cost: see ``_covariant_sample_hessians``. Torque cost: columns for q and q̇ by
+        forward differences of the analytic per-sample gradient (all samples and all 2n
+        perturbations in one batched call, relative step 1e-8: error ~1e-8 relative); the q̈ columns
+        follow by symmetry, and ∂²L/∂q̈² = M² exactly.
         """
+        if self.cost == "covariant":
+            return self._covariant_sample_hessians(q, dq, ddq, rel_step)
         K, n = q.shape
         eps_q = rel_step * (1.0 + np.abs(q))  # (K, n)
         eps_v = rel_step * (1.0 + np.abs(dq))
@@ -240,6 +243,45 @@ class ControlProblem:
         H[:, :, n : 2 * n] = np.transpose((G[n : 2 * n] - base) / eps_v.T[:, :, None], (1, 2, 0))
         H[:, 2 * n :, 2 * n :] = M if self.cost == "covariant" else np.einsum("kij,kil->kjl", M, M)
         H[:, : 2 * n, 2 * n :] = np.swapaxes(H[:, 2 * n :, : 2 * n], 1, 2)
+        return 0.5 * (H + np.swapaxes(H, 1, 2))
+
+    def _covariant_sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                                   rel_step: float) -> np.ndarray:
+        """Hessian of L = ½ uᵀM⁻¹u per sample, (K, 3n, 3n), through a variational form.
+
+        L(x) = max_w Φ(x, w) with Φ = wᵀu(x) − ½ wᵀM(q)w = wᵀ ID(q, q̇, q̈ − ½w) (ID is affine in q̈),
+        maximised at w = M⁻¹u with Φ_ww = −M. Hence (envelope theorem, x = (q, q̇, q̈))
+
+            ∇²L = Φ_xx + Dᵀ M⁻¹ D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M],   B = ∂(M(q) w)/∂q,
+
+        where Φ_xx, at fixed w, has q- and q̇-columns from forward differences of the RNEA reverse
+        sweep (vector-Jacobian product with λ = w; all 2n + 1 copies in one batched call), its q̈-rows
+        B (Φ is linear in q̈) and zero q̈q̈ block. Cheaper than differencing the whole covariant
+        gradient (no mass matrix or solve per copy).
+        """
+        K, n = q.shape
+        u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
+        w = _spd_solve(M, u)
+        B = self.system.mass_product_derivative(q, w)  # (K, n, n): ∂(M(q) w)/∂q_j
+        eps_q = rel_step * (1.0 + np.abs(q))
+        eps_v = rel_step * (1.0 + np.abs(dq))
+        E = np.eye(n)
+        Qb = np.concatenate([q[None] + E[:, None, :] * eps_q[None], np.broadcast_to(q, (n, K, n)), q[None]])
+        Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
+        shifted = ddq - 0.5 * w
+        copies = 2 * n + 1
+        _, gq, gdq = self.system.id_vjp(Qb.reshape(-1, n), Vb.reshape(-1, n),
+                                        np.broadcast_to(shifted, (copies, K, n)).reshape(-1, n),
+                                        np.broadcast_to(w, (copies, K, n)).reshape(-1, n))
+        G = np.concatenate([gq, gdq], axis=1).reshape(copies, K, 2 * n)
+        base = G[-1]
+        H = np.zeros((K, 3 * n, 3 * n))
+        H[:, : 2 * n, :n] = np.transpose((G[:n] - base) / eps_q.T[:, :, None], (1, 2, 0))
+        H[:, : 2 * n, n : 2 * n] = np.transpose((G[n : 2 * n] - base) / eps_v.T[:, :, None], (1, 2, 0))
+        H[:, 2 * n :, :n] = B
+        H[:, :n, 2 * n :] = np.swapaxes(B, 1, 2)
+        D = np.concatenate([Jq - B, Jv, M], axis=2)  # (K, n, 3n)
+        H += np.einsum("kia,kib->kab", D, np.linalg.solve(M, D))
         return 0.5 * (H + np.swapaxes(H, 1, 2))
 
     def newton(self, ev: Evaluation) -> "BandedSPD":
