@@ -36,11 +36,12 @@ def _read(path) -> tuple[object, str]:
     except TypeError:
         raise ModelError(f"expected a URDF file path, got {type(path).__name__}", file=str(path)) from None
     try:
-        found = Path(path).is_file()
+        exists, found = Path(path).exists(), Path(path).is_file()
     except (OSError, ValueError):  # a name the system cannot look up (too long, ...)
-        found = False
+        exists = found = False
     if not found:
-        raise ModelError("file not found (expected a URDF file)", file=path)
+        what = "is not a regular file" if exists else "file not found"
+        raise ModelError(f"{what} (expected a URDF file)", file=path)
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
