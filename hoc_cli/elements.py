@@ -235,8 +235,12 @@ class HermiteMesh:
         return np.stack(vals, axis=1)
 
     def quadrature(self, G: int) -> "QuadratureOperator":
-        """The linear map C → (q, q̇, q̈) at G Gauss points per element (K = N G samples)."""
-        return QuadratureOperator.build(self, G)
+        """The linear map C → (q, q̇, q̈) at G Gauss points per element (K = N G samples).
+
+        Built once per (mesh, G) and shared (its arrays are read-only): the planner's coarse-to-fine
+        levels and quadrature checks ask for the same operators again and again.
+        """
+        return _quadrature(self, int(G))
 
 
 @dataclass(frozen=True, eq=False)
@@ -296,6 +300,14 @@ class QuadratureOperator:
     def integrate(self, f: np.ndarray) -> float | np.ndarray:
         """∫₀ᵀ f dt from samples f of shape (K,) or (K, ...)."""
         return np.tensordot(self.w, f, axes=(0, 0))
+
+
+@lru_cache(maxsize=256)
+def _quadrature(mesh: HermiteMesh, G: int) -> QuadratureOperator:
+    op = QuadratureOperator.build(mesh, G)
+    for arr in (op.t, op.w, op.B):
+        arr.flags.writeable = False
+    return op
 
 
 def error_norm(mesh: HermiteMesh, C: np.ndarray, exact: tuple[Callable, Callable, Callable], G: int = 12) -> float:

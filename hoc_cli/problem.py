@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
+from hoc_cli.dynamics import mass_cholesky
 from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.system import System
@@ -170,7 +171,7 @@ class ControlProblem:
             gq = np.einsum("kij,ki->kj", Jq, w)
             gdq = np.einsum("kij,ki->kj", Jv, w)
         else:
-            _, gq, gdq = self.system.id_vjp(q, dq, ddq, w)
+            _, gq, gdq, _ = self.system.id_vjp(q, dq, ddq, w)
         if self.cost == "covariant":
             gq = gq - 0.5 * self.system.mass_quadratic_grad(q, w)
             gddq = u
@@ -252,17 +253,17 @@ class ControlProblem:
         L(x) = max_w Φ(x, w) with Φ = wᵀu(x) − ½ wᵀM(q)w = wᵀ ID(q, q̇, q̈ − ½w) (ID is affine in q̈),
         maximised at w = M⁻¹u with Φ_ww = −M. Hence (envelope theorem, x = (q, q̇, q̈))
 
-            ∇²L = Φ_xx + Dᵀ M⁻¹ D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M],   B = ∂(M(q) w)/∂q,
+            ∇²L = Φ_xx + Dᵀ M⁻¹ D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M],   B = ∂(M(q) w)/∂q.
 
-        where Φ_xx, at fixed w, has q- and q̇-columns from forward differences of the RNEA reverse
-        sweep (vector-Jacobian product with λ = w; all 2n + 1 copies in one batched call), its q̈-rows
-        B (Φ is linear in q̈) and zero q̈q̈ block. Cheaper than differencing the whole covariant
-        gradient (no mass matrix or solve per copy).
+        Everything but M comes from ONE batched call: the vector-Jacobian product of
+        ID(·, ·, q̈ − ½w) with λ = w at the sample and at its 2n forward-perturbed copies (q_j, then
+        q̇_j, relative step ``rel_step``). Its four outputs, differenced, give Φ_xx's q- and q̇-columns
+        (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇ and ∂u/∂q − ½B (from the torque at
+        the shifted acceleration). Φ is linear in q̈: its q̈-rows are B, its q̈q̈ block zero.
         """
         K, n = q.shape
-        u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
-        w = _spd_solve(M, u)
-        B = self.system.mass_product_derivative(q, w)  # (K, n, n): ∂(M(q) w)/∂q_j
+        M = self.system.mass_matrix(q)
+        w = _spd_solve(M, self.system.inverse_dynamics(q, dq, ddq))
         eps_q = rel_step * (1.0 + np.abs(q))
         eps_v = rel_step * (1.0 + np.abs(dq))
         E = np.eye(n)
@@ -270,18 +271,23 @@ class ControlProblem:
         Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
         shifted = ddq - 0.5 * w
         copies = 2 * n + 1
-        _, gq, gdq = self.system.id_vjp(Qb.reshape(-1, n), Vb.reshape(-1, n),
-                                        np.broadcast_to(shifted, (copies, K, n)).reshape(-1, n),
-                                        np.broadcast_to(w, (copies, K, n)).reshape(-1, n))
-        G = np.concatenate([gq, gdq], axis=1).reshape(copies, K, 2 * n)
-        base = G[-1]
+        out = self.system.id_vjp(Qb.reshape(-1, n), Vb.reshape(-1, n),
+                                 np.broadcast_to(shifted, (copies, K, n)).reshape(-1, n),
+                                 np.broadcast_to(w, (copies, K, n)).reshape(-1, n))
+        # Z[c, k] = (u_shift, λᵀ∂u/∂q, λᵀ∂u/∂q̇, M w) at copy c; columns by forward differences
+        Z = np.concatenate(out, axis=1).reshape(copies, K, 4 * n)
+        dZq = np.transpose((Z[:n] - Z[-1]) / eps_q.T[:, :, None], (1, 2, 0))  # (K, 4n, n)
+        dZv = np.transpose((Z[n:2 * n] - Z[-1]) / eps_v.T[:, :, None], (1, 2, 0))
+        B = dZq[:, 3 * n:]
         H = np.zeros((K, 3 * n, 3 * n))
-        H[:, : 2 * n, :n] = np.transpose((G[:n] - base) / eps_q.T[:, :, None], (1, 2, 0))
-        H[:, : 2 * n, n : 2 * n] = np.transpose((G[n : 2 * n] - base) / eps_v.T[:, :, None], (1, 2, 0))
-        H[:, 2 * n :, :n] = B
-        H[:, :n, 2 * n :] = np.swapaxes(B, 1, 2)
-        D = np.concatenate([Jq - B, Jv, M], axis=2)  # (K, n, 3n)
-        H += np.einsum("kia,kib->kab", D, np.linalg.solve(M, D))
+        H[:, :n, :n] = dZq[:, n:2 * n]
+        H[:, n:2 * n, :n] = dZq[:, 2 * n:3 * n]
+        H[:, :n, n:2 * n] = dZv[:, n:2 * n]
+        H[:, n:2 * n, n:2 * n] = dZv[:, 2 * n:3 * n]
+        H[:, 2 * n:, :n] = B
+        H[:, :n, 2 * n:] = np.swapaxes(B, 1, 2)
+        D = np.concatenate([dZq[:, :n] - 0.5 * B, dZv[:, :n], M], axis=2)  # (K, n, 3n)
+        H += np.einsum("kia,kib->kab", D, _spd_solve_many(M, D))
         return 0.5 * (H + np.swapaxes(H, 1, 2))
 
     def newton(self, ev: Evaluation) -> "BandedSPD":
@@ -342,10 +348,19 @@ def _operator_rows(op: QuadratureOperator) -> np.ndarray:
     return np.repeat(op.B[:, None], op.mesh.N, axis=1).reshape(3, op.K, op.B.shape[-1])
 
 
+def _spd_solve_many(M: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """M⁻¹ R for SPD M (K, n, n) and right-hand sides R (K, n, r), via Cholesky."""
+    try:
+        Lc = mass_cholesky(M)
+    except np.linalg.LinAlgError:
+        raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
+    return np.linalg.solve(np.swapaxes(Lc, -1, -2), np.linalg.solve(Lc, R))
+
+
 def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:
     """w = M⁻¹ u for a batch of SPD matrices (K, n, n) and vectors (K, n), via Cholesky."""
     try:
-        Lc = np.linalg.cholesky(M)
+        Lc = mass_cholesky(M)
     except np.linalg.LinAlgError:
         raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
     y = np.linalg.solve(Lc, u[..., None])

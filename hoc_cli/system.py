@@ -36,7 +36,7 @@ class System(Protocol):
         """(u, ∂u/∂q, ∂u/∂q̇, M): (K, n), (K, n, n) ×3 with [k, i, j] = ∂u_i/∂x_j."""
 
     def id_vjp(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, ...]:
-        """(u, λᵀ∂u/∂q, λᵀ∂u/∂q̇), each (K, n)."""
+        """(u, λᵀ∂u/∂q, λᵀ∂u/∂q̇, λᵀ∂u/∂q̈ = M λ), each (K, n)."""
 
     def mass_quadratic_grad(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """∂(vᵀ M(q) v)/∂q with v held fixed, (K, n)."""
@@ -80,7 +80,7 @@ class LinearOscillator:
 
     def id_vjp(self, q, dq, ddq, lam):
         lam = np.asarray(lam, float)
-        return self.inverse_dynamics(q, dq, ddq), self.omega2 * lam, np.zeros_like(lam)
+        return self.inverse_dynamics(q, dq, ddq), self.omega2 * lam, np.zeros_like(lam), lam.copy()
 
     def mass_quadratic_grad(self, q, v):
         return np.zeros_like(np.asarray(q, float))

@@ -86,6 +86,23 @@ def test_mass_matrix_is_symmetric_positive_definite(case):
     assert np.linalg.eigvalsh(M).min() > 0.0
 
 
+def test_mass_cholesky_factors_spd_matrices_and_rejects_singular_ones():
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((4, 5, 5))
+    M = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(5)
+    L = D.mass_cholesky(M)
+    np.testing.assert_allclose(L @ np.swapaxes(L, 1, 2), M, rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(L, np.linalg.cholesky(M))
+    # rank-deficient by construction: the last row/column is the sum of the first two
+    S = M.copy()
+    S[2, :, 4] = S[2, :, 0] + S[2, :, 1]
+    S[2, 4, :] = S[2, 0, :] + S[2, 1, :]
+    S[2, 4, 4] = S[2, 0, 0] + 2 * S[2, 0, 1] + S[2, 1, 1]
+    S[2] = 0.5 * (S[2] + S[2].T)
+    with pytest.raises(np.linalg.LinAlgError):
+        D.mass_cholesky(S)
+
+
 @pytest.mark.parametrize("case", ["lbr7.urdf", "dual_arm.urdf", "panda with a prismatic finger, reordered"])
 def test_batched_results_equal_a_loop_over_single_samples(case):
     model = model_of(case)
@@ -144,8 +161,9 @@ def test_vector_jacobian_products_contract_the_derivative_matrices(case, gravity
     q, dq, ddq = random_state(rng, 5, model.n)
     lam = rng.standard_normal(q.shape)
     u, du_dq, du_ddq, _ = D.id_derivatives(model, q, dq, ddq, gravity=gravity)
-    u2, gq, gdq = D.id_vjp(model, q, dq, ddq, lam, gravity=gravity)
+    u2, gq, gdq, gddq = D.id_vjp(model, q, dq, ddq, lam, gravity=gravity)
     np.testing.assert_allclose(u2, u, atol=1e-12)
+    np.testing.assert_allclose(gddq, np.einsum("kij,kj->ki", D.mass_matrix(model, q), lam), atol=1e-10)
     np.testing.assert_allclose(gq, np.einsum("ki,kij->kj", lam, du_dq), atol=1e-10)
     np.testing.assert_allclose(gdq, np.einsum("ki,kij->kj", lam, du_ddq), atol=1e-10)
 
@@ -204,7 +222,7 @@ def test_random_trees_with_every_joint_type_and_arbitrary_axes_agree_with_pinocc
     q, dq, ddq = random_state(rng, 3, model.n)
     u, du_dq, du_ddq, M = D.id_derivatives(model, q, dq, ddq)
     lam = rng.standard_normal(q.shape)
-    _, gq, gdq = D.id_vjp(model, q, dq, ddq, lam)
+    _, gq, gdq, gddq = D.id_vjp(model, q, dq, ddq, lam)
     poses = D.link_poses(model, q)
     for k in range(len(q)):
         ref_dq, ref_dv, ref_da = oracle.rnea_derivatives(q[k], dq[k], ddq[k])
@@ -215,5 +233,6 @@ def test_random_trees_with_every_joint_type_and_arbitrary_axes_agree_with_pinocc
         assert rel_err(M[k], ref_da) < 1e-10
         assert rel_err(gq[k], lam[k] @ ref_dq) < 1e-10
         assert rel_err(gdq[k], lam[k] @ ref_dv) < 1e-10
+        assert rel_err(gddq[k], oracle.crba(q[k]) @ lam[k]) < 1e-10
         for link in model.link_names:
             np.testing.assert_allclose(poses[link][k], oracle.link_pose(q[k], link), atol=1e-12)

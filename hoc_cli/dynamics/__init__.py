@@ -71,6 +71,27 @@ from ._recursions import (  # noqa: F401  (the chunk sizes are tuning knobs, re-
 )
 
 
+#: a Cholesky pivot L_ii² below this fraction of the largest diagonal entry of M means M is singular
+#: to working precision (M⁻¹u would be rounding noise): a point mass on a joint axis, for example.
+SINGULAR_PIVOT = 1e-14
+
+
+def mass_cholesky(M: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors (K, n, n) of mass matrices M (K, n, n).
+
+    Raises:
+        numpy.linalg.LinAlgError: if some M is not positive definite, or singular to working
+            precision (a pivot L_ii² ≤ ``SINGULAR_PIVOT`` · max_j M_jj).
+    """
+    L = np.linalg.cholesky(M)
+    if M.shape[-1]:
+        piv = np.diagonal(L, axis1=-2, axis2=-1) ** 2
+        scale = np.max(np.diagonal(M, axis1=-2, axis2=-1), axis=-1, keepdims=True)
+        if np.any(piv <= SINGULAR_PIVOT * scale):
+            raise np.linalg.LinAlgError("the mass matrix is singular to working precision")
+    return L
+
+
 def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.ndarray:
     """Joint torques u (K, n) = M(q) q̈ + C(q, q̇) q̇ + g(q), by recursive Newton-Euler.
 
@@ -181,12 +202,13 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
 
 
 def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
-    """Vector-Jacobian products of inverse dynamics.
+    """Vector-Jacobian products of inverse dynamics with respect to all three inputs.
 
     Args:
         q, dq, ddq: (K, n) state and acceleration; lam: (K, n) weights λ.
     Returns:
-        (u, gq, gdq): u (K, n); gq (K, n) = λᵀ ∂u/∂q; gdq (K, n) = λᵀ ∂u/∂q̇, per sample.
+        (u, gq, gdq, gddq): u (K, n); gq (K, n) = λᵀ ∂u/∂q; gdq (K, n) = λᵀ ∂u/∂q̇;
+        gddq (K, n) = λᵀ ∂u/∂q̈ = M(q) λ, per sample.
     """
     (qT, dqT, ddqT, lT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq, lam=lam)
     C = _consts(model)
@@ -194,15 +216,17 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
     u = np.empty((K, n))
     gq = np.empty((K, n))
     gdq = np.empty((K, n))
+    gddq = np.empty((K, n))
     for sl in _chunks(K, VJP_CHUNK):
         P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
         _forces(C, P)
         _backward(C, P)
-        gqT, gdqT, _ = _vjp(C, P, lT[:, None, sl])
+        gqT, gdqT, gddqT = _vjp(C, P, lT[:, None, sl])
         u[sl] = _tau_of(C, P).T
         gq[sl] = gqT[:, 0].T
         gdq[sl] = gdqT[:, 0].T
-    return tuple(_shape_out(x, one_d) for x in (u, gq, gdq))
+        gddq[sl] = gddqT[:, 0].T
+    return tuple(_shape_out(x, one_d) for x in (u, gq, gdq, gddq))
 
 
 
@@ -239,10 +263,11 @@ def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = Fal
         return_w: also return w = M⁻¹ u (K, n).
     Returns:
         (u, M, gq, gdq) — u (K, n), M (K, n, n), gq (K, n), gdq (K, n) — plus w if ``return_w``.
-        Equal (to rounding) to inverse_dynamics, mass_matrix, id_vjp(q, q̇, q̈, w)[1:] and
+        Equal (to rounding) to inverse_dynamics, mass_matrix, id_vjp(q, q̇, q̈, w)[1:3] and
         id_vjp(..)[1] − ½ mass_quadratic_grad(q, w).
     Raises:
-        numpy.linalg.LinAlgError: if M is not positive definite at some sample.
+        numpy.linalg.LinAlgError: if M is not positive definite, or singular to working precision
+            (see ``mass_cholesky``), at some sample.
     """
     (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
     C = _consts(model)
@@ -255,7 +280,7 @@ def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = Fal
     if n:
         for sl in _chunks(K, MASS_CHUNK):
             P = _h_and_mass(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], u[sl], M[sl])
-            Lc = np.linalg.cholesky(M[sl])
+            Lc = mass_cholesky(M[sl])
             y = np.linalg.solve(Lc, u[sl, :, None])
             ws = np.linalg.solve(np.swapaxes(Lc, 1, 2), y)[:, :, 0]
             w[sl] = ws
