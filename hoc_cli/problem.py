@@ -24,6 +24,7 @@ The coefficient gradient is the transpose of the element operator applied to the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
@@ -263,7 +264,8 @@ class ControlProblem:
         """
         K, n = q.shape
         M = self.system.mass_matrix(q)
-        w = _spd_solve(M, self.system.inverse_dynamics(q, dq, ddq))
+        Li = _inverse_cholesky(M)  # M⁻¹ = Liᵀ Li
+        w = _apply_inverse(Li, self.system.inverse_dynamics(q, dq, ddq)[..., None])[..., 0]
         eps_q = rel_step * (1.0 + np.abs(q))
         eps_v = rel_step * (1.0 + np.abs(dq))
         E = np.eye(n)
@@ -287,7 +289,8 @@ class ControlProblem:
         H[:, 2 * n:, :n] = B
         H[:, :n, 2 * n:] = np.swapaxes(B, 1, 2)
         D = np.concatenate([dZq[:, :n] - 0.5 * B, dZv[:, :n], M], axis=2)  # (K, n, 3n)
-        H += np.einsum("kia,kib->kab", D, _spd_solve_many(M, D))
+        Y = np.matmul(Li, D)  # Dᵀ M⁻¹ D = Yᵀ Y
+        H += np.matmul(np.swapaxes(Y, 1, 2), Y)
         return 0.5 * (H + np.swapaxes(H, 1, 2))
 
     def newton(self, ev: Evaluation) -> "BandedSPD":
@@ -330,13 +333,15 @@ class ControlProblem:
         return np.einsum("kia,kib->kab", A * op.w[:, None, None], SA).reshape(N, G, L, L).sum(axis=1)
 
     def _element_blocks(self, op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
-        """Σ_g w_g Ãᵀ Hs_g Ã per element, (N, 2mn, 2mn), for per-sample Hessians Hs (K, 3n, 3n)."""
-        n, m, N, G = self.n, self.mesh.m, self.mesh.N, op.G
-        Bx = _operator_rows(op)  # (3, K, 2m)
-        H5 = Hs.reshape(op.K, 3, n, 3, n) * op.w[:, None, None, None, None]
-        T = np.einsum("rka,krisj->kaisj", Bx, H5)  # (K, 2m, n, 3, n)
-        E = np.einsum("kaisj,skb->kaibj", T, Bx)  # (K, 2m, n, 2m, n)
-        return E.reshape(N, G, 2 * m * n, 2 * m * n).sum(axis=1)
+        """Σ_g w_g Ãᵀ Hs_g Ã per element, (N, 2mn, 2mn), for per-sample Hessians Hs (K, 3n, 3n).
+
+        Ã (3n, 2mn) maps an element's coefficients to (q, q̇, q̈) at a sample: two batched matmuls.
+        """
+        N, G = self.mesh.N, op.G
+        A, AT = _expanded_rows(op, self.n)
+        HA = np.matmul(Hs * op.w[:, None, None], A)
+        L = A.shape[-1]
+        return np.matmul(AT, HA).reshape(N, G, L, L).sum(axis=1)
 
     def _banded(self, blocks: np.ndarray) -> "BandedSPD":
         mn = self.mesh.m * self.n
@@ -348,13 +353,33 @@ def _operator_rows(op: QuadratureOperator) -> np.ndarray:
     return np.repeat(op.B[:, None], op.mesh.N, axis=1).reshape(3, op.K, op.B.shape[-1])
 
 
-def _spd_solve_many(M: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """M⁻¹ R for SPD M (K, n, n) and right-hand sides R (K, n, r), via Cholesky."""
+@lru_cache(maxsize=64)
+def _expanded_rows(op: QuadratureOperator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ã = B ⊗ I_n at every sample, (K, 3n, 2mn), and its transpose (K, 2mn, 3n) (read-only, cached
+    per operator): row r·n + i, column a·n + j holds B[r, a] δ_ij (element coefficient order a, j)."""
+    Bx = _operator_rows(op)  # (3, K, 2m)
+    K, L = op.K, Bx.shape[-1] * n
+    A = np.einsum("rka,ij->kriaj", Bx, np.eye(n)).reshape(K, 3 * n, L)
+    AT = np.ascontiguousarray(np.swapaxes(A, 1, 2))
+    A.flags.writeable = AT.flags.writeable = False
+    return A, AT
+
+
+def _inverse_cholesky(M: np.ndarray) -> np.ndarray:
+    """L⁻¹ (K, n, n) of the Cholesky factors of SPD matrices M (K, n, n), so M⁻¹ = L⁻ᵀ L⁻¹.
+
+    One batched inverse of small triangular matrices: much cheaper than batched multi-right-hand-side
+    solves at this size, and accurate enough for Newton matrices (which only precondition).
+    """
     try:
-        Lc = mass_cholesky(M)
+        return np.linalg.inv(mass_cholesky(M))
     except np.linalg.LinAlgError:
         raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
-    return np.linalg.solve(np.swapaxes(Lc, -1, -2), np.linalg.solve(Lc, R))
+
+
+def _apply_inverse(Li: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """M⁻¹ R = L⁻ᵀ (L⁻¹ R) for R (K, n, r)."""
+    return np.matmul(np.swapaxes(Li, 1, 2), np.matmul(Li, R))
 
 
 def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:
