@@ -35,10 +35,13 @@ operation. The only Python loops are the recursions over bodies.
   Algorithms*, 2008, ch. 5), velocity and acceleration carried together.
 * ``mass_matrix``: the same recursion applied to the n unit accelerations at once (gravity and
   velocity off), each body carrying only the columns of its ancestors.
-* ``id_vjp``, ``mass_quadratic_grad``: one reverse (adjoint) sweep of the recursion, O(n) per
-  sample; ``id_derivatives``: the same sweep seeded with the n unit vectors, giving ∂u/∂q, ∂u/∂q̇
-  and ∂u/∂q̈ = M row by row (from 32 samples on, the root-to-leaves half and the local adjoints
+* ``id_vjp`` (λᵀ∂u/∂q, λᵀ∂u/∂q̇ and λᵀ∂u/∂q̈ = Mλ), ``mass_quadratic_grad``: one reverse (adjoint)
+  sweep of the recursion, O(n) per sample; ``id_derivatives``: the same sweep seeded with the n
+  unit vectors, giving ∂u/∂q, ∂u/∂q̇ and ∂u/∂q̈ = M row by row (from 32 samples on, the root-to-leaves half and the local adjoints
   carry at each body only the seeds of its ancestors, the only nonzero ones).
+* ``mass_cholesky``: batched Cholesky factors of M that also reject a mass matrix singular to
+  working precision (a pivot ≤ 1e-14 of its largest diagonal entry), which a plain factorisation
+  can let through by rounding.
 * ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
   the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
   shifted acceleration q̈ − ½ w.
