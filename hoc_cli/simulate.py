@@ -37,124 +37,20 @@ from __future__ import annotations
 import enum
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
 from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
 from hoc_cli.system import System
+from hoc_cli.torque import TorqueSource
 from hoc_cli.trajectory import Trajectory
 
 POINT_KINDS = ("gauss", "lobatto", "radau")
 DEFAULT_POINTS = {"cubic": "gauss", "quintic": "lobatto"}
 NEWTON_XTOL = 1e-13
 NEWTON_MAX_ITER = 25
-
-
-# --------------------------------------------------------------------------- torque sources
-class TorqueSource(Protocol):
-    """A torque history: ``u(t)`` maps times (K,) [s] to torques (K, n) [N·m or N]."""
-
-    n: int
-
-    def __call__(self, t: np.ndarray) -> np.ndarray: ...
-
-
-@dataclass(frozen=True, eq=False)
-class ConstantTorque:
-    """u(t) = value for all t; ``value`` shape (n,). ``ConstantTorque(np.zeros(n))`` is free motion."""
-
-    value: np.ndarray
-
-    def __post_init__(self) -> None:
-        v = np.asarray(self.value, dtype=float).reshape(-1)
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"constant torque must be finite, got {v}")
-        object.__setattr__(self, "value", v)
-
-    @property
-    def n(self) -> int:
-        return self.value.size
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        return np.broadcast_to(self.value, (t.size, self.n)).copy()
-
-
-def zero_torque(n: int) -> ConstantTorque:
-    """No actuation: u(t) = 0, shape (K, n)."""
-    return ConstantTorque(np.zeros(n))
-
-
-@dataclass(frozen=True, eq=False)
-class SampledTorque:
-    """Torque interpolated in time from samples (a plan's CSV).
-
-    ``t`` (K,) strictly increasing [s], ``u`` (K, n). ``kind="cubic"`` (default): the C² cubic
-    spline with not-a-knot ends through the samples (error O(Δt⁴) for smooth torques; a planned
-    torque is only C⁰ with small kinks at element nodes, where the error is locally O(Δt·[u̇])).
-    ``kind="linear"``: piecewise linear (O(Δt²), never overshoots). Fewer than 4 samples fall back
-    to linear. Outside [t_0, t_K] the end values are held; callers check the time range.
-    """
-
-    t: np.ndarray
-    u: np.ndarray
-    kind: str = "cubic"
-    _spline: Callable | None = field(default=None, repr=False)
-
-    def __post_init__(self) -> None:
-        t = np.asarray(self.t, dtype=float).reshape(-1)
-        u = np.asarray(self.u, dtype=float)
-        u = u[:, None] if u.ndim == 1 else u
-        if u.ndim != 2 or u.shape[0] != t.size:
-            raise ValueError(f"torque samples must have shape ({t.size}, n), got {u.shape}")
-        if t.size < 2 or not np.all(np.diff(t) > 0):
-            raise ValueError("torque sample times must be at least 2 and strictly increasing")
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
-            raise ValueError("torque samples must be finite")
-        if self.kind not in ("cubic", "linear"):
-            raise ValueError(f"interpolation kind must be 'cubic' or 'linear', got {self.kind!r}")
-        object.__setattr__(self, "t", t)
-        object.__setattr__(self, "u", u)
-        if self.kind == "cubic" and t.size >= 4:
-            from scipy.interpolate import CubicSpline
-
-            object.__setattr__(self, "_spline", CubicSpline(t, u, axis=0, bc_type="not-a-knot", extrapolate=False))
-
-    @property
-    def n(self) -> int:
-        return self.u.shape[1]
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), self.t[0], self.t[-1])
-        if self._spline is not None:
-            return np.asarray(self._spline(t)).reshape(t.size, self.n)
-        return np.stack([np.interp(t, self.t, self.u[:, i]) for i in range(self.n)], axis=1)
-
-
-@dataclass(frozen=True, eq=False)
-class PlannedTorque:
-    """The exact torque of a Hermite trajectory: u(t) = ID(q_h(t), q̇_h(t), q̈_h(t)); (K, n).
-
-    ``coeffs`` (N+1, m, n) on ``mesh``; times outside [0, T] are clamped to it.
-    """
-
-    system: System
-    mesh: HermiteMesh
-    coeffs: np.ndarray
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "coeffs", self.mesh.check_coefficients(np.asarray(self.coeffs, dtype=float)))
-
-    @property
-    def n(self) -> int:
-        return self.coeffs.shape[2]
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.mesh.T)
-        q, dq, ddq = self.mesh.evaluate_all(self.coeffs, t)
-        return self.system.inverse_dynamics(q, dq, ddq)
 
 
 # --------------------------------------------------------------------------- collocation points
@@ -504,56 +400,3 @@ def sample(
     q, dq = result.state(t)
     ddq = system.forward_dynamics(q, dq, u)
     return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u)
-
-
-def velocity_zeros(mesh: HermiteMesh, coeffs: np.ndarray, joint: int = 0) -> np.ndarray:
-    """All times [s] in [0, T] where q̇_h of ``joint`` vanishes, sorted; shape (Z,).
-
-    Found per element as the real roots in [0, 1] of the polynomial q̇_h(s) (degree 2 or 4),
-    polished by Newton's method on that polynomial: no sampling error.
-    """
-    from numpy.polynomial import polynomial as P
-
-    from hoc_cli.elements import local_basis
-
-    coeffs = mesh.check_coefficients(coeffs)
-    basis = local_basis(mesh.order)[1] * mesh.scale(1)[:, None]  # (2m, 6): q̇ as a power series in s
-    loc = mesh.local_coefficients(coeffs)[:, :, joint]  # (N, 2m)
-    poly = loc @ basis  # (N, 6)
-    times: list[float] = []
-    for e in range(mesh.N):
-        p = np.trim_zeros(poly[e], "b")
-        if p.size < 2:
-            continue
-        dp = P.polyder(p)
-        for r in P.polyroots(p):
-            if abs(r.imag) > 1e-7:
-                continue
-            x = r.real
-            for _ in range(3):
-                d = P.polyval(x, dp)
-                if d == 0:
-                    break
-                x -= P.polyval(x, p) / d
-            if -1e-12 <= x <= 1 + 1e-12:
-                times.append((e + min(max(x, 0.0), 1.0)) * mesh.h)
-    times.sort()
-    out: list[float] = []
-    for tz in times:  # a root on a shared node is found by both elements
-        if not out or tz - out[-1] > 1e-9 * mesh.h:
-            out.append(tz)
-    return np.array(out)
-
-
-def oscillation_period(mesh: HermiteMesh, coeffs: np.ndarray, joint: int = 0) -> float:
-    """Period [s] of a free, symmetric oscillation from the zeros of q̇_h (turning points).
-
-    Turning points are half a period apart: τ/2 is the least-squares slope of t_k against k.
-    Needs at least three turning points (one full period).
-    """
-    tz = velocity_zeros(mesh, coeffs, joint)
-    if tz.size < 3:
-        raise NumericalError(f"need at least 3 turning points to measure a period, found {tz.size} in [0, {mesh.T}] s")
-    k = np.arange(tz.size, dtype=float)
-    slope = np.polyfit(k, tz, 1)[0]
-    return 2.0 * float(slope)

@@ -166,7 +166,9 @@ def check_pendulum() -> list[Measurement]:
     from scipy.special import ellipk
 
     from hoc_cli.model import load_robot
-    from hoc_cli.simulate import oscillation_period, simulate_hermite, zero_torque
+    from hoc_cli.periods import oscillation_period
+    from hoc_cli.simulate import simulate_hermite
+    from hoc_cli.torque import zero_torque
     from hoc_cli.system import RobotSystem
 
     urdf = shipped_robot("pendulum.urdf")

@@ -20,21 +20,17 @@ from scipy.special import ellipk
 
 from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
+from hoc_cli.periods import oscillation_period, velocity_zeros
 from hoc_cli.simulate import (
-    ConstantTorque,
-    PlannedTorque,
-    SampledTorque,
     Status,
     _Element,
     collocation_points,
     collocation_residual,
-    oscillation_period,
     sample,
     simulate_hermite,
     simulate_reference,
-    velocity_zeros,
-    zero_torque,
 )
+from hoc_cli.torque import ConstantTorque, PlannedTorque, SampledTorque, zero_torque
 from hoc_cli.system import LinearOscillator
 from hoc_cli.verification import convergence_order
 

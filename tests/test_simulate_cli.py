@@ -12,7 +12,8 @@ from hoc_cli.cli import app
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.io.csv import read_csv, write_csv
 from hoc_cli.model import load_robot
-from hoc_cli.simulate import ConstantTorque, PlannedTorque, simulate_hermite
+from hoc_cli.simulate import simulate_hermite
+from hoc_cli.torque import ConstantTorque, PlannedTorque
 from hoc_cli.system import RobotSystem
 from hoc_cli.trajectory import Trajectory, sample_times
 

@@ -64,6 +64,7 @@ def run(
     check: float | None = None,
 ) -> int:
     from hoc_cli import simulate as sim
+    from hoc_cli import torque as torque_sources
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.model import load_robot
     from hoc_cli.system import RobotSystem
@@ -109,7 +110,7 @@ def run(
         elif plan is not None:
             history, described = _torque_from_plan(plan, source, system, joints, task.T)
         elif states.torque is not None:
-            history = sim.ConstantTorque(states.torque)
+            history = torque_sources.ConstantTorque(states.torque)
             described = "zero" if not np.any(states.torque) else "constant"
         else:
             raise TaskError("no torque history: give torque: (zero or a list) in the task, or --torque FILE",
@@ -212,7 +213,7 @@ def _check_span(file: Path, t: np.ndarray, T: float) -> None:
 
 def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
     """A ``--torque`` CSV or MCAP as a torque source and a one-word description."""
-    from hoc_cli import simulate as sim
+    from hoc_cli import torque as torque_sources
 
     suffix = file.suffix.lower()
     if suffix == ".csv":
@@ -223,7 +224,7 @@ def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
         if traj.K < 2:
             raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
         _check_span(file, traj.t, T)
-        return sim.SampledTorque(traj.t, traj.u[:, cols]), "csv"
+        return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "csv"
     if suffix == ".mcap":
         from hoc_cli.io.mcap import read_plan
 
@@ -233,18 +234,18 @@ def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
 
 
 def _torque_from_plan(plan, file: Path, system, joints: tuple[str, ...], T: float):
-    from hoc_cli import simulate as sim
+    from hoc_cli import torque as torque_sources
 
     traj = plan.trajectory
     cols = _columns(file, tuple(traj.joints), joints)
     if traj.mesh is not None and traj.coeffs is not None:
         if traj.mesh.T < T * (1 - 1e-12):
             raise InputFileError(f"the plan lasts {traj.mesh.T:g} s; the simulation needs {T:g} s", file=file)
-        return sim.PlannedTorque(system, traj.mesh, np.asarray(traj.coeffs)[:, :, cols]), "plan (exact Hermite)"
+        return torque_sources.PlannedTorque(system, traj.mesh, np.asarray(traj.coeffs)[:, :, cols]), "plan (exact Hermite)"
     if traj.K < 2:
         raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
     _check_span(file, traj.t, T)
-    return sim.SampledTorque(traj.t, traj.u[:, cols]), "plan (sampled)"
+    return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "plan (sampled)"
 
 
 # --------------------------------------------------------------------------- outputs
