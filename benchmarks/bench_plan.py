@@ -21,9 +21,9 @@ RNEA (benchmarks/_casadi_robot.py) is built from hoc's frozen RobotModel and che
 ``hoc_cli.dynamics`` at random states. Both methods start from the minimum-jerk quintic per joint
 (q, q̇ from x0 and x1, q̈ = 0 at both ends); for IPOPT w starts consistent (w = q̈ + M⁻¹ h).
 
-Protocol. The task may be non-convex: on configs/lbr7_swing.yaml, from the SAME minimum-jerk guess,
-the two methods reach DIFFERENT local optima (measured, printed): hoc J ≈ 407.8668 (joint 6 swings to
-3.77 rad, past its URDF limit), IPOPT J ≈ 424.0591 (within limits). So each method gets its own
+Protocol. The task may be non-convex, and from the SAME minimum-jerk guess the two methods may
+reach DIFFERENT local optima (an earlier hoc reached J ≈ 407.8668 on configs/lbr7_swing.yaml, where
+IPOPT and today's hoc reach 424.0591; the run prints which). So each method gets its own
 reference J*, from its two finest meshes (hoc quintic N = 64, 128 at tol 1e-13;
 IPOPT LGR K = 16, 24 at d = 7), and cross-checks show that each optimum is also an optimum of the
 other transcription, with the same J (started there, the other method stays, to 1e-10 or better).

@@ -228,7 +228,7 @@ class ControlProblem:
         follow by symmetry, and ∂²L/∂q̈² = M² exactly.
         """
         if self.cost == "covariant":
-            return self._covariant_sample_hessians(q, dq, ddq, rel_step)
+            return self._covariant_sample_hessians(q, dq, ddq, rel_step)[0]
         K, n = q.shape
         eps_q = rel_step * (1.0 + np.abs(q))  # (K, n)
         eps_v = rel_step * (1.0 + np.abs(dq))
@@ -248,8 +248,9 @@ class ControlProblem:
         return 0.5 * (H + np.swapaxes(H, 1, 2))
 
     def _covariant_sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
-                                   rel_step: float) -> np.ndarray:
-        """Hessian of L = ½ uᵀM⁻¹u per sample, (K, 3n, 3n), through a variational form.
+                                   rel_step: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+        """Hessian of L = ½ uᵀM⁻¹u per sample, (K, 3n, 3n), through a variational form, and its
+        positive semi-definite part Dᵀ M⁻¹ D (K, 3n, 3n) (a Gauss-Newton matrix of that form).
 
         L(x) = max_w Φ(x, w) with Φ = wᵀu(x) − ½ wᵀM(q)w = wᵀ ID(q, q̇, q̈ − ½w) (ID is affine in q̈),
         maximised at w = M⁻¹u with Φ_ww = −M. Hence (envelope theorem, x = (q, q̇, q̈))
@@ -290,22 +291,31 @@ class ControlProblem:
         H[:, :n, 2 * n:] = np.swapaxes(B, 1, 2)
         D = np.concatenate([dZq[:, :n] - 0.5 * B, dZv[:, :n], M], axis=2)  # (K, n, 3n)
         Y = np.matmul(Li, D)  # Dᵀ M⁻¹ D = Yᵀ Y
-        H += np.matmul(np.swapaxes(Y, 1, 2), Y)
-        return 0.5 * (H + np.swapaxes(H, 1, 2))
+        GN = np.matmul(np.swapaxes(Y, 1, 2), Y)
+        H += GN
+        return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
 
     def newton(self, ev: Evaluation) -> "BandedSPD":
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
         Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
         with μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation succeeds.
+        For the covariant cost that matrix is the Hessian's own positive semi-definite part Dᵀ M⁻¹ D
+        (no extra dynamics pass); for the torque cost, Σ w AᵀA with A = ∂u/∂C.
         """
         q, dq, ddq = self._preconditioner_samples(ev)
-        Hs = self.sample_hessians(q, dq, ddq)
+        if self.cost == "covariant":
+            Hs, GNs = self._covariant_sample_hessians(q, dq, ddq)
+        else:
+            Hs, GNs = self.sample_hessians(q, dq, ddq), None
         H = self._element_blocks(self.op_h, Hs)
         try:
             return self._banded(H)
         except NumericalError:
-            GN = self._gauss_newton_blocks(self.op_h, q, dq, ddq)
+            if GNs is not None:
+                GN = self._element_blocks(self.op_h, GNs)
+            else:
+                GN = self._gauss_newton_blocks(self.op_h, q, dq, ddq)
             mu = 1e-3 * np.trace(H.sum(axis=0)) / np.trace(GN.sum(axis=0))
             for _ in range(12):
                 try:
