@@ -222,62 +222,48 @@ class ControlProblem:
     def sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, rel_step: float = 1e-8) -> np.ndarray:
         """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), at samples (K, n) ×3.
 
-        Covariant cost: see ``_covariant_sample_hessians``. Torque cost: columns for q and q̇ by
-        forward differences of the analytic per-sample gradient (all samples and all 2n
-        perturbations in one batched call, relative step 1e-8: error ~1e-8 relative); the q̈ columns
-        follow by symmetry, and ∂²L/∂q̈² = M² exactly.
+        See ``_sweep_sample_hessians`` (both costs; error ~1e-8 relative from forward differences).
         """
-        if self.cost == "covariant":
-            return self._covariant_sample_hessians(q, dq, ddq, rel_step)[0]
-        K, n = q.shape
-        eps_q = rel_step * (1.0 + np.abs(q))  # (K, n)
-        eps_v = rel_step * (1.0 + np.abs(dq))
-        E = np.eye(n)
-        Qb = np.concatenate([q[None] + E[:, None, :] * eps_q[None], np.broadcast_to(q, (n, K, n)), q[None]])
-        Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
-        Ab = np.broadcast_to(ddq, (2 * n + 1, K, n))
-        s = self.sample_gradients(Qb.reshape(-1, n), Vb.reshape(-1, n), Ab.reshape(-1, n), jacobians=False)
-        G = np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1).reshape(2 * n + 1, K, 3 * n)
-        base = G[-1]
-        M = s["M"].reshape(2 * n + 1, K, n, n)[-1]
-        H = np.empty((K, 3 * n, 3 * n))
-        H[:, :, :n] = np.transpose((G[:n] - base) / eps_q.T[:, :, None], (1, 2, 0))
-        H[:, :, n : 2 * n] = np.transpose((G[n : 2 * n] - base) / eps_v.T[:, :, None], (1, 2, 0))
-        H[:, 2 * n :, 2 * n :] = M if self.cost == "covariant" else np.einsum("kij,kil->kjl", M, M)
-        H[:, : 2 * n, 2 * n :] = np.swapaxes(H[:, 2 * n :, : 2 * n], 1, 2)
-        return 0.5 * (H + np.swapaxes(H, 1, 2))
+        return self._sweep_sample_hessians(q, dq, ddq, rel_step)[0]
 
-    def _covariant_sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
-                                   rel_step: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
-        """Hessian of L = ½ uᵀM⁻¹u per sample, (K, 3n, 3n), through a variational form, and its
-        positive semi-definite part Dᵀ M⁻¹ D (K, 3n, 3n) (a Gauss-Newton matrix of that form).
+    def _sweep_sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                               rel_step: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+        """Hessian of L per sample, (K, 3n, 3n), and its positive semi-definite part Dᵀ S D (K, 3n, 3n).
 
-        L(x) = max_w Φ(x, w) with Φ = wᵀu(x) − ½ wᵀM(q)w = wᵀ ID(q, q̇, q̈ − ½w) (ID is affine in q̈),
-        maximised at w = M⁻¹u with Φ_ww = −M. Hence (envelope theorem, x = (q, q̇, q̈))
+        Both costs are L(x) = max_w Φ(x, w), x = (q, q̇, q̈), with Φ = wᵀu(x) − ½ wᵀ S⁻¹ w:
+        S = M⁻¹ (covariant) gives Φ = wᵀ ID(q, q̇, q̈ − ½w), since ID is affine in q̈; S = I (torque)
+        gives Φ = wᵀ ID(q, q̇, q̈) − ½ wᵀw. The maximiser is w = S u, and by the envelope theorem
 
-            ∇²L = Φ_xx + Dᵀ M⁻¹ D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M],   B = ∂(M(q) w)/∂q.
+            ∇²L = Φ_xx + Dᵀ S D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M] (covariant; torque: B = 0),
 
-        Everything but M comes from ONE batched call: the vector-Jacobian product of
-        ID(·, ·, q̈ − ½w) with λ = w at the sample and at its 2n forward-perturbed copies (q_j, then
-        q̇_j, relative step ``rel_step``). Its four outputs, differenced, give Φ_xx's q- and q̇-columns
-        (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇ and ∂u/∂q − ½B (from the torque at
-        the shifted acceleration). Φ is linear in q̈: its q̈-rows are B, its q̈q̈ block zero.
+        with B = ∂(M(q) w)/∂q, where Φ_xx is taken at fixed w: its q- and q̇-columns are those of
+        the vector-Jacobian product wᵀ∂ID/∂(q, q̇), its q̈-rows are B (Φ is linear in q̈) and its q̈q̈
+        block is zero. Everything but M comes from ONE batched call: the vector-Jacobian product of
+        ID with λ = w at the acceleration a = q̈ − ½w (covariant) or q̈ (torque), at the sample and
+        at its 2n forward-perturbed copies (q_j, then q̇_j, relative step ``rel_step``). Its four
+        outputs, differenced, give Φ_xx (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇
+        and ∂ID(q, q̇, a)/∂q = ∂u/∂q − ½B (covariant) or ∂u/∂q (torque), from the torques.
         """
         K, n = q.shape
         M = self.system.mass_matrix(q)
-        Li = _inverse_cholesky(M)  # M⁻¹ = Liᵀ Li
-        w = _apply_inverse(Li, self.system.inverse_dynamics(q, dq, ddq)[..., None])[..., 0]
+        u = self.system.inverse_dynamics(q, dq, ddq)
+        covariant = self.cost == "covariant"
+        if covariant:
+            Li = _inverse_cholesky(M)  # S = M⁻¹ = Liᵀ Li
+            w = _apply_inverse(Li, u[..., None])[..., 0]
+            acc = ddq - 0.5 * w
+        else:
+            w, acc = u, ddq
         eps_q = rel_step * (1.0 + np.abs(q))
         eps_v = rel_step * (1.0 + np.abs(dq))
         E = np.eye(n)
         Qb = np.concatenate([q[None] + E[:, None, :] * eps_q[None], np.broadcast_to(q, (n, K, n)), q[None]])
         Vb = np.concatenate([np.broadcast_to(dq, (n, K, n)), dq[None] + E[:, None, :] * eps_v[None], dq[None]])
-        shifted = ddq - 0.5 * w
         copies = 2 * n + 1
         out = self.system.id_vjp(Qb.reshape(-1, n), Vb.reshape(-1, n),
-                                 np.broadcast_to(shifted, (copies, K, n)).reshape(-1, n),
+                                 np.broadcast_to(acc, (copies, K, n)).reshape(-1, n),
                                  np.broadcast_to(w, (copies, K, n)).reshape(-1, n))
-        # Z[c, k] = (u_shift, λᵀ∂u/∂q, λᵀ∂u/∂q̇, M w) at copy c; columns by forward differences
+        # Z[c, k] = (ID(·, ·, a), λᵀ∂u/∂q, λᵀ∂u/∂q̇, M w) at copy c; columns by forward differences
         Z = np.concatenate(out, axis=1).reshape(copies, K, 4 * n)
         dZq = np.transpose((Z[:n] - Z[-1]) / eps_q.T[:, :, None], (1, 2, 0))  # (K, 4n, n)
         dZv = np.transpose((Z[n:2 * n] - Z[-1]) / eps_v.T[:, :, None], (1, 2, 0))
@@ -289,8 +275,9 @@ class ControlProblem:
         H[:, n:2 * n, n:2 * n] = dZv[:, 2 * n:3 * n]
         H[:, 2 * n:, :n] = B
         H[:, :n, 2 * n:] = np.swapaxes(B, 1, 2)
-        D = np.concatenate([dZq[:, :n] - 0.5 * B, dZv[:, :n], M], axis=2)  # (K, n, 3n)
-        Y = np.matmul(Li, D)  # Dᵀ M⁻¹ D = Yᵀ Y
+        Jq = dZq[:, :n] - 0.5 * B if covariant else dZq[:, :n]
+        D = np.concatenate([Jq, dZv[:, :n], M], axis=2)  # (K, n, 3n)
+        Y = np.matmul(Li, D) if covariant else D  # Dᵀ S D = Yᵀ Y
         GN = np.matmul(np.swapaxes(Y, 1, 2), Y)
         H += GN
         return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
@@ -300,22 +287,17 @@ class ControlProblem:
 
         Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
         with μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation succeeds.
-        For the covariant cost that matrix is the Hessian's own positive semi-definite part Dᵀ M⁻¹ D
-        (no extra dynamics pass); for the torque cost, Σ w AᵀA with A = ∂u/∂C.
+        That matrix is the Hessian's own positive semi-definite part Σ w Dᵀ S D (see
+        ``_sweep_sample_hessians``; for the torque cost it is the Gauss-Newton matrix): no extra
+        dynamics pass.
         """
         q, dq, ddq = self._preconditioner_samples(ev)
-        if self.cost == "covariant":
-            Hs, GNs = self._covariant_sample_hessians(q, dq, ddq)
-        else:
-            Hs, GNs = self.sample_hessians(q, dq, ddq), None
+        Hs, GNs = self._sweep_sample_hessians(q, dq, ddq)
         H = self._element_blocks(self.op_h, Hs)
         try:
             return self._banded(H)
         except NumericalError:
-            if GNs is not None:
-                GN = self._element_blocks(self.op_h, GNs)
-            else:
-                GN = self._gauss_newton_blocks(self.op_h, q, dq, ddq)
+            GN = self._element_blocks(self.op_h, GNs)
             mu = 1e-3 * np.trace(H.sum(axis=0)) / np.trace(GN.sum(axis=0))
             for _ in range(12):
                 try:

@@ -64,14 +64,15 @@ def test_banded_newton_matrix_equals_the_finite_difference_hessian(cost):
 
 
 @pytest.mark.parametrize("urdf", SHIPPED)
-def test_per_sample_covariant_hessian_matches_central_differences_of_the_gradient(urdf):
-    """The covariant per-sample Hessian (one batched reverse sweep over forward-perturbed copies,
-    the q̈ block and D from its outputs) against central differences of the exact per-sample
-    gradient (∂L/∂q, ∂L/∂q̇, ∂L/∂q̈), on every shipped robot at random states."""
-    rng = np.random.default_rng(zlib.crc32(urdf.encode()))
+@pytest.mark.parametrize("cost", ["covariant", "torque"])
+def test_per_sample_hessian_matches_central_differences_of_the_gradient(urdf, cost):
+    """The per-sample Hessian (one batched reverse sweep over forward-perturbed copies, the q̈ block
+    and D from its outputs) against central differences of the exact per-sample gradient
+    (∂L/∂q, ∂L/∂q̇, ∂L/∂q̈), on every shipped robot at random states, for both costs."""
+    rng = np.random.default_rng(zlib.crc32(f"{urdf} {cost}".encode()))
     model = load_robot(ROBOTS / urdf)
     n = model.n
-    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 1), *_random_boundary(model, rng))
+    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 1), *_random_boundary(model, rng), cost=cost)
     lo = np.where(np.isfinite(model.lower), model.lower, -2.0)
     hi = np.where(np.isfinite(model.upper), model.upper, 2.0)
     K = 4
