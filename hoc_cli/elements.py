@@ -159,6 +159,9 @@ class HermiteMesh:
             raise ValueError(f"T must be a finite positive duration in s, got {self.T}")
         if int(self.N) != self.N or self.N < 1:
             raise ValueError(f"N must be an integer >= 1, got {self.N}")
+        # plain Python numbers (a 0-d array T would make the mesh unhashable: operators are cached by mesh)
+        object.__setattr__(self, "T", float(self.T))
+        object.__setattr__(self, "N", int(self.N))
 
     @property
     def m(self) -> int:

@@ -222,7 +222,9 @@ class ControlProblem:
     def sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, rel_step: float = 1e-8) -> np.ndarray:
         """Per-sample Hessian of L in (q, q̇, q̈), shape (K, 3n, 3n), at samples (K, n) ×3.
 
-        See ``_sweep_sample_hessians`` (both costs; error ~1e-8 relative from forward differences).
+        See ``_sweep_sample_hessians`` (both costs). Forward differences with relative step 1e-8:
+        error typically ~6e-8 relative to the largest entry, up to ~2e-6 (measured over 200 random
+        states of the shipped robots).
         """
         return self._sweep_sample_hessians(q, dq, ddq, rel_step)[0]
 
@@ -234,11 +236,12 @@ class ControlProblem:
         S = M⁻¹ (covariant) gives Φ = wᵀ ID(q, q̇, q̈ − ½w), since ID is affine in q̈; S = I (torque)
         gives Φ = wᵀ ID(q, q̇, q̈) − ½ wᵀw. The maximiser is w = S u, and by the envelope theorem
 
-            ∇²L = Φ_xx + Dᵀ S D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M] (covariant; torque: B = 0),
+            ∇²L = Φ_xx + Dᵀ S D,   D = Φ_wx = [∂u/∂q − B, ∂u/∂q̇, M] (covariant; torque: ∂u/∂q),
 
         with B = ∂(M(q) w)/∂q, where Φ_xx is taken at fixed w: its q- and q̇-columns are those of
         the vector-Jacobian product wᵀ∂ID/∂(q, q̇), its q̈-rows are B (Φ is linear in q̈) and its q̈q̈
-        block is zero. Everything but M comes from ONE batched call: the vector-Jacobian product of
+        block is zero (for both costs). Everything but M and u (needed first, for w) comes from ONE
+        batched call: the vector-Jacobian product of
         ID with λ = w at the acceleration a = q̈ − ½w (covariant) or q̈ (torque), at the sample and
         at its 2n forward-perturbed copies (q_j, then q̇_j, relative step ``rel_step``). Its four
         outputs, differenced, give Φ_xx (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇
@@ -298,7 +301,8 @@ class ControlProblem:
             return self._banded(H)
         except NumericalError:
             GN = self._element_blocks(self.op_h, GNs)
-            mu = 1e-3 * np.trace(H.sum(axis=0)) / np.trace(GN.sum(axis=0))
+            tr_gn = np.trace(GN.sum(axis=0))
+            mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
             for _ in range(12):
                 try:
                     return self._banded(H + abs(mu) * GN)
@@ -330,10 +334,9 @@ class ControlProblem:
         Ã (3n, 2mn) maps an element's coefficients to (q, q̇, q̈) at a sample: two batched matmuls.
         """
         N, G = self.mesh.N, op.G
-        A, AT = _expanded_rows(op, self.n)
-        HA = np.matmul(Hs * op.w[:, None, None], A)
-        L = A.shape[-1]
-        return np.matmul(AT, HA).reshape(N, G, L, L).sum(axis=1)
+        A, AT = _expanded_rows(op, self.n)  # (G, 3n, 2mn), (G, 2mn, 3n): the same in every element
+        Hw = (Hs * op.w[:, None, None]).reshape(N, G, 3 * self.n, 3 * self.n)
+        return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1)
 
     def _banded(self, blocks: np.ndarray) -> "BandedSPD":
         mn = self.mesh.m * self.n
@@ -347,11 +350,11 @@ def _operator_rows(op: QuadratureOperator) -> np.ndarray:
 
 @lru_cache(maxsize=64)
 def _expanded_rows(op: QuadratureOperator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ã = B ⊗ I_n at every sample, (K, 3n, 2mn), and its transpose (K, 2mn, 3n) (read-only, cached
-    per operator): row r·n + i, column a·n + j holds B[r, a] δ_ij (element coefficient order a, j)."""
-    Bx = _operator_rows(op)  # (3, K, 2m)
-    K, L = op.K, Bx.shape[-1] * n
-    A = np.einsum("rka,ij->kriaj", Bx, np.eye(n)).reshape(K, 3 * n, L)
+    """Ã = B ⊗ I_n at the G points of an element, (G, 3n, 2mn), and its transpose (G, 2mn, 3n)
+    (read-only, cached per operator; every element has the same): row r·n + i, column a·n + j holds
+    B[r, g, a] δ_ij (element coefficient order a, j)."""
+    G, L = op.G, op.B.shape[-1] * n
+    A = np.einsum("rga,ij->griaj", op.B, np.eye(n)).reshape(G, 3 * n, L)
     AT = np.ascontiguousarray(np.swapaxes(A, 1, 2))
     A.flags.writeable = AT.flags.writeable = False
     return A, AT

@@ -126,3 +126,13 @@ def test_mesh_rejects_invalid_parameters(bad):
     kw = dict(order="cubic", T=1.0, N=2) | bad
     with pytest.raises(ValueError):
         HermiteMesh(**kw)
+
+
+def test_mesh_takes_numpy_scalars_and_shares_one_read_only_operator_per_mesh_and_G():
+    a = HermiteMesh("quintic", np.array(1.5), np.int64(4))  # a 0-d array T, a numpy N
+    b = HermiteMesh("quintic", 1.5, 4)
+    assert type(a.T) is float and type(a.N) is int and a == b
+    op = a.quadrature(6)
+    assert b.quadrature(6) is op and b.quadrature(7) is not op
+    with pytest.raises(ValueError):
+        op.w[0] = 0.0  # cached arrays are read-only: no caller can corrupt another's operator
