@@ -56,7 +56,7 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str):
-    """``hoc_cli.load_robot`` without importing yourdfpy until it is used."""
+    """``hoc_cli.load_robot``, imported on first use (keeps ``import hoc_cli`` to the maths)."""
     if name == "load_robot":
         from hoc_cli.model import load_robot
 

@@ -162,9 +162,48 @@ def test_malformed_xml_is_a_model_error(tmp_path):
     expect_model_error(path, "malformed XML")
 
 
-def test_a_value_yourdfpy_cannot_parse_is_a_model_error(tmp_path):
+def test_a_value_that_is_not_a_number_is_a_model_error_naming_the_element(tmp_path):
     path = write(tmp_path, link("base"), link("a", mass="heavy"), joint("j", "base", "a"))
-    expect_model_error(path, "not a valid URDF")
+    expect_model_error(path, "not a valid URDF", "link 'a'", "<mass value>='heavy' is not a number")
+    path = write(tmp_path, link("base"), link("a"), joint("j", "base", "a", axis="0 1"), name="axis.urdf")
+    expect_model_error(path, "joint 'j'", "<axis xyz>='0 1' is not 3 numbers")
+
+
+@pytest.mark.parametrize("element,needles", [
+    ('<link name="base"/><link name="a"/><joint name="j" type="revolute"><child link="a"/></joint>',
+     ("joint 'j'", "has no <parent> element")),
+    ('<link name="base"/><link/>', ("a <link>", "has no name attribute")),
+    ('<link name="a"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1"/></inertial></link>',
+     ("link 'a'", "<inertia> lacks ixy, ixz, iyz (all six are required)")),
+])
+def test_missing_urdf_elements_and_attributes_are_model_errors(tmp_path, element, needles):
+    expect_model_error(write(tmp_path, element), "not a valid URDF", *needles)
+
+
+def test_origins_follow_the_urdf_rpy_convention_against_scipy_and_yourdfpy(tmp_path):
+    """T = Trans(xyz) · Rz(yaw) Ry(pitch) Rx(roll): scipy's extrinsic 'xyz' Euler angles, and the
+    transform yourdfpy (test-only oracle) builds for the same <origin>."""
+    import xml.etree.ElementTree as ET
+
+    import yourdfpy
+    from scipy.spatial.transform import Rotation
+
+    from hoc_cli.model.urdf_xml import parse_robot
+
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        xyz, rpy = rng.normal(size=3), rng.uniform(-np.pi, np.pi, 3)
+        text = (f'<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="fixed"><parent link="a"/>'
+                f'<child link="b"/><origin xyz="{" ".join(repr(float(v)) for v in xyz)}" rpy="{" ".join(repr(float(v)) for v in rpy)}"/>'
+                '</joint></robot>')
+        T = parse_robot(ET.fromstring(text)).joints[0].origin
+        np.testing.assert_allclose(T[:3, :3], Rotation.from_euler("xyz", rpy).as_matrix(), atol=1e-14)
+        np.testing.assert_allclose(T[:3, 3], xyz, atol=0)
+        path = tmp_path / "o.urdf"
+        path.write_text(text)
+        ref = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=False,
+                                 load_collision_meshes=False, build_collision_scene_graph=False)
+        np.testing.assert_allclose(T, ref.robot.joints[0].origin, atol=1e-14)
 
 
 @pytest.mark.parametrize("kind", ["floating", "planar"])

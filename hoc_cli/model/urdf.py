@@ -1,4 +1,4 @@
-"""URDF → :class:`RobotModel`: the only module that imports yourdfpy.
+"""URDF → :class:`RobotModel` (the XML itself is read by :mod:`hoc_cli.model.urdf_xml`).
 
 Every failure while reading a URDF is raised as :class:`hoc_cli.errors.ModelError` naming the file
 and the joint or link at fault; no other exception type leaves :func:`load_robot`.
@@ -10,7 +10,6 @@ like a fixed joint, merges its child link into the parent body. Mimic joints are
 """
 from __future__ import annotations
 
-import logging
 import math
 import warnings
 import os
@@ -22,6 +21,7 @@ import numpy as np
 from ..errors import HocWarning, ModelError
 from .spatial import align_z, joint_motion, motion_transform, spatial_inertia
 from .tree import JOINT_TYPES, RobotModel
+from .urdf_xml import UrdfSyntaxError, parse_robot
 
 MOVABLE = JOINT_TYPES
 SUPPORTED = MOVABLE + ("fixed",)
@@ -30,7 +30,7 @@ SINGULAR_INERTIA = 1e-12
 
 
 def _read(path) -> tuple[object, str]:
-    """Parse a URDF with yourdfpy (no meshes); ModelError on a missing file or malformed XML."""
+    """Read a URDF's links and joints; ModelError on a missing file, malformed XML or a bad value."""
     try:
         path = os.fspath(path)
     except TypeError:
@@ -50,25 +50,11 @@ def _read(path) -> tuple[object, str]:
         raise ModelError(f"cannot be read ({exc.strerror})", file=path) from None
     if root.tag != "robot":
         raise ModelError(f"root element is <{root.tag}>, expected <robot>", file=path)
-    import yourdfpy  # deferred: importing it costs ~0.3 s and only loading needs it
-
-    logger = logging.getLogger("yourdfpy")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)
     try:
-        with np.errstate(all="ignore"):  # rpy="inf": non-finite values are reported by _check, not warned about
-            urdf = yourdfpy.URDF.load(
-                path,
-                load_meshes=False,
-                build_scene_graph=False,
-                load_collision_meshes=False,
-                build_collision_scene_graph=False,
-            )
-    except Exception as exc:  # third-party parser: wrap whatever it raises (no leak of its types)
-        raise ModelError(f"not a valid URDF ({type(exc).__name__}: {exc})", file=path) from None
-    finally:
-        logger.setLevel(level)
-    return urdf.robot, path
+        robot = parse_robot(root)
+    except UrdfSyntaxError as exc:
+        raise ModelError(f"not a valid URDF: {exc.message}", file=path, key=exc.where) from None
+    return robot, path
 
 
 def _inertial(link) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
