@@ -33,6 +33,8 @@ THIRD_PARTY = {
     "baxter (branching, mimic grippers locked)": ("baxter_description/urdf/baxter.urdf", {}),
     "xarm7": ("xarm_description/urdf/xarm7.urdf", {}),
     "z1": ("z1_description/urdf/z1.urdf", {}),
+    "tiago, no hand (a base-fixed link with a rounding-negative inertia)": (
+        "tiago_description/robots/tiago_no_hand.urdf", {}),
 }
 
 

@@ -304,3 +304,17 @@ def test_moving_the_master_of_a_mimic_joint_warns_that_the_coupling_is_not_model
                  joint("j2", "a", "b", extra='<mimic joint="j1" multiplier="1"/>'))
     with pytest.warns(HocWarning, match="mimics task joint 'j1'"):
         load_robot(path)
+
+
+def test_an_indefinite_inertia_is_refused_on_a_moving_link_but_ignored_on_one_welded_to_the_base(tmp_path):
+    """A link fixed to the root never moves, so its inertia cannot enter M or u (TIAGo's antennas
+    have principal moments down to -3.5e-8 kg·m²); on a link a joint moves it is an error."""
+    bad = ('<link name="{name}"><inertial><mass value="0.1"/>'
+           '<inertia ixx="1e-7" ixy="1e-7" ixz="0" iyy="1e-8" iyz="0" izz="1e-7"/></inertial></link>')
+    welded = write(tmp_path, link("base"), bad.format(name="antenna"), link("a"),
+                   '<joint name="w" type="fixed"><parent link="base"/><child link="antenna"/></joint>',
+                   joint("j", "base", "a"), name="welded.urdf")
+    model = load_robot(welded)
+    assert model.joint_names == ("j",)
+    moving = write(tmp_path, link("base"), bad.format(name="a"), joint("j", "base", "a"), name="moving.urdf")
+    expect_model_error(moving, "link 'a'", "not positive (semi)definite")
