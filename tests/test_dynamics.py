@@ -3,11 +3,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _robots import (
+    ERD,
+    ROBOTS,
+    SHIPPED,
+    THIRD_PARTY,
+    PinocchioOracle,
+    random_state,
+    random_tree_urdf,
+)
 
 from hoc_cli import dynamics as D
 from hoc_cli.model import load_robot
-
-from _robots import ERD, ROBOTS, SHIPPED, THIRD_PARTY, PinocchioOracle, random_state, random_tree_urdf
 
 pytest.importorskip("pinocchio")
 
