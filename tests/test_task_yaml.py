@@ -108,6 +108,14 @@ def test_a_large_aliased_value_below_the_bound_is_shown_in_a_bounded_message(wor
     assert len(line) < 200 + len(str(workdir))
 
 
+
+@pytest.mark.parametrize("where", ["x1: {q: {NAME: 1.2, elbow: -0.6}}", "x1: {q: [1.2, -0.6], NAME: 1}",
+                                   "x1: {q: [1.2, -0.6]}\nlimits: {velocity: {NAME: 1.0}}",
+                                   "x1: {q: [1.2, -0.6]}\njoints: [NAME, NAME]"])
+def test_a_huge_name_from_the_file_is_cut_in_the_error_message(workdir, where):
+    name = "j" * 1000  # a YAML simple key is at most 1024 characters
+    plan(workdir, TASK.replace("x1: {q: [1.2, -0.6]}", where.replace("NAME", name)), "jjj...")
+
 def test_show_is_bounded_in_time_and_length_for_a_value_expanding_to_billions_of_items():
     value: list = [1.0] * 9
     for _ in range(12):  # 9**13 items if written out; shared references here, as aliases build them

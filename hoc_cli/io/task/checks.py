@@ -22,6 +22,7 @@ _REPR = reprlib.Repr()
 _REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 2, 4, 4, 4
 _REPR.maxstring, _REPR.maxlong, _REPR.maxother = 48, 40, 48
 SHOW_CHARS = 60
+NAME_CHARS = 60  # a joint name or key from the file, as part of a key path
 
 
 def show(value: Any) -> str:
@@ -38,7 +39,8 @@ def show(value: Any) -> str:
 
 
 def join(prefix: str, key: str) -> str:
-    """``prefix.key``, or ``key`` at the top level."""
+    """``prefix.key``, or ``key`` at the top level; a key from the file is cut to ``NAME_CHARS``."""
+    key = key if len(key) <= NAME_CHARS else key[: NAME_CHARS - 3] + "..."
     return f"{prefix}.{key}" if prefix else key
 
 
@@ -58,7 +60,7 @@ class Checker:
         if show_got:
             msg += f", got {show(got)}"
             if isinstance(got, str) and YAML11_NUMBER.match(got):
-                msg += " (text in YAML 1.2, which has no 1:30 sexagesimal, 010 octal or 1_5 separated numbers)"
+                msg += " (text, not a number, in YAML 1.2: no 1:30 sexagesimal, 010 octal (write 0o10) or 1_5 separators)"
         return self.error(key, msg)
 
     def number(self, value: Any, key: str, *, positive: bool = False, what: str = "a finite number") -> float:
@@ -97,7 +99,7 @@ class Checker:
             raise self.fail(key, f"a mapping with keys {', '.join(allowed)}", value)
         for k in value:
             if k not in allowed:
-                raise self.error(join(key, str(k)[:60]), f"unknown key {show(k)} (expected one of: {', '.join(allowed)})")
+                raise self.error(join(key, str(k)), f"unknown key {show(k)} (expected one of: {', '.join(allowed)})")
         return value
 
     def names(self, value: Any, key: str, what: str) -> dict[str, Any]:
@@ -113,7 +115,7 @@ class Checker:
         """A list of finite numbers, a single number, or a mapping joint name -> finite number."""
         if isinstance(value, dict):
             m = self.names(value, key, "a list of numbers or a mapping joint -> number")
-            return {name: self.number(v, f"{key}.{name}") for name, v in m.items()}
+            return {name: self.number(v, join(key, name)) for name, v in m.items()}
         if isinstance(value, (list, tuple)):
             return [self.number(v, f"{key}[{i}]") for i, v in enumerate(value)]
         if isinstance(value, (int, float)) and not isinstance(value, bool):

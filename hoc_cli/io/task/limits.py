@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from hoc_cli.io.task.checks import Checker
+from hoc_cli.io.task.checks import Checker, join, show
 
 LIMIT_MODES = ("enforce", "report")
 LIMIT_KINDS = ("position", "velocity", "acceleration", "effort")
@@ -107,7 +107,7 @@ def _scale(c: Checker, value: Any, key: str) -> float:
 def unknown_joint(c: Checker, kind: str, name: str, joints: tuple[str, ...], locked: Mapping[str, float]):
     """The TaskError for a limit on a joint that is not one of the task's joints."""
     why = "is locked, not a task joint" if name in locked else "is not a task joint"
-    return c.error(f"limits.{kind}.{name}", f"joint {name!r} {why} (task joints: {', '.join(joints)})")
+    return c.error(join(f"limits.{kind}", name), f"joint {show(name)} {why} (task joints: {', '.join(joints)})")
 
 
 def parse_limits(c: Checker, top: dict, parsed: dict) -> LimitsSpec:
@@ -124,9 +124,9 @@ def parse_limits(c: Checker, top: dict, parsed: dict) -> LimitsSpec:
         key = f"limits.{kind}"
         per_joint = c.names(m[kind], key, f"a mapping joint -> {'[lower, upper]' if kind == 'position' else 'limit'}")
         if kind == "position":
-            kinds[kind] = _frozen({j: _range(c, v, f"{key}.{j}") for j, v in per_joint.items()})
+            kinds[kind] = _frozen({j: _range(c, v, join(key, j)) for j, v in per_joint.items()})
         else:
-            kinds[kind] = _frozen({j: _magnitude(c, v, f"{key}.{j}", kind) for j, v in per_joint.items()})
+            kinds[kind] = _frozen({j: _magnitude(c, v, join(key, j), kind) for j, v in per_joint.items()})
     scale = LimitScale()
     if m.get("scale") is not None:
         s = c.mapping(m["scale"], "limits.scale", SCALE_KEYS)

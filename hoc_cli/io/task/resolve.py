@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.io.task.checks import Checker, Values
+from hoc_cli.io.task.checks import Checker, Values, join, show
 from hoc_cli.io.task.document import Task
 from hoc_cli.io.task.limits import LimitOverrides, resolve_limits
 
@@ -33,7 +33,7 @@ def _vector(c: Checker, values: Values | None, key: str, joints: tuple[str, ...]
     if isinstance(values, dict):
         for name in values:
             if name not in joints:
-                raise c.error(f"{key}.{name}", f"unknown joint {name!r} (task joints: {', '.join(joints)})")
+                raise c.error(join(key, name), f"unknown joint {show(name)} (task joints: {', '.join(joints)})")
         missing = [j for j in joints if j not in values]
         if missing:
             raise c.error(key, f"missing value for joint(s) {', '.join(missing)}")

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hoc_cli.io.task.checks import Checker, Values
+from hoc_cli.io.task.checks import Checker, Values, join, show
 
 ORDERS = ("quintic", "cubic")
 COSTS = ("covariant", "torque")
@@ -120,7 +120,7 @@ def parse_robot(c: Checker, top: dict, parsed: dict) -> RobotSpec:
         if len(set(j)) != len(j):
             seen: set[str] = set()
             dup = next(x for x in j if x in seen or seen.add(x))  # type: ignore[func-returns-value]
-            raise c.fail("joints", "distinct joint names", f"{dup!r} twice")
+            raise c.error("joints", f"expected distinct joint names, got {show(dup)} twice")
         joints = tuple(j)
 
     locked: dict[str, float] = {}
@@ -128,8 +128,8 @@ def parse_robot(c: Checker, top: dict, parsed: dict) -> RobotSpec:
         lk = c.names(top["locked"], "locked", "a mapping joint -> position")
         for name, v in lk.items():
             if joints is not None and name in joints:
-                raise c.error(f"locked.{name}", "joint is both in 'joints' and 'locked'")
-            locked[name] = c.number(v, f"locked.{name}")
+                raise c.error(join("locked", name), "joint is both in 'joints' and 'locked'")
+            locked[name] = c.number(v, join("locked", name))
 
     gravity = DEFAULT_GRAVITY
     if top.get("gravity") is not None:
