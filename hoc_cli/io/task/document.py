@@ -18,7 +18,6 @@ from hoc_cli.io.task.sections import (
     SolverSpec,
     State,
     TimeSpec,
-    _stat_ok,
     parse_boundary,
     parse_cost,
     parse_output,
@@ -26,6 +25,7 @@ from hoc_cli.io.task.sections import (
     parse_solver,
     parse_time,
     parse_torque,
+    path_exists,
 )
 from hoc_cli.io.task.yaml12 import load_yaml
 
@@ -97,7 +97,7 @@ class Task:
 def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
     """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
     path = Path(path)
-    if not _stat_ok(path):
+    if not path_exists(path):
         raise TaskError("file not found (expected a task YAML file)", file=path)
     if path.is_dir():
         raise TaskError("is a directory (expected a task YAML file)", file=path)

@@ -92,7 +92,7 @@ class RobotSpec:
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
 
 
-def _stat_ok(path: Path) -> bool:
+def path_exists(path: Path) -> bool:
     """Whether ``path`` exists; False (not an OSError) for a name the system cannot look up (too long...)."""
     try:
         path.stat()
@@ -109,7 +109,7 @@ def parse_robot(c: Checker, top: dict, parsed: dict) -> RobotSpec:
     robot_path = Path(robot)
     if not robot_path.is_absolute():
         robot_path = c.path.parent / robot_path
-    if not _stat_ok(robot_path) or not robot_path.is_file():
+    if not path_exists(robot_path) or not robot_path.is_file():
         raise c.error("robot", f"URDF file not found: {str(robot_path)[:200]!r}")
 
     joints = None
