@@ -1,6 +1,6 @@
 """Plan: minimise I(q_h) over the free Hermite coefficients and check the quadrature.
 
-``plan`` ties ``ControlProblem`` (cost, gradient, Gauss-Newton matrix) to the optimiser
+``plan`` ties ``ControlProblem`` (cost, gradient, Newton matrix) to the optimiser
 (preconditioned PR+ CG by default) and returns a ``PlanResult``. Pure maths: no I/O.
 """
 from __future__ import annotations

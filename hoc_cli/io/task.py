@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from hoc_cli.costs import COSTS
 from hoc_cli.errors import TaskError
 
 ORDERS = ("quintic", "cubic")
-COSTS = ("covariant", "torque")
 METHODS = ("pr-cg", "newton")
 TOP_KEYS = ("robot", "joints", "locked", "gravity", "x0", "x1", "T", "N", "order", "cost", "solver", "output", "torque")
 STATE_KEYS = ("q", "dq")
