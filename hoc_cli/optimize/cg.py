@@ -29,7 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hoc_cli.optimize.linesearch import strong_wolfe
+from hoc_cli.optimize.linesearch import check_parameters, strong_wolfe
 from hoc_cli.optimize.result import IterLog, OptimizeResult, Status, StopTest, message
 
 # evaluate(x) -> (J, g, payload); precondition(payload) -> object with .solve(g) (or None for P = I)
@@ -79,7 +79,7 @@ def stop_test(J: float, g: np.ndarray, gz: float, *, tol: float, noise: float, p
 def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition | None = None,
              method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000,
              callback: Callable[[IterLog], None] | None = None,
-             noise: Callable[[Any], float] | None = None) -> OptimizeResult:
+             noise: Callable[[Any], float] | None = None, c1: float = 1e-4, c2: float = 0.1) -> OptimizeResult:
     """Minimise a smooth function from x0.
 
     Parameters
@@ -93,6 +93,8 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
     callback : called with an ``IterLog`` after every iteration (progress display)
     noise : payload -> rounding level of J at that point; the stopping test also holds when the
         decrement is below it (J cannot be resolved further in double precision)
+    c1, c2 : the strong Wolfe parameters of the line search (0 < c1 < c2 < 1/2 for PR+); a smaller
+        c2 makes the line search more nearly exact (as scipy's ``minimize(method="CG")`` offers)
 
     Returns
     -------
@@ -102,6 +104,7 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         raise ValueError(f"method must be 'pr-cg' or 'newton', got {method!r}")
     if not tol > 0:
         raise ValueError(f"tol must be > 0, got {tol}")
+    check_parameters(c1, c2)
     f = _Counted(evaluate, precondition)
     x = np.array(x0, dtype=float)
     J, g, payload = f.evaluate(x)
@@ -143,7 +146,7 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
             ok = math.isfinite(Ja) and np.all(np.isfinite(ga))
             return (Ja if ok else math.inf), (float(ga @ d) if ok else math.nan), (Ja, ga, pa)
 
-        ls = strong_wolfe(phi, J, dphi0, alpha0=a0)
+        ls = strong_wolfe(phi, J, dphi0, alpha0=a0, c1=c1, c2=c2)
         if not ls.ok:
             if ls.payload is not None and ls.phi < J:  # accept the best decrease found, then restart
                 pass

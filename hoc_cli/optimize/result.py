@@ -31,8 +31,7 @@ MESSAGES = {
 }
 STOP_MESSAGES = {
     StopTest.DECREMENT: "the stopping test held: ½ gᵀP⁻¹g <= tol·|J|",
-    StopTest.ROUNDING: "the rounding-level test held: ½ gᵀP⁻¹g is below the rounding level of J "
-                       "(which exceeds tol·|J|: J cannot be resolved further in double precision)",
+    StopTest.ROUNDING: "the rounding-level test held: ½ gᵀP⁻¹g <= the rounding level of J, which exceeds tol·|J|",
     StopTest.GRADIENT: "the stopping test held: ‖g‖∞ <= tol·max(|J|, 1)",
 }
 
