@@ -25,11 +25,12 @@ Hooks for further terms (penalties on the samples, e.g. joint limits)
 --------------------------------------------------------------------
 ``Evaluation`` carries q, q̇, q̈, u at the K Gauss points of ``ControlProblem.op``;
 ``ControlProblem.gradient_from_samples`` maps per-sample partial derivatives to the design
-gradient; ``hoc_cli.banded.element_blocks`` maps per-sample Hessians to element blocks, which
-``ControlProblem.hessian_blocks`` / ``positive_definite`` combine into the banded Newton matrix.
+gradient; ``hoc_cli.banded.element_blocks`` maps per-sample Hessians (``hessian_samples`` for the
+cost) to element blocks, which ``positive_definite`` turns into the banded Newton matrix.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -334,29 +335,33 @@ class ControlProblem:
     def newton(self, ev: Evaluation) -> BandedSPD:
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
-        ``positive_definite(*hessian_blocks(ev))``: see those two.
+        Element blocks of the per-sample Hessians (``hessian_samples``) through ``positive_definite``;
+        the blocks of the positive semi-definite part are only formed when needed.
         """
-        return self.positive_definite(*self.hessian_blocks(ev))
+        Hs, GNs = self.hessian_samples(ev)
+        return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs))
 
-    def hessian_blocks(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
-        """Element blocks (N, 2mn, 2mn) of the Hessian of I and of its positive semi-definite part.
+    def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
+        """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.
 
-        Both on the preconditioner quadrature ``self.op_h``, at ev.x. The second is Σ w Dᵀ S D (see
-        ``_sweep_sample_hessians``; for the torque cost the Gauss-Newton matrix): no extra dynamics pass.
+        On the preconditioner quadrature ``self.op_h`` (K_h = N·G_h samples): feed them to
+        ``element_blocks(self.op_h, ·)``. The second is Dᵀ S D (see ``_sweep_sample_hessians``; for
+        the torque cost the Gauss-Newton matrix), from the same dynamics pass.
         """
-        q, dq, ddq = self._preconditioner_samples(ev)
-        Hs, GNs = self._sweep_sample_hessians(q, dq, ddq)
-        return element_blocks(self.op_h, Hs), element_blocks(self.op_h, GNs)
+        return self._sweep_sample_hessians(*self._preconditioner_samples(ev))
 
-    def positive_definite(self, H: np.ndarray, GN: np.ndarray) -> BandedSPD:
-        """The banded matrix of element blocks H, made positive definite with the PSD blocks GN.
+    def positive_definite(self, H: np.ndarray, psd: Callable[[], np.ndarray]) -> BandedSPD:
+        """The banded matrix of element blocks H (N, 2mn, 2mn), made positive definite.
 
-        Away from a minimum the Hessian may be indefinite; then μ·GN is added with μ = 1e-3, 1e-2, …
-        (relative to the traces) until the banded Cholesky factorisation succeeds; GN alone last.
+        Away from a minimum the Hessian may be indefinite; then μ·GN is added, with GN = ``psd()``
+        the element blocks of a positive semi-definite part of H (called only then), and
+        μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation
+        succeeds; GN alone last.
         """
         try:
             return self.banded(H)
         except NumericalError:
+            GN = psd()
             tr_gn = np.trace(GN.sum(axis=0))
             mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
             for _ in range(12):
