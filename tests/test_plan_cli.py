@@ -287,6 +287,9 @@ def test_check_gradient_passes_on_the_task_and_writes_nothing(task, tmp_path):
     assert c["coordinates"] == c["of"] == (8 + 1) * 3 * 2 - 4 * 2  # every free coefficient of N = 8, quintic, n = 2
     assert not (tmp_path / "arm.csv").exists() and not (tmp_path / "arm.mcap").exists()
     assert invoke("plan", task, "--check-gradient", "-o", "x.csv").exit_code == 2
+    r = invoke("plan", task, "--check-gradient", "--json", "-N", "1", "--order", "cubic")  # nothing is free
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["gradient_check"]["coordinates"] == 0
 
 
 def test_check_gradient_catches_a_wrong_gradient_and_exits_1(task, monkeypatch):
@@ -310,3 +313,12 @@ def test_tol_below_the_rounding_level_says_the_rounding_level_test_held(task):
     assert s["status"] == "converged" and s["message"].startswith("the rounding-level test held")
     r = invoke("plan", task, "--json")
     assert json.loads(r.stdout)["message"] == "the stopping test held: ½ gᵀP⁻¹g <= tol·|J|"
+
+
+def test_check_gradient_on_a_large_mesh_checks_a_fixed_subset(task, monkeypatch):
+    from hoc_cli.commands import plan as cmd
+
+    monkeypatch.setattr(cmd, "GRADIENT_MAX_COORDINATES", 5)
+    runs = [json.loads(invoke("plan", task, "--check-gradient", "--json").stdout)["gradient_check"] for _ in range(2)]
+    assert runs[0]["coordinates"] == 5 and runs[0]["of"] == 46 and runs[0]["passed"] is True
+    assert runs[0] == runs[1]  # the same subset every time

@@ -84,10 +84,13 @@ def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, consol
     with np.errstate(all="ignore"):
         check = check_gradient(problem.value, x, problem.evaluate(x).grad, coordinates=coordinates)
     passed = check.passed(GRADIENT_RTOL)
-    p, d, i = (int(v) for v in np.unravel_index(np.flatnonzero(problem.layout.free)[check.worst[1]],
-                                                  (mesh.N + 1, mesh.m, problem.n)))
-    worst = {"node": p, "t": float(mesh.nodes[p]), "derivative": ("q", "dq", "ddq")[d],
-             "joint": model.joint_names[i]}
+    worst, where = None, "no free coefficients (every coefficient is fixed by x0 and x1)"
+    if check.coordinates.size:
+        p, d, i = (int(v) for v in np.unravel_index(np.flatnonzero(problem.layout.free)[check.worst[1]],
+                                                      (mesh.N + 1, mesh.m, problem.n)))
+        worst = {"node": p, "t": float(mesh.nodes[p]), "derivative": ("q", "dq", "ddq")[d],
+                 "joint": model.joint_names[i]}
+        where = f"worst {worst['derivative']} of {worst['joint']} at node {p} (t = {worst['t']:.6g} s)"
     if as_json:
         print_json({"gradient_check": {"max_rel_error": check.max_rel_error, "rtol": GRADIENT_RTOL, "passed": passed,
                                        "coordinates": int(check.coordinates.size), "of": int(x.size),
@@ -95,8 +98,7 @@ def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, consol
                                        "order": mesh.order}})
     console.print(f"hoc: gradient check ({task.cost} cost, {mesh.order} N = {mesh.N}, at the initial guess): "
                   f"max relative error {check.max_rel_error:.2e} over {check.coordinates.size} of {x.size} "
-                  f"coefficients, worst {worst['derivative']} of {worst['joint']} at node {p} "
-                  f"(t = {worst['t']:.6g} s); {'passed' if passed else 'FAILED'} (threshold {GRADIENT_RTOL:g})",
+                  f"coefficients, {where}; {'passed' if passed else 'FAILED'} (threshold {GRADIENT_RTOL:g})",
                   highlight=False, markup=False, soft_wrap=True)
     return EXIT_OK if passed else EXIT_UNMET
 
