@@ -1,6 +1,6 @@
 """Plan: minimise I(q_h) over the free Hermite coefficients and check the quadrature.
 
-``plan`` ties ``ControlProblem`` (cost, gradient, Gauss-Newton matrix) to the optimiser
+``plan`` ties ``ControlProblem`` (cost, gradient, Newton matrix) to the optimiser
 (preconditioned PR+ CG by default) and returns a ``PlanResult``. Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -81,7 +81,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     relative (and by more than the rounding level of J), G grows by 4 and the solve continues.
     """
     start = time.perf_counter()
-    totals = {"it": 0, "ev": 0, "pre": 0}
+    totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
     history: list[IterLog] = []
 
     def solve(problem: ControlProblem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
@@ -108,6 +108,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         totals["it"] += res.iterations
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
+        totals["restarts"] += res.restarts
         history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
                                            level=problem.mesh.N) for h in res.history)
         return res
@@ -135,6 +136,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         if resolved or not res.converged or problem.G >= 32:
             break
         G, C_init = problem.G + 4, C
-    res.iterations, res.n_evals, res.n_precond, res.history = totals["it"], totals["ev"], totals["pre"], history
+    res = dataclasses.replace(res, iterations=totals["it"], n_evals=totals["ev"], n_precond=totals["pre"],
+                              restarts=totals["restarts"], history=tuple(history))
     return PlanResult(mesh=mesh, coeffs=C, J=res.fun, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem)

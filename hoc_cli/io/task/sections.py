@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hoc_cli.costs import COSTS
 from hoc_cli.io.task.checks import Checker, Values, join, show
 
 ORDERS = ("quintic", "cubic")
-COSTS = ("covariant", "torque")
 METHODS = ("pr-cg", "newton")
 STATE_KEYS = ("q", "dq")
 SOLVER_KEYS = ("method", "tol", "max_iter")
