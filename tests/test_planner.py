@@ -211,7 +211,7 @@ def test_plain_polak_ribiere_without_preconditioner_reaches_the_same_optimum_on_
     pre = plan(LinearOscillator(), mesh, [0.0], [1.0], [0.0], [-1.0], cost="torque")
     plain = plan(LinearOscillator(), mesh, [0.0], [1.0], [0.0], [-1.0], cost="torque", precondition=False)
     assert plain.J == pytest.approx(pre.J, rel=1e-8)
-    assert plain.optimizer.iterations > pre.optimizer.iterations  # the h⁻⁴ conditioning, measured in the README
+    assert plain.optimizer.iterations > pre.optimizer.iterations  # the h⁻⁴ conditioning, measured in docs/benchmarks.md
 
 
 def test_work_counts_on_the_two_link_arm_do_not_grow():
