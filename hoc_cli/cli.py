@@ -28,7 +28,7 @@ app = typer.Typer(
 OutputOpt = Annotated[
     Optional[list[str]],
     typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default: <task stem>.mcap and <task stem>.csv in the current directory."),
+                 "Default: <task stem>.mcap and <task stem>.csv in the current directory. An output that is an input is refused."),
 ]
 SimOutputOpt = Annotated[
     Optional[list[str]],

@@ -46,7 +46,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     check_sample_times(targets, task.T, task.rate, file=task.path)
     model = load_model(task)
     check_columns(targets, model.joint_names)
-    urdf_text = read_urdf_text(task.robot)
+    urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)

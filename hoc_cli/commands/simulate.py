@@ -99,7 +99,7 @@ def run(
             labels = {"urdf_label": f"{source}: attachment robot.urdf", "task_label": f"{source}: attachment task.yaml"}
         else:
             task = load_task(source, purpose="simulate")
-            urdf_text = read_urdf_text(task.robot)
+            urdf_text = ""
         task = apply_overrides(task, **(overrides or {}))
         targets = parse_outputs(outputs, f"{source.stem}-sim")  # never a plan's <stem>.csv/.mcap
         refuse_inputs(targets, {"the simulation source": source, "the URDF": None if plan else task.robot,
@@ -109,6 +109,8 @@ def run(
         if check is not None and task.x1 is None:
             raise TaskError("--check needs a goal state x1 in the task", file=task.path, key="x1")
         check_sample_times(targets, task.T, task.rate, file=labels.get("task_label", task.path))
+        if plan is None and any(t.kind == "mcap" for t in targets):
+            urdf_text = read_urdf_text(task.robot)  # stored in MCAP outputs
 
         model = load_model(task, **labels)
         check_columns(targets, model.joint_names)
