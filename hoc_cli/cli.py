@@ -28,10 +28,16 @@ app = typer.Typer(
 OutputOpt = Annotated[
     Optional[list[str]],
     typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default: <task stem>.mcap and <task stem>.csv in the current directory."),
+                 "Default: <task stem>.mcap and <task stem>.csv in the current directory. An output that is an input is refused."),
+]
+SimOutputOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
+                 "Default, for a task YAML and an MCAP source alike: <source stem>-sim.mcap and <source stem>-sim.csv "
+                 "in the current directory (never the plan's own files; an output that is an input is refused)."),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
-QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="Nothing on stderr but errors.")]
+QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="Nothing on stderr but errors (no warnings either).")]
 ProgressOpt = Annotated[bool, typer.Option("--progress", help="Show progress and the summary table on stderr even when it is not a terminal.")]
 DebugOpt = Annotated[bool, typer.Option("--debug", help="Show Python tracebacks for errors.")]
 ElementsOpt = Annotated[Optional[int], typer.Option("-N", "--elements", help="Override the task's number of elements N (>= 1).")]
@@ -84,7 +90,7 @@ def plan(
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost),
             init=init, gradient_check=check_gradient,
         ),
-        debug=debug,
+        debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
 
@@ -92,7 +98,7 @@ def plan(
 @app.command()
 def simulate(
     source: Annotated[Path, typer.Argument(metavar="SOURCE", help="Task YAML (with optional torque:) or a plan's MCAP file.")],
-    output: OutputOpt = None,
+    output: SimOutputOpt = None,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
     progress: ProgressOpt = False,
@@ -118,7 +124,7 @@ def simulate(
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter), method=method,
             torque=torque, check=check,
         ),
-        debug=debug,
+        debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
 
@@ -151,7 +157,7 @@ def verify(
     """
     from hoc_cli.commands import verify as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(as_json=json_, quiet=quiet, only=only), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(as_json=json_, quiet=quiet, only=only), debug=debug, quiet=quiet))
 
 
 @app.command()

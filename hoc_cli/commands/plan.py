@@ -7,9 +7,25 @@ from pathlib import Path
 
 import numpy as np
 from rich.table import Table
+from rich.text import Text
 
 from hoc_cli import __version__
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, output_transaction, parse_outputs, print_json, stderr_console
+from hoc_cli.commands.common import (
+    EXIT_OK,
+    EXIT_UNMET,
+    check_columns,
+    check_sample_times,
+    json_ready,
+    load_model,
+    output_transaction,
+    parse_outputs,
+    print_json,
+    read_urdf_text,
+    refuse_inputs,
+    stderr_console,
+    validate_json,
+    warn_limit_violations,
+)
 from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError
@@ -28,16 +44,17 @@ GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None,
         gradient_check: bool = False) -> int:
-    from hoc_cli.model import load_robot
-
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
     if gradient_check and outputs:
         raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
+    refuse_inputs(targets, {"the task": task.path, "the URDF": task.robot, "--init": init})
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
-    model = load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                       gravity=task.gravity)
+    check_sample_times(targets, task.T, task.rate, file=task.path)
+    model = load_model(task)
+    check_columns(targets, model.joint_names)
+    urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
@@ -59,10 +76,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
                       method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
-    summary = summarise(task, model, result, states)
+    summary = json_ready(summarise(task, model, result, states))  # an absent limit (inf) is null
+    validate_json(summary)  # before any output is written
     with output_transaction():  # every output is replaced, or none
-        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
+        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
                                            summary=_reproducible(summary))
+    warn_limit_violations(summary["limit_violations"])
     if as_json:
         print_json(summary)
     if show:
@@ -160,11 +179,12 @@ def summary_table(summary: dict) -> Table:
                 "N", "order", "T", "boundary_error"):
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
-    table.add_row("max |u|", ", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"])))
+    # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
+    table.add_row("max |u|", Text(", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"]))))
     viol = summary["limit_violations"]
-    table.add_row("limit violations", "none" if not viol else "; ".join(
-        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol))
-    table.add_row("outputs", ", ".join(summary["outputs"]))
+    table.add_row("limit violations", Text("none" if not viol else "; ".join(
+        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
+    table.add_row("outputs", Text(", ".join(summary["outputs"])))
     return table
 
 
