@@ -285,22 +285,27 @@ class ControlProblem:
         H += GN
         return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
 
-    def newton(self, ev: Evaluation) -> "BandedSPD":
+    def newton(self, ev: Evaluation, extra: np.ndarray | None = None) -> "BandedSPD":
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
         Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
         with μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation succeeds.
         That matrix is the Hessian's own positive semi-definite part Σ w Dᵀ S D (see
         ``_sweep_sample_hessians``; for the torque cost it is the Gauss-Newton matrix): no extra
-        dynamics pass.
+        dynamics pass. ``extra`` (N, 2mn, 2mn), positive semi-definite element blocks of other terms
+        (e.g. limit penalties), is added to both.
         """
         q, dq, ddq = self._preconditioner_samples(ev)
         Hs, GNs = self._sweep_sample_hessians(q, dq, ddq)
         H = self._element_blocks(self.op_h, Hs)
+        if extra is not None:
+            H = H + extra
         try:
             return self._banded(H)
         except NumericalError:
             GN = self._element_blocks(self.op_h, GNs)
+            if extra is not None:
+                GN = GN + extra
             tr_gn = np.trace(GN.sum(axis=0))
             mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
             for _ in range(12):
