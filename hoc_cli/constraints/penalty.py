@@ -119,7 +119,7 @@ class PenaltyValue:
         """The largest g > 0 over all kinds (0 when none), dimensionless."""
         return max([0.0] + [float(np.max(g, initial=0.0)) for g in self.g_lo + self.g_hi])
 
-    def complementarity(self, slack: float = 1e-6) -> float:
+    def complementarity(self, slack: float = 1e-8) -> float:
         """Σ μ |g| over the rows more than ``slack`` inside their bound: the cost-units gap left by
         multipliers on rows that are not active (rows within the slack count as active)."""
         total = 0.0
