@@ -1,6 +1,6 @@
 """Plan: minimise I(q_h) over the free Hermite coefficients and check the quadrature.
 
-``plan`` ties ``ControlProblem`` (cost, gradient, Gauss-Newton matrix) to the optimiser
+``plan`` ties ``ControlProblem`` (cost, gradient, Newton matrix) to the optimiser
 (preconditioned PR+ CG by default) and returns a ``PlanResult``. Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -85,22 +85,11 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     relative (and by more than the rounding level of J), G grows by 4 and the solve continues.
 
     With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
-    the limits by ``hoc_cli.constraints.enforce`` (augmented Lagrangian around the same inner
-    minimiser); the working set and penalty carry over from level to level.
+    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
+    minimiser); the working set of limits found binding carries over from level to level.
     """
-    limited = limits is not None and limits.any
-    carry = {"working": None, "rho": None}
-
-    def solve_level(problem: ControlProblem, x0: np.ndarray, tol_level: float):
-        """(inner result, J, EnforceResult or None) of one level."""
-        if not limited:
-            res = solve(problem, x0, tol_level)
-            return res, res.fun, None
-        er = enforce(problem, system, limits, x0, tol_level, solve, working=carry["working"])
-        carry["working"] = er.working
-        return dataclasses.replace(er.inner, x=er.x), er.J, er
     start = time.perf_counter()
-    totals = {"it": 0, "ev": 0, "pre": 0}
+    totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
     history: list[IterLog] = []
 
     def solve(problem: ControlProblem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
@@ -127,9 +116,22 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         totals["it"] += res.iterations
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
+        totals["restarts"] += res.restarts
         history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
                                            level=problem.mesh.N) for h in res.history)
         return res
+
+    limited = limits is not None and limits.any
+    carry: dict = {"working": None}
+
+    def solve_level(problem: ControlProblem, x0: np.ndarray, tol_level: float):
+        """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
+        if not limited:
+            res = solve(problem, x0, tol_level)
+            return res, res.fun, None
+        er = enforce(problem, system, limits, x0, tol_level, solve, working=carry["working"])
+        carry["working"] = er.working
+        return dataclasses.replace(er.inner, x=er.x), er.J, er
 
     if C_init is None and continuation and precondition:
         coarse_mesh, C_coarse = None, None
@@ -154,6 +156,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         if resolved or not res.converged or problem.G >= 32:
             break
         G, C_init = problem.G + 4, C
-    res.iterations, res.n_evals, res.n_precond, res.history = totals["it"], totals["ev"], totals["pre"], history
+    res = dataclasses.replace(res, iterations=totals["it"], n_evals=totals["ev"], n_precond=totals["pre"],
+                              restarts=totals["restarts"], history=tuple(history))
     return PlanResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=er)

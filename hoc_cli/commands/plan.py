@@ -15,16 +15,24 @@ from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.limits import dense_times, limit_violations
+from hoc_cli.optimize import check_gradient
 from hoc_cli.planner import PlanResult, plan
+from hoc_cli.problem import ControlProblem
 from hoc_cli.system import RobotSystem
 from hoc_cli.trajectory import Trajectory, sample_times
 
+GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
+GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
+
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
-        progress: bool = False, overrides: dict | None = None, init: Path | None = None) -> int:
+        progress: bool = False, overrides: dict | None = None, init: Path | None = None,
+        gradient_check: bool = False) -> int:
     from hoc_cli.model import load_robot
 
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
+    if gradient_check and outputs:
+        raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
@@ -36,6 +44,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     _warn_outside_limits(console, task, model, states)
     mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
     C_init = _warm_start(init, mesh, model.joint_names) if init is not None else None
+    if gradient_check:
+        return _check_gradient(task, model, states, mesh, C_init, console, as_json)
 
     start = time.perf_counter()
 
@@ -62,6 +72,35 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
+
+
+def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
+    """``--check-gradient``: the cost gradient at the initial guess against central differences."""
+    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
+    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+    coordinates = None
+    if x.size > GRADIENT_MAX_COORDINATES:
+        coordinates = np.sort(np.random.default_rng(0).choice(x.size, GRADIENT_MAX_COORDINATES, replace=False))
+    with np.errstate(all="ignore"):
+        check = check_gradient(problem.value, x, problem.evaluate(x).grad, coordinates=coordinates)
+    passed = check.passed(GRADIENT_RTOL)
+    worst, where = None, "no free coefficients (every coefficient is fixed by x0 and x1)"
+    if check.coordinates.size:
+        p, d, i = (int(v) for v in np.unravel_index(np.flatnonzero(problem.layout.free)[check.worst[1]],
+                                                      (mesh.N + 1, mesh.m, problem.n)))
+        worst = {"node": p, "t": float(mesh.nodes[p]), "derivative": ("q", "dq", "ddq")[d],
+                 "joint": model.joint_names[i]}
+        where = f"worst {worst['derivative']} of {worst['joint']} at node {p} (t = {worst['t']:.6g} s)"
+    if as_json:
+        print_json({"gradient_check": {"max_rel_error": check.max_rel_error, "rtol": GRADIENT_RTOL, "passed": passed,
+                                       "coordinates": int(check.coordinates.size), "of": int(x.size),
+                                       "step": check.step, "worst": worst, "cost_type": task.cost, "N": mesh.N,
+                                       "order": mesh.order}})
+    console.print(f"hoc: gradient check ({task.cost} cost, {mesh.order} N = {mesh.N}, at the initial guess): "
+                  f"max relative error {check.max_rel_error:.2e} over {check.coordinates.size} of {x.size} "
+                  f"coefficients, {where}; {'passed' if passed else 'FAILED'} (threshold {GRADIENT_RTOL:g})",
+                  highlight=False, markup=False, soft_wrap=True)
+    return EXIT_OK if passed else EXIT_UNMET
 
 
 def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:

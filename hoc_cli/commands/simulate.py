@@ -47,7 +47,7 @@ from hoc_cli.commands.common import (
     stderr_console,
 )
 from hoc_cli.errors import InputFileError, OutputError, TaskError
-from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve
+from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve, yaml_error_detail
 
 METHODS = ("hermite", "rk")
 
@@ -183,8 +183,9 @@ def _task_from_plan(plan, source: Path, scratch: Path) -> Task:
     urdf.write_text(plan.urdf_text, encoding="utf-8")
     try:
         doc = load_yaml(plan.task_text)
-    except yaml.YAMLError:
-        raise InputFileError("the task attached to this plan is not valid YAML", file=source) from None
+    except yaml.YAMLError as exc:
+        raise InputFileError(f"the task attached to this plan is not valid YAML{yaml_error_detail(exc)}",
+                             file=source) from None
     if not isinstance(doc, dict):
         raise InputFileError("the task attached to this plan is not a mapping of task keys", file=source)
     doc = dict(doc, robot=str(urdf))

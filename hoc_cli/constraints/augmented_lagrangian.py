@@ -29,6 +29,7 @@ import numpy as np
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.errors import NumericalError
 
 import os
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
@@ -149,7 +150,7 @@ def _polish(problem: PenalizedProblem, x: np.ndarray) -> np.ndarray:
     try:
         if np.isfinite(problem.evaluate(trial, grad=False).J):
             return trial
-    except ArithmeticError:  # e.g. NumericalError: a singular mass matrix at the trial point
+    except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
         pass
     return x
 
