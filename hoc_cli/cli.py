@@ -73,6 +73,9 @@ def plan(
     method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | newton.")] = None,
     cost: Annotated[Optional[str], typer.Option("--cost", help="Override the cost: covariant | torque.")] = None,
     init: Annotated[Optional[Path], typer.Option("--init", help="Warm start from an earlier plan's MCAP.")] = None,
+    limits: Annotated[Optional[str], typer.Option(
+        "--limits", help="enforce (default: the plan respects every joint limit) | report (the unconstrained "
+        "optimum; violations are only reported). Overrides limits.mode.")] = None,
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,
@@ -87,7 +90,8 @@ def plan(
     code = run_guarded(
         lambda: cmd.run(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
-            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost),
+            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost,
+                           limits=limits),
             init=init, gradient_check=check_gradient,
         ),
         debug=debug, quiet=quiet,

@@ -332,14 +332,19 @@ class ControlProblem:
         H += GN
         return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
 
-    def newton(self, ev: Evaluation) -> BandedSPD:
+    def newton(self, ev: Evaluation, extra: np.ndarray | None = None) -> BandedSPD:
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
         Element blocks of the per-sample Hessians (``hessian_samples``) through ``positive_definite``;
-        the blocks of the positive semi-definite part are only formed when needed.
+        the blocks of the positive semi-definite part are only formed when needed. ``extra``
+        (N, 2mn, 2mn): positive semi-definite element blocks of other terms (limit penalties),
+        added to both.
         """
         Hs, GNs = self.hessian_samples(ev)
-        return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs))
+        if extra is None:
+            return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs))
+        return self.positive_definite(element_blocks(self.op_h, Hs) + extra,
+                                      lambda: element_blocks(self.op_h, GNs) + extra)
 
     def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.

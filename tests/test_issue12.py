@@ -176,7 +176,7 @@ def _strict_json(text: str):
 
 def test_item7_a_one_sided_limit_is_null_in_the_json_summary_and_in_the_mcap(d):
     urdf_with(d, 'lower="-3.14159" upper="3.14159" effort="100"', 'lower="0.5" effort="100"')
-    r = invoke("plan", "t.yaml", "--json", "-o", "p.mcap")
+    r = invoke("plan", "t.yaml", "--json", "-o", "p.mcap", "--limits", "report")
     assert r.exit_code == 0, r.stderr
     summary = _strict_json(r.stdout)
     shoulder = [v for v in summary["limit_violations"] if v["joint"] == "shoulder" and v["kind"] == "position"]

@@ -312,7 +312,7 @@ def test_tol_below_the_rounding_level_says_the_rounding_level_test_held(task):
     s = json.loads(r.stdout)
     assert s["status"] == "converged" and s["message"].startswith("the rounding-level test held")
     r = invoke("plan", task, "--json")
-    assert json.loads(r.stdout)["message"] == "the stopping test held: ½ gᵀP⁻¹g <= tol·|J|"
+    assert json.loads(r.stdout)["message"].startswith("the stopping test held: ½ gᵀP⁻¹g <= tol·|J|")
 
 
 def test_check_gradient_on_a_large_mesh_checks_a_fixed_subset(task, monkeypatch):

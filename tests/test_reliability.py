@@ -176,9 +176,15 @@ def test_a_malformed_task_exits_2_with_one_line_and_touches_nothing(workdir, set
     assert_rejected(workdir, setup(workdir), needles)
 
 
-def test_a_start_state_outside_the_urdf_limits_is_a_one_line_warning_not_an_error(workdir):
+def test_a_start_state_outside_the_urdf_limits_is_an_input_error_when_enforced_and_a_warning_when_reported(workdir):
     write_task(workdir, _with("x0: {q: [0.0, 0.0]}", "x0: {q: [3.5, 0.0]}"))
     r = invoke(plan_args())
+    assert r.exit_code == 2
+    (line,) = r.stderr.splitlines()
+    for needle in ("task.yaml", "x0.q.shoulder", "3.5", "outside its position limits", "3.14159", "--limits report"):
+        assert needle in line
+    assert (workdir / "out.csv").read_bytes() == KEEP["out.csv"]  # nothing was written
+    r = invoke(plan_args("task.yaml", "--limits", "report"))
     assert r.exit_code == 0, r.stderr
     lines = r.stderr.splitlines()
     assert len(lines) == 2 and all(line.startswith("hoc: warning: ") for line in lines), r.stderr
@@ -187,7 +193,7 @@ def test_a_start_state_outside_the_urdf_limits_is_a_one_line_warning_not_an_erro
     # and, after the outputs are written, the limit the plan breaks (it starts beyond it)
     assert "joint 'shoulder' exceeds its position limit [-3.142, 3.142]: worst " in lines[1]
     assert (workdir / "out.csv").read_bytes() != KEEP["out.csv"]  # the plan was written
-    assert invoke(plan_args("task.yaml", "-q")).stderr == ""  # --quiet: nothing but errors
+    assert invoke(plan_args("task.yaml", "-q", "--limits", "report")).stderr == ""  # --quiet: nothing but errors
 
 
 # --------------------------------------------------------------------------- URDFs through plan and inspect

@@ -78,20 +78,25 @@ def test_the_readme_quick_start_matches_a_fresh_run_in_its_stable_parts():
     assert shown["final_error"] < 1e-8 and fresh["final_error"] < 1e-8  # what `--check 1e-8` promises
 
 
-def test_the_readme_limits_example_holds_the_swing_passes_velocity_limits_and_still_succeeds(tmp_path):
-    """README, Limits: limits are reported, not enforced; lbr7_swing passes velocity limits, lbr7_reach none."""
+def test_the_readme_limits_example_holds_the_swing_is_planned_within_its_limits(tmp_path):
+    """README, Limits: the swing's unconstrained optimum breaks velocity limits; enforced, it breaks none."""
     import json
 
     from typer.testing import CliRunner
 
     from hoc_cli.cli import app
 
-    r = CliRunner().invoke(app, ["plan", str(ROOT / "configs" / "lbr7_swing.yaml"), "--json", "-q",
-                                 "-o", str(tmp_path / "swing.csv")])
-    assert r.exit_code == 0
-    summary = json.loads(r.stdout)
-    assert summary["converged"] and {v["kind"] for v in summary["limit_violations"]} == {"velocity"}
-    assert all(abs(v["worst"]) > abs(v["limit"]) for v in summary["limit_violations"])
+    def run(*extra):
+        r = CliRunner().invoke(app, ["plan", str(ROOT / "configs" / "lbr7_swing.yaml"), "--json", "-q",
+                                     "-o", str(tmp_path / "swing.csv"), *extra])
+        assert r.exit_code == 0, r.output
+        return json.loads(r.stdout)
+
+    reported, enforced = run("--limits", "report"), run()
+    assert reported["converged"] and {v["kind"] for v in reported["limit_violations"]} == {"velocity"}
+    assert enforced["converged"] and enforced["limit_violations"] == [] and enforced["limits_mode"] == "enforce"
+    assert {a["kind"] for a in enforced["active_limits"]} == {"velocity"}
+    assert enforced["cost"] > reported["cost"]
 
 
 def test_every_figure_block_is_generated_by_a_section_of_the_script_with_machine_and_date():

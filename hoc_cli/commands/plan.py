@@ -27,6 +27,7 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
+from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
@@ -58,7 +59,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
-    _warn_outside_limits(console, task, model, states)
+    limits = task_limits(model, states.limits)
+    mode = task.limits.mode
+    if mode == "enforce":
+        check_boundary_states(task, limits, states)
+    else:
+        _warn_outside_limits(console, task, model, states)
     mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
     C_init = _warm_start(init, mesh, model.joint_names) if init is not None else None
     if gradient_check:
@@ -74,9 +80,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
 
     with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
         result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
-                      method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
+                      method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report,
+                      limits=limits if mode == "enforce" else None)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
-    summary = json_ready(summarise(task, model, result, states))  # an absent limit (inf) is null
+    summary = summarise(task, model, result, states)
+    summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
+    summary = json_ready(summary)  # an absent limit (inf) is null
     validate_json(summary)  # before any output is written
     with output_transaction():  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
@@ -87,7 +96,10 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     if show:
         console.print(summary_table(summary))
     if not result.converged:
-        console.print(f"hoc: not converged: {result.optimizer.message}; the best iterate was written",
+        why = summary["message"] if result.limits is not None else result.optimizer.message
+        head = "infeasible" if summary["status"] == "infeasible" else "not converged"
+        tail = "" if head == "infeasible" else "; the best iterate was written"
+        console.print(f"hoc: {head}: {why}{tail}",
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
