@@ -20,7 +20,6 @@ from hoc_cli.planner import plan
 from hoc_cli.problem import ControlProblem
 from hoc_cli.system import LinearOscillator
 
-
 BOUNDARY = ([0.0], [0.0], [1.0], [0.0])  # q0, q̇0, q1, q̇1
 
 

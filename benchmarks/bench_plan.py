@@ -55,9 +55,9 @@ from numpy.polynomial import legendre as L  # noqa: E402
 
 from hoc_cli import dynamics  # noqa: E402
 from hoc_cli.elements import HermiteMesh  # noqa: E402
+from hoc_cli.io.task import load_task, resolve  # noqa: E402
 from hoc_cli.model import load_robot  # noqa: E402
 from hoc_cli.planner import plan  # noqa: E402
-from hoc_cli.io.task import load_task, resolve  # noqa: E402
 from hoc_cli.problem import ControlProblem  # noqa: E402
 from hoc_cli.system import RobotSystem  # noqa: E402
 

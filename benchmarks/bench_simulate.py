@@ -29,8 +29,8 @@ from scipy.special import ellipj, ellipk
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 from hoc_cli.simulate import simulate_hermite, simulate_reference
-from hoc_cli.torque import zero_torque
 from hoc_cli.system import RobotSystem
+from hoc_cli.torque import zero_torque
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 
@@ -90,7 +90,7 @@ def print_sweep(rows) -> None:
 
 
 def print_equal_accuracy(rows, targets) -> None:
-    print(f"\nCheapest setting reaching each accuracy (wall time of the integration alone):")
+    print("\nCheapest setting reaching each accuracy (wall time of the integration alone):")
     print(f"{'problem':<14}{'target':>8}  {'method':<18}{'setting':<13}{'wall s':>9}{'error x(T)':>12}")
     for problem in dict.fromkeys(r["problem"] for r in rows):
         for target in targets:

@@ -18,10 +18,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
 
 
 def _keep_freed_memory() -> None:
-    """glibc returns freed blocks over 128 kB to the kernel (mmap/munmap), so every batched dynamics call
+    """Glibc returns freed blocks over 128 kB to the kernel (mmap/munmap), so every batched dynamics call
     page-faults its (6, n, K) temporaries anew: inverse dynamics at K = 1000 took 1.5 µs per sample
     instead of 0.75. Raising the mmap and trim thresholds keeps such blocks in the heap. Linux/glibc
-    only; skipped when the user set MALLOC_MMAP_THRESHOLD_ or MALLOC_TRIM_THRESHOLD_."""
+    only; skipped when the user set MALLOC_MMAP_THRESHOLD_ or MALLOC_TRIM_THRESHOLD_.
+    """
     if any(v in _os.environ for v in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")):
         return
     try:

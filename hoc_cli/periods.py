@@ -1,5 +1,6 @@
 """Turning points and the period of a free oscillation, read exactly off a Hermite trajectory
-(used by ``hoc verify``'s pendulum check against the elliptic-integral period)."""
+(used by ``hoc verify``'s pendulum check against the elliptic-integral period).
+"""
 from __future__ import annotations
 
 import numpy as np

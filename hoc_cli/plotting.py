@@ -52,8 +52,9 @@ def _unit(limits: Mapping[str, JointLimits], joints, rotary: str, linear: str) -
 
 
 def _view(data: np.ndarray, bounds: list[float]) -> tuple[float, float]:
-    """y range: the data, plus every limit within one data span of it (far limits would flatten
-    the curves), padded by 5 %."""
+    """Y range: the data, plus every limit within one data span of it (far limits would flatten
+    the curves), padded by 5 %.
+    """
     lo, hi = float(np.min(data)), float(np.max(data))
     span = max(hi - lo, 1e-3 * max(abs(lo), abs(hi)), 1e-9)
     for b in bounds:

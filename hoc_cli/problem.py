@@ -400,7 +400,7 @@ def _apply_inverse(Li: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """w = M⁻¹ u for a batch of SPD matrices (K, n, n) and vectors (K, n), via Cholesky."""
+    """W = M⁻¹ u for a batch of SPD matrices (K, n, n) and vectors (K, n), via Cholesky."""
     try:
         Lc = mass_cholesky(M)
     except np.linalg.LinAlgError:

@@ -1,5 +1,6 @@
 """Where the robots shipped with hoc live: ``robots/`` in a source checkout, or
-``<prefix>/share/hoc/robots`` in an installed package (pyproject's data-files)."""
+``<prefix>/share/hoc/robots`` in an installed package (pyproject's data-files).
+"""
 from __future__ import annotations
 
 import sys

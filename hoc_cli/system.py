@@ -24,7 +24,7 @@ class System(Protocol):
     def n(self) -> int: ...
 
     def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-        """u = M(q) q̈ + C(q, q̇) q̇ + g(q), (K, n)."""
+        """U = M(q) q̈ + C(q, q̇) q̇ + g(q), (K, n)."""
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """M(q), (K, n, n), symmetric positive definite."""

@@ -1,6 +1,7 @@
 """Torque histories for the simulator: u(t) maps times (K,) [s] to joint torques (K, n) [N·m, or N
 for prismatic joints]. Constant (free motion when zero), sampled from a plan's CSV (spline or linear
-interpolation), or the exact inverse-dynamics torque of a planned Hermite trajectory."""
+interpolation), or the exact inverse-dynamics torque of a planned Hermite trajectory.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -58,7 +58,7 @@ def convergence_order(h: np.ndarray, err: np.ndarray) -> float:
 
 
 def interpolation_errors(order: str, Ns: tuple[int, ...] = (4, 8, 16, 32, 64)) -> tuple[np.ndarray, np.ndarray]:
-    """h (len(Ns),) and the error norm ‖sin − Π_h sin‖ on [0, π]: ‖·‖₃ (cubic) or ‖·‖₅ (quintic)."""
+    """H (len(Ns),) and the error norm ‖sin − Π_h sin‖ on [0, π]: ‖·‖₃ (cubic) or ‖·‖₅ (quintic)."""
     exact = (np.sin, np.cos, lambda t: -np.sin(t))
     hs, errs = [], []
     for N in Ns:
@@ -163,13 +163,14 @@ def check_pendulum() -> list[Measurement]:
     (scipy.special.ellipk takes m = k²). The paper prints 2.03452 s, which its own formula does not give.
     """
     import math
+
     from scipy.special import ellipk
 
     from hoc_cli.model import load_robot
     from hoc_cli.periods import oscillation_period
     from hoc_cli.simulate import simulate_hermite
-    from hoc_cli.torque import zero_torque
     from hoc_cli.system import RobotSystem
+    from hoc_cli.torque import zero_torque
 
     urdf = shipped_robot("pendulum.urdf")
     if urdf is None:

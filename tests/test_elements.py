@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hoc_cli.elements import HermiteMesh, POLY_DEGREE, error_norm, reference_basis
+from hoc_cli.elements import POLY_DEGREE, HermiteMesh, error_norm, reference_basis
 from hoc_cli.verification import convergence_order, interpolation_errors
 
 # Expected nodal values: [function k][derivative r] at t = -1, 0, +1.

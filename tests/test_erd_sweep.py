@@ -7,12 +7,11 @@ import warnings
 
 import numpy as np
 import pytest
+from _robots import ERD, PinocchioOracle, random_state
 
 from hoc_cli import dynamics as D
 from hoc_cli.errors import ModelError
 from hoc_cli.model import load_robot
-
-from _robots import ERD, PinocchioOracle, random_state
 
 #: relative path -> a phrase of the refusal (each checked by hand to be a defect of the file)
 REFUSED = {

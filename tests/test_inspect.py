@@ -8,9 +8,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from hoc_cli.cli import app
-
 import hoc_cli.model  # noqa: E402,F401
+from hoc_cli.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"

@@ -3,12 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _robots import ERD, ROBOTS, SHIPPED
 
 from hoc_cli import dynamics as D
 from hoc_cli.errors import ModelError
 from hoc_cli.model import RobotModel, load_robot, urdf_joint_table, urdf_link_table
-
-from _robots import ERD, ROBOTS, SHIPPED
 
 LINK = '<link name="{name}"><inertial><origin xyz="{com}"/><mass value="{mass}"/>' \
        '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>'

@@ -8,8 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hoc_cli.optimize import cg
-from hoc_cli.optimize import OptimizeResult, Status, StopTest, check_gradient, minimize
+from hoc_cli.optimize import OptimizeResult, Status, StopTest, cg, check_gradient, minimize
 from hoc_cli.optimize.linesearch import strong_wolfe
 
 

@@ -47,7 +47,6 @@ def test_banded_newton_matrix_equals_the_finite_difference_hessian(cost):
     mesh = HermiteMesh("quintic", 1.0, 3)
     P = ControlProblem(RobotSystem(model), mesh, *_random_boundary(model, rng), cost=cost, G=5)
     x = P.initial_guess() + 0.05 * rng.normal(size=P.layout.size)
-    ev = P.evaluate(x)
     n = x.size
     H = np.empty((n, n))
     for i in range(n):

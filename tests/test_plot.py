@@ -1,5 +1,4 @@
 """`hoc plot`: a CSV or an MCAP becomes a PNG that opens; failures leave no file and exit 2."""
-import io
 import sys
 
 import numpy as np

@@ -419,7 +419,7 @@ def test_debug_shows_a_traceback_and_its_absence_shows_one_line(workdir):
     write_task(workdir, _with("N: 4", "N: 0"))
     plain = subprocess.run(hoc + plan_args(), capture_output=True, text=True, timeout=60)
     debug = subprocess.run(hoc + plan_args("task.yaml", "--debug"), capture_output=True, text=True, timeout=60)
-    assert plain.returncode == 2 and plain.stderr == f"hoc: error: task.yaml: N: expected an integer >= 1 and <= 100000, got 0\n"
+    assert plain.returncode == 2 and plain.stderr == "hoc: error: task.yaml: N: expected an integer >= 1 and <= 100000, got 0\n"
     assert debug.returncode != 0 and "Traceback" in debug.stderr and "TaskError" in debug.stderr
     assert snapshot(workdir)["out.csv"] == KEEP["out.csv"]
 

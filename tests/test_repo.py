@@ -1,4 +1,6 @@
 """Repository contract: CI runs exactly the README's test command; the package installs a `hoc` script."""
+import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -37,9 +39,6 @@ def test_every_public_name_exists_and_importing_the_package_does_not_load_yourdf
 
 
 # ---------------------------------------------------------------- the documentation against the code
-
-import importlib.util
-import re
 
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"<!-- figures:([\w-]+) -->\n(.*?)<!-- /figures:\1 -->", re.S)

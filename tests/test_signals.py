@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from test_interrupt import _default_sigint, hoc_command, rest_of, start_long_plan, wait_until_planning
 
 ROOT = Path(__file__).resolve().parent.parent

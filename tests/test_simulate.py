@@ -30,8 +30,8 @@ from hoc_cli.simulate import (
     simulate_hermite,
     simulate_reference,
 )
-from hoc_cli.torque import ConstantTorque, PlannedTorque, SampledTorque, zero_torque
 from hoc_cli.system import LinearOscillator
+from hoc_cli.torque import ConstantTorque, PlannedTorque, SampledTorque, zero_torque
 from hoc_cli.verification import convergence_order
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"

@@ -13,8 +13,8 @@ from hoc_cli.elements import HermiteMesh
 from hoc_cli.io.csv import read_csv, write_csv
 from hoc_cli.model import load_robot
 from hoc_cli.simulate import simulate_hermite
-from hoc_cli.torque import ConstantTorque, PlannedTorque
 from hoc_cli.system import RobotSystem
+from hoc_cli.torque import ConstantTorque, PlannedTorque
 from hoc_cli.trajectory import Trajectory, sample_times
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"

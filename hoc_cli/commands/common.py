@@ -2,7 +2,7 @@
 
 Output files (targets, atomic writes) live in :mod:`hoc_cli.commands.files`, re-exported here.
 
-Exit codes (SPEC.md): 0 success, 1 ran but did not meet what was asked (or an output could not
+Exit codes (README, Exit codes): 0 success, 1 ran but did not meet what was asked (or an output could not
 be written: disk full, I/O error), 2 invalid input (or an output that would replace an input),
 129 hung up (SIGHUP: a closed terminal or ssh session), 130 interrupted by SIGINT, 143 terminated
 by SIGTERM. A failed or interrupted run changes no output and leaves no temporary file.
@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 from rich.console import Console
 
+from hoc_cli.commands import files as _files
 from hoc_cli.commands.files import (  # noqa: F401  (re-exported: the commands import them from here)
     OUTPUT_KINDS,
     TERMINATING,
@@ -29,7 +30,6 @@ from hoc_cli.commands.files import (  # noqa: F401  (re-exported: the commands i
     refuse_inputs,
     what_changed,
 )
-from hoc_cli.commands import files as _files
 from hoc_cli.errors import HocError, HocWarning, InputFileError, JointSelectionError, OutputError, TaskError
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143

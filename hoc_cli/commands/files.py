@@ -63,7 +63,8 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
         if real.is_dir():
             raise OutputError("is a directory (expected a file path)", file=path, key="--output")
         if kind is None:
-            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)", file=path, key="--output")
+            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)",
+                              file=path, key="--output")
         parent = path.parent if str(path.parent) else Path(".")
         if not parent.is_dir():
             what = "is not a directory" if parent.exists() else "does not exist"

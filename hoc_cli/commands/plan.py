@@ -143,7 +143,7 @@ def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) ->
 
 
 def summarise(task: Task, model, result: PlanResult, states) -> dict:
-    """The JSON summary of SPEC.md (plus solver details)."""
+    """The JSON summary (README, Outputs), plus solver details."""
     mesh, C = result.mesh, result.coeffs
     td = dense_times(mesh.T, mesh.N)
     q, dq, ddq = mesh.evaluate_all(C, td)

@@ -51,7 +51,8 @@ def check_boundary_states(task, limits: JointLimits, states) -> None:
 
 def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, states) -> dict:
     """Summary keys: ``limits_mode``, ``limit_violations`` (exact check), ``active_limits``, and for an
-    infeasible task ``status: infeasible`` with a message naming the binding joint and kind."""
+    infeasible task ``status: infeasible`` with a message naming the binding joint and kind.
+    """
     check = (result.limits.check if result.limits is not None
              else check_limits(system, limits, result.mesh, result.coeffs))
     out: dict = {"limits_mode": mode, "limit_violations": check.violations(),

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 from typing import Callable
 
@@ -31,7 +32,6 @@ from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
 from hoc_cli.errors import NumericalError
 
-import os
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_GROWTH = 10.0

@@ -50,7 +50,8 @@ def _reparametrise(d: int, a: float, b: float) -> np.ndarray:
 
 def bernstein_rows(mesh: HermiteMesh, deriv: int, pieces: int = PIECES) -> tuple[np.ndarray, np.ndarray]:
     """Rows R (pieces·(d+1), 2m) mapping an element's local coefficients (per joint) to Bernstein
-    coefficients of d^r q_h/dt^r on each part, and each row's part index (pieces·(d+1),)."""
+    coefficients of d^r q_h/dt^r on each part, and each row's part index (pieces·(d+1),).
+    """
     d = (5 if mesh.order == "quintic" else 3) - deriv
     power = (local_basis(mesh.order)[deriv] * mesh.scale(deriv)[:, None])[:, : d + 1]  # (2m, d+1): p = Σ_a C_a power[a]
     rows, part = [], []

@@ -121,7 +121,8 @@ class PenaltyValue:
 
     def complementarity(self, slack: float = 1e-8) -> float:
         """Σ μ |g| over the rows more than ``slack`` inside their bound: the cost-units gap left by
-        multipliers on rows that are not active (rows within the slack count as active)."""
+        multipliers on rows that are not active (rows within the slack count as active).
+        """
         total = 0.0
         for mus, gs in ((self.mu_lo, self.g_lo), (self.mu_hi, self.g_hi)):
             for mu, g in zip(mus, gs):

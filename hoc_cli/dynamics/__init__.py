@@ -105,9 +105,10 @@ SINGULAR_PIVOT = 1e-14
 def mass_cholesky(M: np.ndarray) -> np.ndarray:
     """Lower Cholesky factors (K, n, n) of mass matrices M (K, n, n).
 
-    Raises:
+    Raises
+    ------
         numpy.linalg.LinAlgError: if some M is not positive definite, or singular to working
-            precision (a pivot L_ii² ≤ ``SINGULAR_PIVOT`` · max_j M_jj).
+        precision (a pivot L_ii² ≤ ``SINGULAR_PIVOT`` · max_j M_jj).
     """
     L = np.linalg.cholesky(M)
     if M.shape[-1]:
@@ -121,11 +122,16 @@ def mass_cholesky(M: np.ndarray) -> np.ndarray:
 def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.ndarray:
     """Joint torques u (K, n) = M(q) q̈ + C(q, q̇) q̇ + g(q), by recursive Newton-Euler.
 
-    Args:
-        q, dq, ddq: (K, n) positions, velocities, accelerations (or (n,) for one sample, then
-            the result is (n,)).
-        gravity: False drops the gravity term g(q).
-    Returns:
+    Parameters
+    ----------
+    q, dq, ddq
+        (K, n) positions, velocities, accelerations (or (n,) for one sample, then
+        the result is (n,)).
+    gravity
+        False drops the gravity term g(q).
+
+    Returns
+    -------
         u: (K, n) N·m (revolute) or N (prismatic).
     """
     (qT, dqT, ddqT), _, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
@@ -162,9 +168,13 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
 def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
     """Joint accelerations q̈ (K, n) = M(q)⁻¹ (u − h(q, q̇)) by a Cholesky solve per sample.
 
-    Args:
-        q, dq: (K, n) state; u: (K, n) applied joint torques/forces (N·m or N).
-    Raises:
+    Parameters
+    ----------
+    q, dq
+        (K, n) state; u: (K, n) applied joint torques/forces (N·m or N).
+
+    Raises
+    ------
         numpy.linalg.LinAlgError: if M is not positive definite at some sample.
     """
     (qT, dqT, uT), K, one_d = _inputs(model, q=q, dq=dq, u=u)
@@ -185,7 +195,8 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
 def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     """Inverse dynamics and its partial derivatives.
 
-    Returns:
+    Returns
+    -------
         (u, du_dq, du_ddq, M): u (K, n); du_dq (K, n, n) with ``du_dq[k, i, j] = ∂u_i/∂q_j``;
         du_ddq (K, n, n) = ∂u/∂q̇ (derivative with respect to the *velocity* ``dq``);
         M (K, n, n) = ∂u/∂q̈, the mass matrix.
@@ -210,9 +221,13 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
 def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
     """Vector-Jacobian products of inverse dynamics with respect to all three inputs.
 
-    Args:
-        q, dq, ddq: (K, n) state and acceleration; lam: (K, n) weights λ.
-    Returns:
+    Parameters
+    ----------
+    q, dq, ddq
+        (K, n) state and acceleration; lam: (K, n) weights λ.
+
+    Returns
+    -------
         (u, gq, gdq, gddq): u (K, n); gq (K, n) = λᵀ ∂u/∂q; gdq (K, n) = λᵀ ∂u/∂q̇;
         gddq (K, n) = λᵀ ∂u/∂q̈ = M(q) λ, per sample.
     """
@@ -255,16 +270,23 @@ def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = Fal
     forward/backward pass as u (its unit-acceleration columns ride along), and the shifted pass
     reuses the velocities and velocity products.
 
-    Args:
-        q, dq, ddq: (K, n) (or (n,)) positions, velocities, accelerations.
-        return_w: also return w = M⁻¹ u (K, n).
-    Returns:
+    Parameters
+    ----------
+    q, dq, ddq
+        (K, n) (or (n,)) positions, velocities, accelerations.
+    return_w
+        also return w = M⁻¹ u (K, n).
+
+    Returns
+    -------
         (u, M, gq, gdq) — u (K, n), M (K, n, n), gq (K, n), gdq (K, n) — plus w if ``return_w``.
         Equal (to rounding) to inverse_dynamics, mass_matrix, id_vjp(q, q̇, q̈, w)[1:3] and
         id_vjp(..)[1] − ½ mass_quadratic_grad(q, w).
-    Raises:
+
+    Raises
+    ------
         numpy.linalg.LinAlgError: if M is not positive definite, or singular to working precision
-            (see ``mass_cholesky``), at some sample.
+        (see ``mass_cholesky``), at some sample.
     """
     (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
     C = _consts(model)

@@ -1,6 +1,7 @@
 """The reverse (adjoint) sweep of a finished Newton-Euler pass: vector-Jacobian products
 (``_vjp``, any number of seeds) and full Jacobians (``_jac``, the n unit seeds carried only where
-they are nonzero). See the package docstring for the symbols, :mod:`._layout` for the storage."""
+they are nonzero). See the package docstring for the symbols, :mod:`._layout` for the storage.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -37,9 +38,13 @@ def _keep(C: _Consts, P: _Pass) -> tuple:
 def _vjp(C: _Consts, P: _Pass, lam: np.ndarray):
     """Reverse-mode sweep of the Newton-Euler pass P (acceleration channel) for S seeds at once.
 
-    Args:
-        lam: (n, S, K) weights λ (may be a broadcast view).
-    Returns:
+    Parameters
+    ----------
+    lam
+        (n, S, K) weights λ (may be a broadcast view).
+
+    Returns
+    -------
         (gq, gdq, gddq), each (n, S, K): ``gq[j, s] = λ_sᵀ ∂τ/∂q_j``; likewise ∂/∂q̇ (None without
         velocity) and ∂/∂q̈ (= (M λ_s)_j).
 
@@ -207,7 +212,8 @@ def _vjp_rows(C: _Consts, P: _Pass, lam: np.ndarray) -> tuple:
 def _jacobians_into(C: _Consts, P: _Pass, work, du_dq, du_ddq, M) -> None:
     """∂u/∂q, ∂u/∂q̇ and ∂u/∂q̈ = M of a finished pass with velocity into du_dq, du_ddq, M, each
     (K, n, n) with ``[k, i, j] = ∂u_i/∂x_j``. From ``JAC_MIN_K`` samples on, by :func:`_jac` in
-    ``work`` (:func:`_jac_work`); below, fewer numpy calls with all seeds on all bodies."""
+    ``work`` (:func:`_jac_work`); below, fewer numpy calls with all seeds on all bodies.
+    """
     n, K = P.q.shape
     if work is None or K < JAC_MIN_K:
         Gs = _vjp(C, P, np.broadcast_to(np.eye(n)[:, :, None], (n, n, K)))

@@ -1,6 +1,7 @@
 """Layout and per-model constants of the :mod:`hoc_cli.dynamics` kernels: input checks, chunk
 sizes, the sample-axis-last storage with its row permutation, the joint generators D and the
-stacked constant matrices of every joint step. See the package docstring for the symbols."""
+stacked constant matrices of every joint step. See the package docstring for the symbols.
+"""
 from __future__ import annotations
 
 import weakref
@@ -224,7 +225,8 @@ def _kx(g: np.ndarray, S: int) -> np.ndarray:
 def _cos_sin(q: np.ndarray, out: np.ndarray | None = None):
     """(cos q, sin q) from t = tan(q/2): c = (1 − t²)/(1 + t²), s = 2t/(1 + t²); within
     3e-16 of np.cos/np.sin (checked for |q| ≤ 1000 rad) and about 3× faster than calling both.
-    With ``out`` (2, ...) the pair is written there."""
+    With ``out`` (2, ...) the pair is written there.
+    """
     t = np.tan(0.5 * q)
     t2 = t * t
     d = 1.0 / (1.0 + t2)

@@ -1,7 +1,8 @@
 """The Newton-Euler passes of :mod:`hoc_cli.dynamics`: motions root to leaves (``_forward``),
 body forces of all bodies at once (``_forces``), subtree force sums leaves to root
 (``_backward``), and what is read off a finished pass (torques, mass matrix). See
-:mod:`._layout` for the storage of a pass."""
+:mod:`._layout` for the storage of a pass.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +25,8 @@ class _Pass:
 
 def _forward(C: _Consts, q, dq, acc, gravity: bool, cols: bool) -> _Pass:
     """Motions of every body, root to leaves. ``dq`` None: no velocity channel; ``acc`` None and
-    no gravity: no acceleration channel; ``cols``: carry the n unit joint accelerations too."""
+    no gravity: no acceleration channel; ``cols``: carry the n unit joint accelerations too.
+    """
     n, K = q.shape
     P = _Pass()
     P.q, P.dq, P.K = q, dq, K
@@ -120,7 +122,8 @@ def _backward(C: _Consts, P: _Pass) -> None:
 
 def _mass_from(C: _Consts, P: _Pass, out: np.ndarray) -> None:
     """M (K, n, n) into ``out`` from the column channels of a finished pass: row i of the force
-    at joint i holds M[i, j] for the ancestors j of i, the rest follows by symmetry (0 off-branch)."""
+    at joint i holds M[i, j] for the ancestors j of i, the rest follows by symmetry (0 off-branch).
+    """
     off = int(P.ha)
     R = P.FF[C.ar, C.zrow, off:off + C.n].transpose(2, 0, 1)  # (K, i, j)
     np.copyto(out, np.where(C.desc_mask, R.transpose(0, 2, 1), 0.0))

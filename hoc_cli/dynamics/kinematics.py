@@ -29,7 +29,8 @@ from ._layout import _cos_sin, _inputs, _shape_out
 
 def _body_poses(model: RobotModel, qT: np.ndarray, bodies) -> dict[int, np.ndarray]:
     """Pose (K, 4, 4) in the root frame of each body in ``bodies`` (parents listed before their
-    children, every ancestor of a listed body listed too), from positions qT (n, K)."""
+    children, every ancestor of a listed body listed too), from positions qT (n, K).
+    """
     K = qT.shape[1]
     c, s = _cos_sin(qT)
     body: dict[int, np.ndarray] = {}
@@ -71,7 +72,8 @@ def _chain(model: RobotModel, b: int) -> list[int]:
 
 def _chain_jacobian(model: RobotModel, qT: np.ndarray, link: str):
     """(chain, Jc (K, 6, m)): the root-to-link chain of bodies and the Jacobian's columns for
-    them (the other columns are zero); m = 0 for a link on the fixed base."""
+    them (the other columns are zero); m = 0 for a link on the fixed base.
+    """
     b, offset = _link(model, link)
     K = qT.shape[1]
     if b < 0:

@@ -1,4 +1,4 @@
-"""CSV trajectories: ``t,q.<joint>…,dq.<joint>…,ddq.<joint>…,u.<joint>…`` (SPEC.md, Outputs).
+r"""CSV trajectories: ``t,q.<joint>…,dq.<joint>…,ddq.<joint>…,u.<joint>…`` (README, Outputs).
 
 One header row, then one row per sample (K rows). Columns: t [s]; q [rad or m]; q̇ [rad/s or m/s];
 q̈ [rad/s² or m/s²]; u [N·m or N], joints in task order within each group. Every float is written

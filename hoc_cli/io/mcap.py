@@ -1,4 +1,4 @@
-"""MCAP plan files that Foxglove, ``ros2 bag play`` and hoc itself can read (SPEC.md, Outputs).
+"""MCAP plan files that Foxglove, ``ros2 bag play`` and hoc itself can read (README, Outputs).
 
 Layout of a file written by :func:`write_mcap` (profile ``ros2``, CDR messages, zstd chunks):
 
@@ -96,7 +96,7 @@ def time_ns(t: np.ndarray) -> np.ndarray:
 
 
 def urdf_tf_parents(urdf_text: str) -> dict[str, str]:
-    """child link → parent link for every ``<joint>`` of a URDF document (the /tf tree)."""
+    """Child link → parent link for every ``<joint>`` of a URDF document (the /tf tree)."""
     root = ET.fromstring(urdf_text)
     parents = {}
     for joint in root.findall("joint"):
@@ -321,7 +321,7 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
                 (states if channel.topic == TOPIC_JOINT_STATES else accels).append((message.log_time, msg))
     except InputFileError:
         raise
-    except (InvalidMagic, EndOfFile) as exc:
+    except (InvalidMagic, EndOfFile):
         raise InputFileError("not an MCAP file (expected an MCAP plan written by hoc)", file=path) from None
     except (McapError, *_READ_ERRORS) as exc:
         raise InputFileError(f"damaged or truncated MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None

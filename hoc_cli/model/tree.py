@@ -25,7 +25,8 @@ JOINT_TYPES = ("revolute", "continuous", "prismatic")
 class RobotModel:
     """A fixed-base rigid-body tree ready for batched dynamics (SI units).
 
-    Attributes:
+    Attributes
+    ----------
         name: robot name from the URDF.
         joint_names: (n,) movable joints in model order (= task order; sample arrays ``(K, n)``
             use this column order).

@@ -48,24 +48,32 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
                gravity=(0.0, 0.0, -9.81), *, label: str | None = None) -> RobotModel:
     """Read a URDF into a :class:`RobotModel`.
 
-    Args:
-        path: URDF file.
-        joints: movable joints that become degrees of freedom, in the order wanted for the
-            ``(K, n)`` sample arrays; default: every revolute, continuous and prismatic non-mimic
-            joint in URDF tree order (depth-first from the root, children in document order).
-        locked: value (rad or m) of locked movable joints (every movable joint not in ``joints``;
-            default 0.0). Mimic joints are always locked (see the module docstring).
-        gravity: (3,) m/s² in the root-link frame.
-        label: what messages call the file (default: ``path``), e.g. ``plan.mcap: attachment
-            robot.urdf`` for a URDF extracted to a scratch file.
+    Parameters
+    ----------
+    path
+        URDF file.
+    joints
+        movable joints that become degrees of freedom, in the order wanted for the
+        ``(K, n)`` sample arrays; default: every revolute, continuous and prismatic non-mimic
+        joint in URDF tree order (depth-first from the root, children in document order).
+    locked
+        value (rad or m) of locked movable joints (every movable joint not in ``joints``;
+        default 0.0). Mimic joints are always locked (see the module docstring).
+    gravity
+        (3,) m/s² in the root-link frame.
+    label
+        what messages call the file (default: ``path``), e.g. ``plan.mcap: attachment
+        robot.urdf`` for a URDF extracted to a scratch file.
 
-    Raises:
-        ModelError: naming the file and the joint or link at fault, for a missing or malformed
-            file, a floating/planar joint, a cycle, several roots, a negative mass, an inertia that
-            is not positive semidefinite, a movable joint whose subtree has no mass or no inertia
-            about its axis (a singular mass matrix). A ``joints``, ``locked`` or ``gravity`` value that
-            does not fit the URDF raises the subclass :class:`JointSelectionError`, whose
-            ``task_key`` names the task key at fault (``joints[1]``, ``locked.wrist``, ``gravity``).
+    Raises
+    ------
+    ModelError
+        naming the file and the joint or link at fault, for a missing or malformed
+        file, a floating/planar joint, a cycle, several roots, a negative mass, an inertia that
+        is not positive semidefinite, a movable joint whose subtree has no mass or no inertia
+        about its axis (a singular mass matrix). A ``joints``, ``locked`` or ``gravity`` value that
+        does not fit the URDF raises the subclass :class:`JointSelectionError`, whose
+        ``task_key`` names the task key at fault (``joints[1]``, ``locked.wrist``, ``gravity``).
     """
     robot, path, src = _read(path, label)
     root, children, links = _check(robot, src)
@@ -289,7 +297,8 @@ def urdf_joint_table(path, *, label: str | None = None) -> list[dict]:
 
 def urdf_link_table(path, *, label: str | None = None) -> list[dict]:
     """Every URDF link as written, in document order: ``name``, ``mass`` (kg) and ``com`` (3 floats,
-    m, centre of mass in the link frame). Raises ModelError like :func:`load_robot`."""
+    m, centre of mass in the link frame). Raises ModelError like :func:`load_robot`.
+    """
     robot, _, name = _read(path, label)
     _check(robot, name)
     rows = []

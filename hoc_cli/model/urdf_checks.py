@@ -196,7 +196,8 @@ def _check_joint_values(joint, path: str, key: str) -> None:
 
 def _cycle(start: str, parent_joint: dict[str, str], joints: list) -> list[str]:
     """The joints of the cycle reached by walking up from link ``start`` (every link on the way has a
-    parent joint), in document order: the last one is the joint that closes it, the one to blame."""
+    parent joint), in document order: the last one is the joint that closes it, the one to blame.
+    """
     by_name = {j.name: j for j in joints}
     path: list[str] = []
     seen: dict[str, int] = {}

@@ -78,7 +78,8 @@ class Robot:
 
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """(3, 3) rotation Rz(yaw) · Ry(pitch) · Rx(roll) (fixed-axis x, then y, then z); NaN entries for
-    a non-finite angle (reported by the caller's finiteness checks)."""
+    a non-finite angle (reported by the caller's finiteness checks).
+    """
     with np.errstate(invalid="ignore"):
         cr, sr, cp, sp, cy, sy = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
                                   np.cos(yaw), np.sin(yaw))
@@ -177,9 +178,11 @@ def _link(element: ET.Element) -> Link:
 def parse_robot(root: ET.Element) -> Robot:
     """The links and joints of a parsed ``<robot>`` element, in document order.
 
-    Raises:
-        UrdfSyntaxError: a link or joint lacks a name, a joint its parent or child, or a number
-            does not parse.
+    Raises
+    ------
+    UrdfSyntaxError
+        a link or joint lacks a name, a joint its parent or child, or a number
+        does not parse.
     """
     return Robot(name=root.get("name"), links=[_link(e) for e in root.findall("link")],
                  joints=[_joint(e) for e in root.findall("joint")])

@@ -1,5 +1,6 @@
 """CLI overrides of task keys (``-N``, ``--order``, ``-T``, ``--tol``, ``--max-iter``...), validated by the
-same key checkers as the task file; an error names the option instead of the key."""
+same key checkers as the task file; an error names the option instead of the key.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace

@@ -1,5 +1,6 @@
 """Joint-indexed task values (lists in task joint order, or name → value mappings) as arrays in a model's
-joint order."""
+joint order.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
