@@ -76,7 +76,8 @@ def hoc_side(task, N: int, acceleration: float | None = None) -> dict | None:
     the first time the fine mesh's iterate has J within 1e-6 of the final J and, if ``IterLog``
     carries a ``violation`` (max limit excess, absolute), that violation <= 1e-8; without that field
     feasibility is not checked per iteration.
-    Returns {J, wall, t_to_tol, iterations, converged}.
+    Returns {J, wall, t_to_tol, iterations, converged, q}: q(t) -> (m, n) the plan's positions, compared
+    with IPOPT's collocation polynomials (max |Δq| is printed).
     """
     if "limits" not in inspect.signature(plan).parameters:
         return None
@@ -92,12 +93,16 @@ def hoc_side(task, N: int, acceleration: float | None = None) -> dict | None:
     r = plan(RobotSystem(model), HermiteMesh(task.order, task.T, N), st.q0, st.dq0, st.q1, st.dq1, cost=task.cost,
              method=task.method, tol=task.tol, max_iter=task.max_iter, limits=limits, callback=record)
     return dict(J=r.J, wall=r.wall_time_s, t_to_tol=time_to_tol(rows, r.J, level=N),
-                iterations=r.optimizer.iterations, converged=r.converged)
+                iterations=r.optimizer.iterations, converged=r.converged,
+                q=lambda t: r.mesh.evaluate(r.coeffs, t, 0))
 # =========================================================================== end of the hoc side
 
 
 def hoc_unconstrained(task, N: int) -> float:
-    """hoc's J for the unconstrained problem (today's plan, no limits) on N elements."""
+    """hoc's J for the unconstrained problem (today's plan, no limits) on N elements.
+
+    INTEGRATOR: once ``plan`` takes ``limits=``, pass here whatever means "report" (no enforcement);
+    None is assumed."""
     task, model, st = il.load(task)
     kw = {"limits": None} if "limits" in inspect.signature(plan).parameters else {}
     r = plan(RobotSystem(model), HermiteMesh(task.order, task.T, N), st.q0, st.dq0, st.q1, st.dq1, cost=task.cost,
@@ -141,12 +146,16 @@ def run_task(path: Path, Ns: list[int], d: int, acceleration: float | None, repe
     for N in Ns:
         r = il.solve(path, N, d=d, acceleration=acceleration, repeat=repeat)
         h = hoc_side(path, N, acceleration)
+        if h:
+            tt = np.linspace(0.0, task.T, 1001)
+            h["gap"] = float(np.abs(h.pop("q")(tt) - r.interpolate(tt)[0]).max())
         rows.append(dict(task=path.name, N=N, d=d, J=r.J, wall=r.wall, t_to_tol=r.t_to_tol, setup=r.setup,
                          iterations=r.iterations, status=r.status, violation=r.max_violation,
                          unknowns=r.n_unknowns, active=r.active, J_free=free.J, hoc=h))
         say(f"  IPOPT N={N:<4d} d={d} J = {r.J:.10f}  {r.status}  it {r.iterations:3d}  solve {r.wall:6.2f} s  "
             f"to 1e-6 {r.t_to_tol:6.2f} s  setup {r.setup:5.1f} s  violation {r.max_violation:.0e}  "
-            f"active limits {len(r.active)}" + (f"   hoc J = {h['J']:.10f}" if h else ""))
+            f"active limits {len(r.active)}" + (f"   hoc J = {h['J']:.10f}, max|q_hoc − q_IPOPT| = "
+                                                  f"{h['gap']:.1e} rad" if h else ""))
     J = [row["J"] for row in rows]
     for k in range(1, len(J)):
         p = ""
@@ -182,8 +191,8 @@ def main() -> None:
 
     say(f"\n== summary: time to J within {RTOL:.0e} of each method's own converged J, feasible to {FEAS:.0e} ==")
     head = (f"{'task':18s} {'N':>4s} {'IPOPT J':>16s} {'IPOPT [s]':>9s} {'to 1e-6':>8s} {'active':>6s} "
-            f"{'hoc J':>16s} {'hoc [s]':>8s} {'to 1e-6':>8s} {'ΔJ/J':>8s} {'time':>6s} {'to 1e-6':>7s}")
-    say(head + "\n" + " " * 84 + "hoc/IPOPT ratios ↑")
+            f"{'hoc J':>16s} {'hoc [s]':>8s} {'to 1e-6':>8s} {'ΔJ/J':>8s} {'max|Δq|':>8s} {'time':>6s} {'to 1e-6':>7s}")
+    say(head + "\n" + " " * 93 + "hoc/IPOPT ratios ↑")
     say("-" * len(head))
     for r in rows:
         h = r["hoc"] or {}
@@ -192,7 +201,7 @@ def main() -> None:
         ratio_t = h["t_to_tol"] / r["t_to_tol"] if h else None
         say(f"{r['task']:18s} {r['N']:4d} {r['J']:16.10f} {r['wall']:9.3f} {r['t_to_tol']:8.3f} {len(r['active']):6d} "
             f"{fmt(h.get('J'), '16.10f'):>16s} {fmt(h.get('wall'), '8.3f'):>8s} {fmt(h.get('t_to_tol'), '8.3f'):>8s} "
-            f"{fmt(dJ, '8.1e'):>8s} {fmt(ratio, '6.2f'):>6s} {fmt(ratio_t, '7.2f'):>7s}")
+            f"{fmt(dJ, '8.1e'):>8s} {fmt(h.get('gap'), '8.1e'):>8s} {fmt(ratio, '6.2f'):>6s} {fmt(ratio_t, '7.2f'):>7s}")
     say(f"\n(IPOPT: flipped Radau degree {args.d}, N intervals; hoc: the task's order, N elements. "
         f"Total {time.perf_counter() - started:.0f} s)")
     if args.json:

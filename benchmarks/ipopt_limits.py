@@ -149,6 +149,27 @@ class Result:
     active: list = field(default_factory=list)   # [{joint, kind, side, intervals: [[t0, t1], ...]}]
     history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (iterations+1, 3): time, J, violation
     n_unknowns: int = 0
+    tau: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (d,) collocation points on (0, 1]
+
+    def interpolate(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """q, q̇ (m, n) at times t (m,) in [0, T]: the collocation polynomials of degree d through each
+        interval's start state and its d collocation states (Lagrange basis)."""
+        t = np.asarray(t, float)
+        h = self.t_nodes[1] - self.t_nodes[0]
+        k = np.clip(np.floor(t / h).astype(int), 0, self.K - 1)
+        s = t / h - k
+        nodes = np.r_[0.0, self.tau]
+        basis = np.ones((t.size, self.d + 1))
+        for r in range(self.d + 1):
+            for m in range(self.d + 1):
+                if m != r:
+                    basis[:, r] *= (s - nodes[m]) / (nodes[r] - nodes[m])
+        n = self.q.shape[1]
+        out = []
+        for start, coll in ((self.q_nodes, self.q), (self.dq_nodes, self.dq)):
+            V = np.concatenate([start[:-1, None, :], coll.reshape(self.K, self.d, n)], axis=1)  # (K, d+1, n)
+            out.append(np.einsum("mr,mrn->mn", basis, V[k]))
+        return out[0], out[1]
 
 
 class _Recorder(ca.Callback):
@@ -247,6 +268,7 @@ class LimitedCollocation:
         self.x0, self.x1 = np.r_[q0, dq0], np.r_[q1, dq1]
         h = T / K
         tau, D, B, E = collocation(d, scheme)
+        self.tau = tau
         self.times = (np.arange(K)[:, None] + tau[None, :]).ravel() * h  # (K d,)
         self.t_nodes = np.arange(K + 1) * h
         ID, _, quad = CasadiRobot(model).functions()
@@ -351,7 +373,7 @@ class LimitedCollocation:
                      t_to_tol_stay=float(hist[stay, 0]) if stay >= 0 else np.nan, it_to_tol=first,
                      max_violation=violation(x, g, self.lbx, self.ubx, self.lbg, self.ubg, self.eq),
                      K=self.K, d=self.d, scheme=self.scheme, cost=self.cost, t=self.times, u=u,
-                     t_nodes=self.t_nodes, history=hist, n_unknowns=self.n_unknowns, **p)
+                     t_nodes=self.t_nodes, history=hist, n_unknowns=self.n_unknowns, tau=self.tau, **p)
         res.active = active_limits(self.model.joint_names, self.limits, res)
         return res
 
