@@ -6,7 +6,8 @@ Run:  python benchmarks/bench_limits.py              (3 tasks × N = 16, 32, 64;
 
 Tasks: configs/lbr7_swing.yaml, configs/dual_arm.yaml and benchmarks/tasks/ur5_limits.yaml (a UR5
 from example-robot-data, its path resolved at run time), each with its URDF limits (position,
-velocity, effort; no acceleration limit unless ``--acceleration``), the task's cost.
+velocity, effort; no acceleration limit unless ``--acceleration``), the task's cost (``--cost torque``
+to change it, e.g. ``--task configs/lbr7_reach.yaml --cost torque --skip-free``).
 
 IPOPT side (benchmarks/ipopt_limits.py): flipped-Radau collocation, N intervals of degree d, the
 limits imposed at every collocation node; exact Hessian, MUMPS, tol 1e-10. Columns: J, the solver
@@ -43,6 +44,7 @@ import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hoc_cli.elements import HermiteMesh  # noqa: E402
+from hoc_cli.io.task import apply_overrides  # noqa: E402
 from hoc_cli.planner import plan  # noqa: E402
 from hoc_cli.system import RobotSystem  # noqa: E402
 
@@ -118,19 +120,14 @@ def say(*args) -> None:
     print(*args, flush=True)
 
 
-def run_task(path: Path, Ns: list[int], d: int, acceleration: float | None, repeat: int) -> list[dict]:
-    task, model, _ = il.load(path)
-    limits = il.Limits.from_model(model, acceleration=acceleration)
-    say(f"\n== {path.name}: {model.n} joints, T = {task.T} s, cost {task.cost}, robot {task.robot.name} ==")
-    say(f"CasADi RNEA, M, wᵀMw vs hoc_cli.dynamics: max relative difference {check_dynamics(model):.1e}")
-    lim = [f"{k} {int(np.isfinite(limits.bounds(k)[1]).sum())}" for k in il.KINDS]
-    say("joints with a limit: " + ", ".join(lim))
-
-    # the same problem: unconstrained IPOPT on the finest mesh beside hoc's unconstrained plan
-    free = il.solve(path, Ns[-1], limits=None, d=d)
-    J_hoc = hoc_unconstrained(path, max(Ns[-1], 32))
-    say(f"unconstrained: IPOPT N={Ns[-1]} d={d} J = {free.J:.10f} ({free.status}); hoc quintic "
-        f"N={max(Ns[-1], 32)} J = {J_hoc:.10f}; |ΔJ|/J = {abs(free.J - J_hoc) / abs(J_hoc):.1e}")
+def free_check(task, model, limits: il.Limits, N: int, d: int) -> None:
+    """The same problem: unconstrained IPOPT on N intervals beside hoc's unconstrained plan; and how
+    far that optimum breaks the limits."""
+    free = il.solve(task, N, limits=None, d=d)
+    N_hoc = max(N, 32)
+    J_hoc = hoc_unconstrained(task, N_hoc)
+    say(f"unconstrained: IPOPT N={N} d={d} J = {free.J:.10f} ({free.status}); hoc quintic "
+        f"N={N_hoc} J = {J_hoc:.10f}; |ΔJ|/J = {abs(free.J - J_hoc) / abs(J_hoc):.1e}")
     excess = {}  # the unconstrained optimum's worst excess over each kind of limit, relative to the limit
     series = {"position": free.q, "velocity": free.dq, "acceleration": free.ddq, "effort": free.u}
     for k, X in series.items():
@@ -142,16 +139,30 @@ def run_task(path: Path, Ns: list[int], d: int, acceleration: float | None, repe
     say("unconstrained optimum's worst excess over the limits (relative to the limit): "
         + (", ".join(f"{k} {v:.3f}" for k, v in excess.items()) if excess else "none (no limit is broken)"))
 
+
+def run_task(path: Path, Ns: list[int], d: int, acceleration: float | None, repeat: int, cost: str | None = None,
+             skip_free: bool = False) -> list[dict]:
+    task = apply_overrides(il.load_task(path), cost=cost)
+    task, model, _ = il.load(task)
+    limits = il.Limits.from_model(model, acceleration=acceleration)
+    say(f"\n== {path.name}: {model.n} joints, T = {task.T} s, cost {task.cost}, robot {task.robot.name} ==")
+    say(f"CasADi RNEA, M, wᵀMw vs hoc_cli.dynamics: max relative difference {check_dynamics(model):.1e}")
+    lim = [f"{k} {int(np.isfinite(limits.bounds(k)[1]).sum())}" for k in il.KINDS]
+    say("joints with a limit: " + ", ".join(lim))
+
+    if not skip_free:
+        free_check(task, model, limits, Ns[-1], d)
+
     rows = []
     for N in Ns:
-        r = il.solve(path, N, d=d, acceleration=acceleration, repeat=repeat)
-        h = hoc_side(path, N, acceleration)
+        r = il.solve(task, N, d=d, acceleration=acceleration, repeat=repeat)
+        h = hoc_side(task, N, acceleration)
         if h:
             tt = np.linspace(0.0, task.T, 1001)
             h["gap"] = float(np.abs(h.pop("q")(tt) - r.interpolate(tt)[0]).max())
         rows.append(dict(task=path.name, N=N, d=d, J=r.J, wall=r.wall, t_to_tol=r.t_to_tol, setup=r.setup,
                          iterations=r.iterations, status=r.status, violation=r.max_violation,
-                         unknowns=r.n_unknowns, active=r.active, J_free=free.J, hoc=h))
+                         unknowns=r.n_unknowns, active=r.active, hoc=h))
         say(f"  IPOPT N={N:<4d} d={d} J = {r.J:.10f}  {r.status}  it {r.iterations:3d}  solve {r.wall:6.2f} s  "
             f"to 1e-6 {r.t_to_tol:6.2f} s  setup {r.setup:5.1f} s  violation {r.max_violation:.0e}  "
             f"active limits {len(r.active)}" + (f"   hoc J = {h['J']:.10f}, max|q_hoc − q_IPOPT| = "
@@ -179,6 +190,8 @@ def main() -> None:
     ap.add_argument("--d", type=int, default=3, help="collocation degree per interval (default 3)")
     ap.add_argument("--acceleration", type=float, help="a uniform acceleration limit [rad/s²] (default: none)")
     ap.add_argument("--repeat", type=int, default=3, help="IPOPT solves per mesh, the fastest counts (default 3)")
+    ap.add_argument("--cost", choices=("covariant", "torque"), help="override the tasks' cost")
+    ap.add_argument("--skip-free", action="store_true", help="skip the unconstrained IPOPT-vs-hoc check")
     ap.add_argument("--json", type=Path, help="write the figures to this file")
     args = ap.parse_args()
     Ns = args.N or ([16, 32] if args.quick else [16, 32, 64])
@@ -187,7 +200,8 @@ def main() -> None:
         f"hoc {'takes' if 'limits' in inspect.signature(plan).parameters else 'does NOT yet take'} limits=")
     rows = []
     for path in [Path(t) for t in args.task] if args.task else TASKS:
-        rows += run_task(path, Ns, args.d, args.acceleration, 1 if args.quick else args.repeat)
+        rows += run_task(path, Ns, args.d, args.acceleration, 1 if args.quick else args.repeat, args.cost,
+                         args.skip_free)
 
     say(f"\n== summary: time to J within {RTOL:.0e} of each method's own converged J, feasible to {FEAS:.0e} ==")
     head = (f"{'task':18s} {'N':>4s} {'IPOPT J':>16s} {'IPOPT [s]':>9s} {'to 1e-6':>8s} {'active':>6s} "
