@@ -43,6 +43,7 @@ from pathlib import Path  # noqa: E402
 import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hoc_cli.constraints import JointLimits  # noqa: E402
 from hoc_cli.elements import HermiteMesh  # noqa: E402
 from hoc_cli.io.task import apply_overrides  # noqa: E402
 from hoc_cli.planner import plan  # noqa: E402
@@ -70,45 +71,31 @@ def time_to_tol(rows, J_final: float, level: int | None = None) -> float:
 
 # =========================================================================== HOC SIDE
 def hoc_side(task, N: int, acceleration: float | None = None) -> dict | None:
-    """hoc's constrained plan of ``task`` on N elements, or None while hoc has no ``limits=``.
+    """hoc's plan of ``task`` on N elements with the same limits IPOPT gets (``JointLimits``).
 
-    INTEGRATOR: this calls ``hoc_cli.planner.plan(..., limits=...)`` with an ``ipopt_limits.Limits``
-    (arrays (n,) lower, upper, velocity, acceleration, effort; ±inf = none), the same limits IPOPT
-    gets; adapt the ``limits=`` value to hoc's own type. Time to 1e-6 uses the iteration callback:
-    the first time the fine mesh's iterate has J within 1e-6 of the final J and, if ``IterLog``
-    carries a ``violation`` (max limit excess, absolute), that violation <= 1e-8; without that field
-    feasibility is not checked per iteration.
-    Returns {J, wall, t_to_tol, iterations, converged, q}: q(t) -> (m, n) the plan's positions, compared
-    with IPOPT's collocation polynomials (max |Δq| is printed).
+    Time to 1e-6: hoc's iterates are only certified feasible when its augmented-Lagrangian loop
+    stops (the exact check of every element), so the whole solve time is reported: an upper bound.
+    Returns {J, wall, t_to_tol, iterations, converged, q}: q(t) -> (m, n) the plan's positions.
     """
-    if "limits" not in inspect.signature(plan).parameters:
-        return None
     task, model, st = il.load(task)
-    limits = il.Limits.from_model(model, acceleration=acceleration)
-    rows: list[tuple[float, float, int, float]] = []
-    start = time.perf_counter()
-
-    def record(log) -> None:
-        rows.append((time.perf_counter() - start, log.J, log.level, float(getattr(log, "violation", 0.0))))
-
-    start = time.perf_counter()
+    lim = il.Limits.from_model(model, acceleration=acceleration)
+    limits = JointLimits.from_arrays(model.joint_names, lim.lower, lim.upper, lim.velocity, lim.acceleration, lim.effort)
     r = plan(RobotSystem(model), HermiteMesh(task.order, task.T, N), st.q0, st.dq0, st.q1, st.dq1, cost=task.cost,
-             method=task.method, tol=task.tol, max_iter=task.max_iter, limits=limits, callback=record)
-    return dict(J=r.J, wall=r.wall_time_s, t_to_tol=time_to_tol(rows, r.J, level=N),
-                iterations=r.optimizer.iterations, converged=r.converged,
-                q=lambda t: r.mesh.evaluate(r.coeffs, t, 0))
+             method=task.method, tol=task.tol, max_iter=task.max_iter, limits=limits)
+    return dict(J=r.J, wall=r.wall_time_s, t_to_tol=r.wall_time_s, iterations=r.optimizer.iterations,
+                converged=r.converged, q=lambda t: r.mesh.evaluate(r.coeffs, t, 0))
+
+
 # =========================================================================== end of the hoc side
 
 
 def hoc_unconstrained(task, N: int) -> float:
     """hoc's J for the unconstrained problem (today's plan, no limits) on N elements.
 
-    INTEGRATOR: once ``plan`` takes ``limits=``, pass here whatever means "report" (no enforcement);
-    None is assumed."""
+    ``limits=None`` is the paper's unconstrained problem (``--limits report``)."""
     task, model, st = il.load(task)
-    kw = {"limits": None} if "limits" in inspect.signature(plan).parameters else {}
     r = plan(RobotSystem(model), HermiteMesh(task.order, task.T, N), st.q0, st.dq0, st.q1, st.dq1, cost=task.cost,
-             method=task.method, tol=1e-12, **kw)
+             method=task.method, tol=1e-12, limits=None)
     return r.J
 
 
