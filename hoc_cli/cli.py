@@ -67,6 +67,8 @@ def plan(
     method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | newton.")] = None,
     cost: Annotated[Optional[str], typer.Option("--cost", help="Override the cost: covariant | torque.")] = None,
     init: Annotated[Optional[Path], typer.Option("--init", help="Warm start from an earlier plan's MCAP.")] = None,
+    starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; keep the lowest-J converged plan.")] = 1,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts).")] = 0,
     debug: DebugOpt = False,
 ) -> None:
     """Solve the optimal-control task and write q(t), u(t).
@@ -79,8 +81,34 @@ def plan(
         lambda: cmd.run(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost),
-            init=init,
+            init=init, starts=starts, seed=seed,
         ),
+        debug=debug,
+    )
+    raise typer.Exit(code)
+
+
+@app.command()
+def batch(
+    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml | TASK.yaml...", help="A batch spec (base task + sweep, or a list of task files), or task files / globs.")],
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). Default: <spec stem>_batch.")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster (default: one per core).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Keep the rows already in DIR/results.parquet and solve only the plans not in it.")] = False,
+    json_: JsonOpt = False,
+    quiet: QuietOpt = False,
+    progress: ProgressOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Solve many plans on Dask (a local cluster by default) and tabulate them in DIR/results.parquet and .csv.
+
+    Example: hoc batch sweep.yaml -o sweep_results --workers 2
+    """
+    from hoc_cli.commands import batch as cmd
+
+    code = run_guarded(
+        lambda: cmd.run(spec, out_dir=output, workers=workers, scheduler=scheduler, resume=resume, as_json=json_,
+                        quiet=quiet, progress=progress),
         debug=debug,
     )
     raise typer.Exit(code)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from hoc_cli import __version__
 from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, output_transaction, parse_outputs, print_json, stderr_console
 from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import InputFileError, OutputError
+from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.limits import dense_times, limit_violations
 from hoc_cli.planner import PlanResult, plan
@@ -21,15 +22,14 @@ from hoc_cli.trajectory import Trajectory, sample_times
 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
-        progress: bool = False, overrides: dict | None = None, init: Path | None = None) -> int:
-    from hoc_cli.model import load_robot
-
+        progress: bool = False, overrides: dict | None = None, init: Path | None = None, starts: int = 1,
+        seed: int = 0) -> int:
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
+    _check_starts(starts, seed, init)
     targets = parse_outputs(outputs, task.stem)
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
-    model = load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                       gravity=task.gravity)
+    model = load_model(task)
     states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
@@ -45,11 +45,15 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                           f"dec {log.decrement:.1e}  evals {log.n_evals:4d} {time.perf_counter() - start:6.2f}s",
                           highlight=False, soft_wrap=True)
 
-    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
-        result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
-                      method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report)
+    def report_start(o) -> None:
+        if show:
+            console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
+                          f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
+
+    result, multi = solve(task, model, states, mesh, C_init=C_init, callback=report, starts=starts, seed=seed,
+                          client=_starts_pool if starts > 1 else None, on_start=report_start)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
-    summary = summarise(task, model, result, states)
+    summary = summarise(task, model, result, states) | starts_summary(multi, seed)
     with output_transaction():  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
                                            summary=_reproducible(summary))
@@ -62,6 +66,70 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
+
+
+def load_model(task: Task):
+    """The task's robot model (URDF with its joint selection, locked joints and gravity)."""
+    from hoc_cli.model import load_robot
+
+    return load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
+                      gravity=task.gravity)
+
+
+def solve(task: Task, model, states, mesh: HermiteMesh, *, C_init: np.ndarray | None = None, callback=None,
+          starts: int = 1, seed: int = 0, client=None, on_start=None):
+    """Solve the task: (PlanResult, None), or with ``starts`` > 1 (the best start's result, MultiStartResult).
+
+    ``client``, ``on_start``: see ``hoc_cli.multistart.solve_starts``.
+    """
+    options = dict(cost=task.cost, method=task.method, tol=task.tol, max_iter=task.max_iter)
+    system = RobotSystem(model)
+    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+        if starts <= 1:
+            return plan(system, mesh, states.q0, states.dq0, states.q1, states.dq1, C_init=C_init, callback=callback,
+                        **options), None
+        from hoc_cli.multistart import solve_starts
+
+        multi = solve_starts(system, mesh, states.q0, states.dq0, states.q1, states.dq1, starts=starts, seed=seed,
+                             client=client, on_start=on_start, **options)
+    return multi.best, multi
+
+
+def starts_summary(multi, seed: int) -> dict:
+    """Summary keys of a multi-start solve: the kept start and every start's J and status ({} for one start)."""
+    if multi is None:
+        return {}
+    return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
+
+
+def _check_starts(starts: int, seed: int, init: Path | None) -> None:
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+        raise TaskError(f"expected an integer >= 1, got {starts!r}", key="--starts")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
+    if starts > 1 and init is not None:
+        raise TaskError("--starts cannot be combined with --init (a warm start is a single start)", key="--starts")
+
+
+#: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would
+#: take longer than this serially (the cluster costs about 2-3 s to start) and there is more than one core
+PARALLEL_STARTS_MIN_S = 5.0
+
+
+@contextmanager
+def _starts_pool(t0: float, remaining: int):
+    """A Dask client for the remaining starts, or None (serial); see ``PARALLEL_STARTS_MIN_S``."""
+    import os
+
+    from hoc_cli.batch.engine import available_cores, connect
+
+    cores = available_cores()
+    scheduler = os.environ.get("DASK_SCHEDULER_ADDRESS")
+    if not scheduler and (cores < 2 or remaining < 2 or t0 * remaining < PARALLEL_STARTS_MIN_S):
+        yield None
+        return
+    with connect(workers=min(cores, remaining), scheduler=scheduler) as client:
+        yield client
 
 
 def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
@@ -125,6 +193,10 @@ def summary_table(summary: dict) -> Table:
     viol = summary["limit_violations"]
     table.add_row("limit violations", "none" if not viol else "; ".join(
         f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol))
+    if "starts" in summary:
+        table.add_row("starts", "; ".join(
+            f"{o['start']}{'*' if o['start'] == summary['best_start'] else ''} "
+            f"{'-' if o['cost'] is None else format(o['cost'], '.6g')} {o['status']}" for o in summary["starts"]))
     table.add_row("outputs", ", ".join(summary["outputs"]))
     return table
 
