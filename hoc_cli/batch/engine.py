@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import uuid
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence
@@ -50,14 +51,33 @@ def connect(workers: int | None = None, scheduler: str | None = None) -> Iterato
         finally:
             client.close()
         return
-    cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
-                           host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
-                           scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
+    with _sigint_ignored():  # the workers inherit it: Ctrl-C on a terminal reaches only hoc, which cancels
+        cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                               scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
     try:
         with Client(cluster, set_as_default=False) as client:
             yield client
     finally:
         cluster.close()
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while worker processes start (a child started with SIGINT ignored keeps ignoring it).
+
+    A Ctrl-C on a terminal goes to the whole foreground process group; without this every worker
+    would print a KeyboardInterrupt traceback. The cost: a Ctrl-C during the cluster's start-up is lost.
+    """
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: nothing to do
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def threads(client: Any) -> int:
