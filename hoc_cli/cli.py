@@ -90,14 +90,14 @@ def plan(
 
 @app.command()
 def batch(
-    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml | TASK.yaml...", help="A batch spec (base task + sweep, or a list of task files), or task files / globs.")],
+    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml...", help="A batch spec (base task + sweep, or a list of task files), or task files / globs.")],
     output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). Default: <spec stem>_batch.")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster (default: one per core).")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Keep the rows already in DIR/results.parquet and solve only the plans not in it.")] = False,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
-    progress: ProgressOpt = False,
+    progress: Annotated[bool, typer.Option("--progress", help="Show the progress bar on stderr even when it is not a terminal.")] = False,
     debug: DebugOpt = False,
 ) -> None:
     """Solve many plans on Dask (a local cluster by default) and tabulate them in DIR/results.parquet and .csv.

@@ -365,6 +365,31 @@ def test_hoc_plan_starts_reports_every_start_and_keeps_the_lowest_converged(tmp_
     assert r.exit_code == 2 and "--starts" in r.output
 
 
+def test_hoc_plan_runs_the_other_starts_on_a_local_cluster_when_worth_it_with_the_same_result(tmp_path,
+                                                                                               monkeypatch):
+    from hoc_cli.commands import starts
+
+    monkeypatch.chdir(tmp_path)
+    base = write_base(tmp_path, N=8)
+    serial = json.loads(invoke("plan", base, "--starts", "3", "--seed", "4", "-o", "a.csv", "--json").stdout)
+    used = []
+    real_connect = __import__("hoc_cli.batch.engine", fromlist=["x"]).connect
+
+    def connect(**kw):
+        used.append(kw)
+        return real_connect(**kw)
+
+    monkeypatch.setattr(starts, "PARALLEL_STARTS_MIN_S", 0.0)
+    monkeypatch.setattr("hoc_cli.batch.engine.connect", connect)
+    monkeypatch.setattr("hoc_cli.batch.engine.available_cores", lambda: 2)
+    r = invoke("plan", base, "--starts", "3", "--seed", "4", "-o", "b.csv", "--json")
+    assert r.exit_code == 0, r.output
+    parallel = json.loads(r.stdout)
+    assert used == [{"workers": 2, "scheduler": None}]
+    assert parallel["starts"] == serial["starts"] and parallel["cost"] == serial["cost"]
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
 def test_a_batch_with_starts_stores_every_start_cost(client2, tmp_path):
     import hoc_cli.batch
 

@@ -49,7 +49,8 @@ def _message(exc: Exception) -> str:
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, output_transaction
     from hoc_cli.commands.outputs import write_outputs
-    from hoc_cli.commands.plan import _reproducible, load_model, sample_plan, solve, starts_summary, summarise
+    from hoc_cli.commands.plan import _reproducible, load_model, sample_plan, solve, summarise
+    from hoc_cli.commands.starts import starts_summary
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import load_task, parse_task, resolve
     from hoc_cli.system import RobotSystem

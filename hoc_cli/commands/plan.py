@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import math
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +12,7 @@ from hoc_cli import __version__
 from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, output_transaction, parse_outputs, print_json, stderr_console
 from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import InputFileError, OutputError, TaskError
+from hoc_cli.errors import InputFileError, OutputError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.limits import dense_times, limit_violations
 from hoc_cli.planner import PlanResult, plan
@@ -24,8 +23,10 @@ from hoc_cli.trajectory import Trajectory, sample_times
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None, starts: int = 1,
         seed: int = 0) -> int:
+    from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
+
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
-    _check_starts(starts, seed, init)
+    check_starts(starts, seed, init)
     targets = parse_outputs(outputs, task.stem)
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
@@ -51,7 +52,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
     result, multi = solve(task, model, states, mesh, C_init=C_init, callback=report, starts=starts, seed=seed,
-                          client=_starts_pool if starts > 1 else None, on_start=report_start)
+                          client=starts_pool if starts > 1 else None, on_start=report_start)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states) | starts_summary(multi, seed)
     with output_transaction():  # every output is replaced, or none
@@ -93,43 +94,6 @@ def solve(task: Task, model, states, mesh: HermiteMesh, *, C_init: np.ndarray | 
         multi = solve_starts(system, mesh, states.q0, states.dq0, states.q1, states.dq1, starts=starts, seed=seed,
                              client=client, on_start=on_start, **options)
     return multi.best, multi
-
-
-def starts_summary(multi, seed: int) -> dict:
-    """Summary keys of a multi-start solve: the kept start and every start's J and status ({} for one start)."""
-    if multi is None:
-        return {}
-    return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
-
-
-def _check_starts(starts: int, seed: int, init: Path | None) -> None:
-    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise TaskError(f"expected an integer >= 1, got {starts!r}", key="--starts")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
-    if starts > 1 and init is not None:
-        raise TaskError("--starts cannot be combined with --init (a warm start is a single start)", key="--starts")
-
-
-#: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would
-#: take longer than this serially (the cluster costs about 2-3 s to start) and there is more than one core
-PARALLEL_STARTS_MIN_S = 5.0
-
-
-@contextmanager
-def _starts_pool(t0: float, remaining: int):
-    """A Dask client for the remaining starts, or None (serial); see ``PARALLEL_STARTS_MIN_S``."""
-    import os
-
-    from hoc_cli.batch.engine import available_cores, connect
-
-    cores = available_cores()
-    scheduler = os.environ.get("DASK_SCHEDULER_ADDRESS")
-    if not scheduler and (cores < 2 or remaining < 2 or t0 * remaining < PARALLEL_STARTS_MIN_S):
-        yield None
-        return
-    with connect(workers=min(cores, remaining), scheduler=scheduler) as client:
-        yield client
 
 
 def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
