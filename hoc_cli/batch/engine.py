@@ -51,7 +51,13 @@ def connect(workers: int | None = None, scheduler: str | None = None) -> Iterato
         finally:
             client.close()
         return
-    with _sigint_ignored():  # the workers inherit it: Ctrl-C on a terminal reaches only hoc, which cancels
+    import dask
+
+    # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which fixes glibc's mmap threshold
+    # at 128 KiB: every larger numpy temporary is then mmapped and faulted in afresh, and hoc's solves
+    # run about 2x slower (measured: benchmarks/bench_batch.py). Unset it for hoc's workers.
+    with _sigint_ignored(), dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        # SIGINT ignored: the workers inherit it, so Ctrl-C on a terminal reaches only hoc, which cancels
         cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
                                scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
