@@ -24,6 +24,7 @@ from typer.testing import CliRunner
 from hoc_cli.cli import app
 
 pa = pytest.importorskip("pyarrow")
+pq = pytest.importorskip("pyarrow.parquet")
 pytest.importorskip("distributed")
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -186,7 +187,14 @@ def test_every_row_equals_a_single_hoc_plan_and_invalid_plans_are_error_rows(swe
     text = (out / "results.csv").read_text().splitlines()
     assert len(text) == 7 and text[0].startswith("id,task,T,x1.q,status,converged,cost,")
     assert [line.split(",")[0] for line in text[1:]] == [r["id"] for r in rows]
-    assert [r["cost"] for r in pa.parquet.read_table(out / "results.parquet").to_pylist()] == [r["cost"] for r in rows]
+    assert [r["cost"] for r in pq.read_table(out / "results.parquet").to_pylist()] == [r["cost"] for r in rows]
+
+
+def test_chunks_are_single_plans_for_small_batches_and_at_most_8_plans_keeping_8_tasks_per_thread():
+    from hoc_cli.batch import chunk_size
+
+    assert chunk_size(6, 2) == 1 and chunk_size(30, 1) == 3 and chunk_size(200, 2) == 8 and chunk_size(10**6, 64) == 8
+    assert all(n // chunk_size(n, t) >= min(n, 8 * t) for n in (1, 15, 16, 17, 100, 1000) for t in (1, 2, 8))
 
 
 def test_resume_recomputes_nothing_and_keeps_every_row_and_file(sweep2, client2):
@@ -236,7 +244,7 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
         assert r.returncode == 1, r.stderr  # exit 1: two plans are error rows
         summary = json.loads(r.stdout)
         assert summary["scheduler"] == address and summary["solved"] == 6 and summary["errors"] == 2
-        remote = pa.parquet.read_table(tmp_path / "remote" / "results.parquet")
+        remote = pq.read_table(tmp_path / "remote" / "results.parquet")
         assert without_timing(remote).equals(without_timing(run.table))
     finally:
         for p in reversed(procs):
@@ -281,7 +289,8 @@ def test_ctrl_c_cancels_keeps_the_completed_rows_exits_130_and_resume_finishes(t
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and len(list((out / "plans").glob("*.csv")) if out.exists() else []) < 2:
+        # 30 plans on 1 worker go as Dask tasks of 3 (chunk_size): after 7 files, 2 tasks have surely returned
+        while time.monotonic() < deadline and len(list((out / "plans").glob("*.csv")) if out.exists() else []) < 7:
             time.sleep(0.05)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
@@ -289,13 +298,13 @@ def test_ctrl_c_cancels_keeps_the_completed_rows_exits_130_and_resume_finishes(t
         proc.kill()
     assert proc.returncode == 130, err
     assert "interrupted; the" in err and "--resume" in err and "Traceback" not in err
-    first = pa.parquet.read_table(out / "results.parquet").to_pylist()
+    first = pq.read_table(out / "results.parquet").to_pylist()
     assert 1 <= len(first) < 30 and all((out / r["outputs"][0]).is_file() for r in first)
     r = invoke("batch", spec, "-o", out, "--resume", "--workers", "2", "--json")
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
     assert s["resumed"] == len(first) and s["solved"] == 30 - len(first)
-    final = {r["id"]: r for r in pa.parquet.read_table(out / "results.parquet").to_pylist()}
+    final = {r["id"]: r for r in pq.read_table(out / "results.parquet").to_pylist()}
     assert len(final) == 30 and all(final[r["id"]] == r for r in first)
 
 

@@ -20,6 +20,16 @@ from typing import Any
 __all__ = ["run", "execute_batch", "BatchRun"]
 
 CHECKPOINT_S = 10.0  # completed rows are written to the results files at least this often
+MAX_CHUNK = 8  # plans per Dask task at most; a chunk is one task, so Dask's per-task cost is shared
+
+
+def chunk_size(plans: int, threads: int) -> int:
+    """Plans per Dask task: 1 for small batches, else up to MAX_CHUNK keeping >= 8 tasks per worker thread.
+
+    Larger chunks spread the engine's fixed cost per task (scheduling, transfer: a few ms) over
+    more plans; enough tasks per thread keep the workers evenly loaded until the end.
+    """
+    return max(1, min(MAX_CHUNK, plans // (8 * max(threads, 1))))
 
 
 @dataclass(eq=False)
@@ -70,7 +80,7 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
     """
     from hoc_cli.batch import results
     from hoc_cli.batch.engine import connect, execute, threads
-    from hoc_cli.batch.job import error_row, solve_job
+    from hoc_cli.batch.job import error_row, solve_jobs
     from hoc_cli.batch.spec import load_spec
     from hoc_cli.errors import OutputError
 
@@ -104,17 +114,25 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
         if out is not None and time.perf_counter() - last_write[0] > checkpoint_s:
             save()
 
-    def on_error(job, exc: BaseException) -> None:
-        on_row(job, error_row(job, f"the Dask task failed ({type(exc).__name__}: {str(exc)[:200]})"))
+    def on_chunk(chunk, rows: list[dict]) -> None:
+        for job, row in zip(chunk, rows):
+            on_row(job, row)
+
+    def on_error(chunk, exc: BaseException) -> None:
+        for job in chunk:
+            on_row(job, error_row(job, f"the Dask task failed ({type(exc).__name__}: {str(exc)[:200]})"))
 
     interrupted = None
     if todo:
         args = (os.path.abspath(out) if out is not None else None, batch.outputs)
         cm = _borrowed(client) if client is not None else connect(workers=workers, scheduler=scheduler)
         with cm as c:
+            n_threads = threads(c)
             if reporter is not None:
-                reporter.begin(len(todo), len(kept), threads(c))
-            interrupted = execute(c, solve_job, todo, key=lambda j: j.id, args=args, on_result=on_row,
+                reporter.begin(len(todo), len(kept), n_threads)
+            size = chunk_size(len(todo), n_threads)
+            chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+            interrupted = execute(c, solve_jobs, chunks, key=lambda ch: ch[0].id, args=args, on_result=on_chunk,
                                   on_error=on_error)
     elif reporter is not None:
         reporter.begin(0, len(kept), 0)

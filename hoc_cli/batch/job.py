@@ -26,6 +26,11 @@ def solve_job(job: Job, out_dir: str | None = None, kinds: tuple[str, ...] = ())
     return row
 
 
+def solve_jobs(jobs: list[Job], out_dir: str | None = None, kinds: tuple[str, ...] = ()) -> list[dict]:
+    """``solve_job`` for a few jobs in a row: one Dask task, so the engine's cost is shared by them."""
+    return [solve_job(job, out_dir, kinds) for job in jobs]
+
+
 def error_row(job: Job, message: str) -> dict:
     """The row of a plan that produced no result."""
     return {"id": job.id, "task": job.source, **swept_columns(job), "status": "error", "converged": False,
