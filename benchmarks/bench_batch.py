@@ -58,12 +58,12 @@ def spec_for(count: int, d: Path) -> dict:
 
 PANDA = {"joints": [f"panda_joint{i}" for i in range(1, 8)], "locked": {"panda_finger_joint1": 0.02},
          "x0": {"q": [0, -0.785398, 0, -2.35619, 0, 1.5707, 0.785398]},
-         "x1": {"q": [1.0, 0.3, -0.6, -1.6, 0.5, 2.2, -0.3]}, "T": 2, "N": 16}
+         "x1": {"q": [1.0, 0.3, -0.6, -1.6, 0.5, 2.2, -0.3]}, "T": 2, "N": 16, "limits": {"mode": "report"}}
 
 
 def panda_multistart(seeds: int, starts: int, as_json: bool) -> int:
     """Multi-start on the Panda move for seeds 0 … seeds−1; prints every start's J and the kept J."""
-    from hoc_cli.commands.plan import load_model
+    from hoc_cli.commands.common import load_model
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import parse_task, resolve
     from hoc_cli.multistart import solve_starts

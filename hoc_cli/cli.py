@@ -28,10 +28,16 @@ app = typer.Typer(
 OutputOpt = Annotated[
     Optional[list[str]],
     typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default: <task stem>.mcap and <task stem>.csv in the current directory."),
+                 "Default: <task stem>.mcap and <task stem>.csv in the current directory. An output that is an input is refused."),
+]
+SimOutputOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
+                 "Default, for a task YAML and an MCAP source alike: <source stem>-sim.mcap and <source stem>-sim.csv "
+                 "in the current directory (never the plan's own files; an output that is an input is refused)."),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
-QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="Nothing on stderr but errors.")]
+QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="Nothing on stderr but errors (no warnings either).")]
 ProgressOpt = Annotated[bool, typer.Option("--progress", help="Show progress and the summary table on stderr even when it is not a terminal.")]
 DebugOpt = Annotated[bool, typer.Option("--debug", help="Show Python tracebacks for errors.")]
 ElementsOpt = Annotated[Optional[int], typer.Option("-N", "--elements", help="Override the task's number of elements N (>= 1).")]
@@ -67,6 +73,12 @@ def plan(
     method: Annotated[Optional[str], typer.Option("--method", help="Override solver.method: pr-cg | newton.")] = None,
     cost: Annotated[Optional[str], typer.Option("--cost", help="Override the cost: covariant | torque.")] = None,
     init: Annotated[Optional[Path], typer.Option("--init", help="Warm start from an earlier plan's MCAP.")] = None,
+    limits: Annotated[Optional[str], typer.Option(
+        "--limits", help="enforce (default: the plan respects every joint limit) | report (the unconstrained "
+        "optimum; violations are only reported). Overrides limits.mode.")] = None,
+    check_gradient: Annotated[bool, typer.Option(
+        "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
+        "exit 1 if the max relative error exceeds 1e-6.")] = False,
     starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; keep the lowest-J converged plan.")] = 1,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts).")] = 0,
     debug: DebugOpt = False,
@@ -80,10 +92,11 @@ def plan(
     code = run_guarded(
         lambda: cmd.run(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
-            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost),
-            init=init, starts=starts, seed=seed,
+            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost,
+                           limits=limits),
+            init=init, gradient_check=check_gradient, starts=starts, seed=seed,
         ),
-        debug=debug,
+        debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
 
@@ -117,7 +130,7 @@ def batch(
 @app.command()
 def simulate(
     source: Annotated[Path, typer.Argument(metavar="SOURCE", help="Task YAML (with optional torque:) or a plan's MCAP file.")],
-    output: OutputOpt = None,
+    output: SimOutputOpt = None,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
     progress: ProgressOpt = False,
@@ -143,7 +156,7 @@ def simulate(
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter), method=method,
             torque=torque, check=check,
         ),
-        debug=debug,
+        debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
 
@@ -176,7 +189,7 @@ def verify(
     """
     from hoc_cli.commands import verify as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(as_json=json_, quiet=quiet, only=only), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(as_json=json_, quiet=quiet, only=only), debug=debug, quiet=quiet))
 
 
 @app.command()

@@ -35,8 +35,27 @@ class ModelError(HocError):
     """The URDF cannot be turned into a dynamics model (bad joint type, cycle, massless subtree...)."""
 
 
+class JointSelectionError(ModelError):
+    """The task's ``joints``, ``locked`` or ``gravity`` do not fit the URDF.
+
+    ``task_key`` names the task key at fault (``locked.nope``, ``joints[2]``), so that a command can
+    blame the task file rather than the URDF (see ``hoc_cli.commands.common.load_model``).
+    """
+
+    def __init__(self, message: str, *, file: str | Path | None = None, key: str | None = None,
+                 task_key: str) -> None:
+        super().__init__(message, file=file, key=key)
+        self.task_key = task_key
+
+
 class OutputError(HocError):
     """An output path cannot be written (missing directory, unknown extension...)."""
+
+
+class OutputWriteError(OutputError):
+    """Writing an output failed while hoc was writing it (disk full, I/O error); nothing was replaced."""
+
+    exit_code = 1
 
 
 class InputFileError(HocError):

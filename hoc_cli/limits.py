@@ -1,7 +1,8 @@
 """URDF limit checks along a trajectory (pure maths).
 
 A violation is reported per joint and kind ("position", "velocity", "effort") with the worst
-value found and the time where it occurs. Units: rad (m), rad/s (m/s), N·m (N).
+value found, the time where it occurs and the limit broken; a side without a limit (±inf in the
+model) is reported as None, so that the violation is valid JSON. Units: rad (m), rad/s (m/s), N·m (N).
 """
 from __future__ import annotations
 
@@ -25,8 +26,13 @@ def limit_violations(joints, lower, upper, velocity, effort, t, q, dq, u) -> lis
             if excess[k] > 1e-12:
                 lim = limit_of(i)
                 out.append({"joint": name, "kind": kind, "worst": float(X[k, i]), "t": float(t[k]),
-                            "limit": [float(v) for v in lim] if isinstance(lim, list) else float(lim)})
+                            "limit": [_finite(v) for v in lim] if isinstance(lim, list) else _finite(lim)})
     return out
+
+
+def _finite(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
 
 
 def dense_times(T: float, N: int, per_element: int = 32) -> np.ndarray:

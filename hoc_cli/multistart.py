@@ -19,6 +19,7 @@ The starts are independent: ``solve_starts`` runs them one after the other, or a
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -119,15 +120,15 @@ def solve_start(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, index: int,
         its += result.optimizer.iterations
         evals += result.optimizer.n_evals
         C = result.coeffs
-    result.optimizer.iterations, result.optimizer.n_evals = its, evals
-    return result
+    return dataclasses.replace(result, optimizer=dataclasses.replace(result.optimizer, iterations=its, n_evals=evals))
 
 
 def _outcome(index: int, result: PlanResult | None, error: str | None) -> StartOutcome:
     if result is None:
         return StartOutcome(index, math.nan, False, "error", 0, error)
     o = result.optimizer
-    return StartOutcome(index, float(result.J), result.converged, o.status.value, o.iterations)
+    status = result.limits.status if result.limits is not None else o.status.value  # limits enforced: theirs
+    return StartOutcome(index, float(result.J), result.converged, status, o.iterations)
 
 
 def _run_start(system: System, mesh: HermiteMesh, boundary: Sequence, index: int, seed: int,

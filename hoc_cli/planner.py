@@ -1,6 +1,6 @@
 """Plan: minimise I(q_h) over the free Hermite coefficients and check the quadrature.
 
-``plan`` ties ``ControlProblem`` (cost, gradient, Gauss-Newton matrix) to the optimiser
+``plan`` ties ``ControlProblem`` (cost, gradient, Newton matrix) to the optimiser
 (preconditioned PR+ CG by default) and returns a ``PlanResult``. Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import Callable
 
 import numpy as np
 
+from hoc_cli.constraints import EnforceResult, JointLimits, enforce
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
@@ -39,9 +40,12 @@ class PlanResult:
     quadrature_change: float
     wall_time_s: float
     problem: ControlProblem
+    limits: EnforceResult | None = None
 
     @property
     def converged(self) -> bool:
+        if self.limits is not None:
+            return self.limits.status == "converged"
         return self.optimizer.converged
 
 
@@ -70,7 +74,7 @@ def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.
 def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "covariant", method: str = "pr-cg",
          tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
          precondition: bool = True, continuation: bool = True,
-         callback: Callable[[IterLog], None] | None = None) -> PlanResult:
+         callback: Callable[[IterLog], None] | None = None, limits: JointLimits | None = None) -> PlanResult:
     """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
 
     Coarse to fine (``continuation``, unless ``C_init`` is given): the problem is first solved on
@@ -79,9 +83,13 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     is cheap, and the fine mesh needs a few Newton steps. After convergence on the fine mesh the
     cost is recomputed with 4 more Gauss points per element; while it changes by more than 1e-12
     relative (and by more than the rounding level of J), G grows by 4 and the solve continues.
+
+    With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
+    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
+    minimiser); the working set of limits found binding carries over from level to level.
     """
     start = time.perf_counter()
-    totals = {"it": 0, "ev": 0, "pre": 0}
+    totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
     history: list[IterLog] = []
 
     def solve(problem: ControlProblem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
@@ -108,9 +116,22 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         totals["it"] += res.iterations
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
+        totals["restarts"] += res.restarts
         history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
                                            level=problem.mesh.N) for h in res.history)
         return res
+
+    limited = limits is not None and limits.any
+    carry: dict = {"working": None}
+
+    def solve_level(problem: ControlProblem, x0: np.ndarray, tol_level: float):
+        """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
+        if not limited:
+            res = solve(problem, x0, tol_level)
+            return res, res.fun, None
+        er = enforce(problem, system, limits, x0, tol_level, solve, working=carry["working"])
+        carry["working"] = er.working
+        return dataclasses.replace(er.inner, x=er.x), er.J, er
 
     if C_init is None and continuation and precondition:
         coarse_mesh, C_coarse = None, None
@@ -118,7 +139,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
             level = HermiteMesh(mesh.order, mesh.T, N)
             problem = ControlProblem(system, level, q0, dq0, q1, dq1, cost=cost, G=G)
             x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
-            res = solve(problem, x0, max(tol, 1e-6))
+            res, _, _ = solve_level(problem, x0, max(tol, 1e-6))
             coarse_mesh, C_coarse = level, problem.coefficients(res.x)
         if coarse_mesh is not None:
             C_init = resample(coarse_mesh, C_coarse, mesh)
@@ -126,15 +147,16 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     while True:
         problem = ControlProblem(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G)
         x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
-        res = solve(problem, x0, tol)
+        res, J, er = solve_level(problem, x0, tol)
         C = problem.coefficients(res.x)
         J4 = _cost_with(system, mesh, problem.boundary, cost, problem.G + 4, C)
-        change = abs(J4 - res.fun) / max(abs(J4), 1e-300)
+        change = abs(J4 - J) / max(abs(J4), 1e-300)
         noise = problem.last.noise if problem.last is not None else 0.0
-        resolved = change <= QUADRATURE_RTOL or abs(J4 - res.fun) <= 4 * noise  # else: truncation, refine
+        resolved = change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise  # else: truncation, refine
         if resolved or not res.converged or problem.G >= 32:
             break
         G, C_init = problem.G + 4, C
-    res.iterations, res.n_evals, res.n_precond, res.history = totals["it"], totals["ev"], totals["pre"], history
-    return PlanResult(mesh=mesh, coeffs=C, J=res.fun, optimizer=res, G=problem.G, quadrature_change=change,
-                      wall_time_s=time.perf_counter() - start, problem=problem)
+    res = dataclasses.replace(res, iterations=totals["it"], n_evals=totals["ev"], n_precond=totals["pre"],
+                              restarts=totals["restarts"], history=tuple(history))
+    return PlanResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
+                      wall_time_s=time.perf_counter() - start, problem=problem, limits=er)

@@ -1,4 +1,4 @@
-"""The discrete optimal-control problem: design vector, cost I(q_h), exact gradient, Gauss-Newton matrix.
+"""The discrete optimal-control problem: design vector, cost I(q_h), exact gradient, Newton matrix.
 
 Symbols
 -------
@@ -20,21 +20,30 @@ I(q_h) = Σ_k w_k L(q_k, q̇_k, q̈_k) over Gauss points, with u = ID(q, q̇, q�
 For the covariant cost, with w = M⁻¹u:  dL = wᵀ du − ½ wᵀ dM w, so
   ∂L/∂q = (∂u/∂q)ᵀ w − ½ ∂(wᵀMw)/∂q,   ∂L/∂q̇ = (∂u/∂q̇)ᵀ w,   ∂L/∂q̈ = M w = u.
 The coefficient gradient is the transpose of the element operator applied to these.
+
+Hooks for further terms (penalties on the samples, e.g. joint limits)
+--------------------------------------------------------------------
+``Evaluation`` carries q, q̇, q̈, u at the K Gauss points of ``ControlProblem.op``;
+``ControlProblem.gradient_from_samples`` maps per-sample partial derivatives to the design
+gradient; ``hoc_cli.banded.element_blocks`` maps per-sample Hessians (``hessian_samples`` for the
+cost) to element blocks, which ``positive_definite`` turns into the banded Newton matrix.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
-from scipy.linalg import cho_solve_banded, cholesky_banded
 
+from hoc_cli.banded import BandedSPD, element_blocks
+from hoc_cli.costs import COSTS
 from hoc_cli.dynamics import mass_cholesky
 from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.system import System
 
-COSTS = ("covariant", "torque")
+__all__ = ["COSTS", "ControlProblem", "Evaluation", "Layout", "SampleGradients", "boundary_coefficients",
+           "default_gauss_points", "minimum_jerk_guess"]
 
 
 def default_gauss_points(order: str) -> int:
@@ -104,16 +113,43 @@ def minimum_jerk_guess(mesh: HermiteMesh, q0, dq0, q1, dq1) -> np.ndarray:
     return C
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class Evaluation:
-    """Cost and gradient at one design vector, with the per-sample quantities kept for reuse."""
+    """Cost and gradient at one design vector, with the samples they came from.
+
+    x (P_free,) design vector; J the cost; grad (P_free,) its gradient (None when not asked for);
+    q, dq, ddq, u (K, n): q, q̇, q̈ [rad, rad/s, rad/s²] and the torques u [N·m] at the K = N·G
+    Gauss points of ``ControlProblem.op`` (element-major; weights ``op.w`` [s]); noise the rounding
+    level of J (u = M q̈ + h loses ~eps·(|M q̈| + |h|) to cancellation; 0 when grad is None).
+    """
 
     x: np.ndarray
     J: float
     grad: np.ndarray | None
-    u: np.ndarray  # (K, n)
-    noise: float = 0.0  # rounding level of J: u = M q̈ + h loses ~eps·(|M q̈| + |h|) to cancellation
-    samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # q, q̇, q̈ at the Gauss points
+    q: np.ndarray = field(repr=False)
+    dq: np.ndarray = field(repr=False)
+    ddq: np.ndarray = field(repr=False)
+    u: np.ndarray = field(repr=False)
+    noise: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class SampleGradients:
+    """The integrand L and its partial derivatives at K samples (``ControlProblem.sample_gradients``).
+
+    L (K,); gq, gdq, gddq (K, n): ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈; u (K, n) torques; w (K, n) = M⁻¹u (covariant)
+    or u (torque); M (K, n, n) mass matrices; Jq, Jv (K, n, n) = ∂u/∂q, ∂u/∂q̇ when asked for, else None.
+    """
+
+    L: np.ndarray
+    gq: np.ndarray
+    gdq: np.ndarray
+    gddq: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    M: np.ndarray
+    Jq: np.ndarray | None = None
+    Jv: np.ndarray | None = None
 
 
 class ControlProblem:
@@ -129,14 +165,14 @@ class ControlProblem:
     """
 
     def __init__(self, system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, cost: str = "covariant",
-                 G: int | None = None, G_h_extra: int | None = None) -> None:
+                 G: int | None = None) -> None:
         if cost not in COSTS:
             raise ValueError(f"cost must be one of {COSTS}, got {cost!r}")
         self.system, self.mesh, self.cost = system, mesh, cost
         self.n = system.n
         self.G = G or default_gauss_points(mesh.order)
         self.op: QuadratureOperator = mesh.quadrature(self.G)
-        self.op_h: QuadratureOperator = mesh.quadrature(min(self.G, mesh.m + 3 + (G_h_extra or 0)))
+        self.op_h: QuadratureOperator = mesh.quadrature(min(self.G, mesh.m + 3))
         self.layout = Layout.build(mesh, self.n)
         self.C_fixed = boundary_coefficients(mesh, q0, dq0, q1, dq1)
         self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
@@ -151,17 +187,20 @@ class ControlProblem:
         return self.layout.unpack(x, self.C_fixed)
 
     # -- cost and gradient -----------------------------------------------------------------------------
-    def sample_gradients(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, jacobians: bool = True) -> dict:
-        """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ (each (K, n)), with u, w, M and,
-        with ``jacobians``, ∂u/∂q and ∂u/∂q̇ (K, n, n); without, the gradient comes from a cheaper
-        vector-Jacobian product (RNEA reverse sweep) instead of the full Jacobians."""
+    def sample_gradients(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                         jacobians: bool = True) -> SampleGradients:
+        """Per-sample L and its partial derivatives ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈ at samples q, dq, ddq (K, n).
+
+        With ``jacobians`` the gradient is built from the full ∂u/∂q and ∂u/∂q̇ (K, n, n), returned
+        too; without, from a cheaper vector-Jacobian product (RNEA reverse sweep), and Jq = Jv = None.
+        """
         if not jacobians and self.cost == "covariant":  # the fused reverse sweep
             try:
                 u, M, gq, gdq, w = self.system.covariant_gradient_terms(q, dq, ddq)
             except np.linalg.LinAlgError:
                 raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
             L = 0.5 * np.einsum("ki,ki->k", u, w)
-            return dict(L=L, gq=gq, gdq=gdq, gddq=u, u=u, w=w, Jq=None, Jv=None, M=M)
+            return SampleGradients(L=L, gq=gq, gdq=gdq, gddq=u, u=u, w=w, M=M)
         if jacobians:
             u, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
         else:
@@ -179,7 +218,7 @@ class ControlProblem:
         else:
             gddq = np.einsum("kij,ki->kj", M, w)
         L = 0.5 * np.einsum("ki,ki->k", u, w)
-        return dict(L=L, gq=gq, gdq=gdq, gddq=gddq, u=u, w=w, Jq=Jq, Jv=Jv, M=M)
+        return SampleGradients(L=L, gq=gq, gdq=gdq, gddq=gddq, u=u, w=w, M=M, Jq=Jq, Jv=Jv)
 
     def evaluate(self, x: np.ndarray, grad: bool = True) -> Evaluation:
         """I(q_h) [(N·m)²·s / (kg·m²) covariant, (N·m)²·s torque] and its gradient with respect to x."""
@@ -193,29 +232,37 @@ class ControlProblem:
             J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
-            return Evaluation(x=x, J=J, grad=None, u=u)
+            return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
         s = self.sample_gradients(q, dq, ddq, jacobians=False)
-        J = float(np.dot(wt, s["L"]))
+        J = float(np.dot(wt, s.L))
         if not np.isfinite(J):
             raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
         W = wt[:, None]
-        g = self.layout.pack(self.op.transpose(W * s["gq"], W * s["gdq"], W * s["gddq"]))
-        M, u, w = s["M"], s["u"], s["w"]
+        g = self.gradient_from_samples(W * s.gq, W * s.gdq, W * s.gddq)
+        M, u, w = s.M, s.u, s.w
         Mddq = np.einsum("kij,kj->ki", M, ddq)
         size = np.abs(Mddq) + np.abs(u - Mddq)
         noise = 64 * np.finfo(float).eps * float(np.dot(wt, np.einsum("ki,ki->k", np.abs(w), size)))
-        ev = Evaluation(x=x, J=J, grad=g, u=u, noise=noise, samples=(q, dq, ddq))
+        ev = Evaluation(x=x, J=J, grad=g, q=q, dq=dq, ddq=ddq, u=u, noise=noise)
         self.last = ev
         return ev
+
+    def gradient_from_samples(self, gq: np.ndarray, gdq: np.ndarray, gddq: np.ndarray) -> np.ndarray:
+        """The design gradient (P_free,) of Σ_k φ_k(q_k, q̇_k, q̈_k) over the samples of ``self.op``.
+
+        gq, gdq, gddq (K, n) are ∂φ_k/∂q_k, ∂φ_k/∂q̇_k, ∂φ_k/∂q̈_k, with any quadrature weights
+        already applied (for the cost: w_k ∂L/∂q_k, …).
+        """
+        return self.layout.pack(self.op.transpose(gq, gdq, gddq))
 
     def value(self, x: np.ndarray) -> float:
         """I(q_h) alone (no gradient)."""
         return self.evaluate(x, grad=False).J
 
-    # -- Newton and Gauss-Newton matrices -------------------------------------------------------------
-    # Both are assembled on their own, coarser quadrature (``self.op_h``, G_h = m + 3 points per
-    # element: exact for the degree-(2·5) polynomial part of a quintic element's integrand). They
-    # only precondition and estimate the decrement; the cost and gradient keep the full quadrature.
+    # -- Newton matrix -------------------------------------------------------------------------------
+    # It is assembled on its own, coarser quadrature (``self.op_h``, G_h = m + 3 points per
+    # element: exact for the degree-(2·5) polynomial part of a quintic element's integrand). It
+    # only preconditions and estimates the decrement; the cost and gradient keep the full quadrature.
     def _preconditioner_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.op_h.apply(self.coefficients(ev.x))
 
@@ -285,79 +332,54 @@ class ControlProblem:
         H += GN
         return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
 
-    def newton(self, ev: Evaluation) -> "BandedSPD":
+    def newton(self, ev: Evaluation, extra: np.ndarray | None = None) -> BandedSPD:
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
-        Away from a minimum the Hessian may be indefinite; then μ·(Gauss-Newton matrix) is added
-        with μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation succeeds.
-        That matrix is the Hessian's own positive semi-definite part Σ w Dᵀ S D (see
-        ``_sweep_sample_hessians``; for the torque cost it is the Gauss-Newton matrix): no extra
-        dynamics pass.
+        Element blocks of the per-sample Hessians (``hessian_samples``) through ``positive_definite``;
+        the blocks of the positive semi-definite part are only formed when needed. ``extra``
+        (N, 2mn, 2mn): positive semi-definite element blocks of other terms (limit penalties),
+        added to both.
         """
-        q, dq, ddq = self._preconditioner_samples(ev)
-        Hs, GNs = self._sweep_sample_hessians(q, dq, ddq)
-        H = self._element_blocks(self.op_h, Hs)
+        Hs, GNs = self.hessian_samples(ev)
+        if extra is None:
+            return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs))
+        return self.positive_definite(element_blocks(self.op_h, Hs) + extra,
+                                      lambda: element_blocks(self.op_h, GNs) + extra)
+
+    def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
+        """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.
+
+        On the preconditioner quadrature ``self.op_h`` (K_h = N·G_h samples): feed them to
+        ``element_blocks(self.op_h, ·)``. The second is Dᵀ S D (see ``_sweep_sample_hessians``; for
+        the torque cost the Gauss-Newton matrix), from the same dynamics pass.
+        """
+        return self._sweep_sample_hessians(*self._preconditioner_samples(ev))
+
+    def positive_definite(self, H: np.ndarray, psd: Callable[[], np.ndarray]) -> BandedSPD:
+        """The banded matrix of element blocks H (N, 2mn, 2mn), made positive definite.
+
+        Away from a minimum the Hessian may be indefinite; then μ·GN is added, with GN = ``psd()``
+        the element blocks of a positive semi-definite part of H (called only then), and
+        μ = 1e-3, 1e-2, … (relative to the traces) until the banded Cholesky factorisation
+        succeeds; GN alone last.
+        """
         try:
-            return self._banded(H)
+            return self.banded(H)
         except NumericalError:
-            GN = self._element_blocks(self.op_h, GNs)
+            GN = psd()
             tr_gn = np.trace(GN.sum(axis=0))
             mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
             for _ in range(12):
                 try:
-                    return self._banded(H + abs(mu) * GN)
+                    return self.banded(H + abs(mu) * GN)
                 except NumericalError:
                     mu *= 10
-            return self._banded(GN)
+            return self.banded(GN)
 
-    def gauss_newton(self, ev: Evaluation) -> "BandedSPD":
-        """The block-banded Gauss-Newton matrix Σ_k w_k A_kᵀ S_k A_k on the free coefficients.
-
-        A_k = ∂u_k/∂C (n × 2mn per element), S = M⁻¹ (covariant) or I (torque). Each element
-        couples only its two nodes, so the matrix has half-bandwidth 2mn − 1 in the global order.
-        """
-        return self._banded(self._gauss_newton_blocks(self.op_h, *self._preconditioner_samples(ev)))
-
-    def _gauss_newton_blocks(self, op: QuadratureOperator, q, dq, ddq) -> np.ndarray:
-        _, Jq, Jv, M = self.system.id_derivatives(q, dq, ddq)
-        n, m, N, G = self.n, self.mesh.m, self.mesh.N, op.G
-        L = 2 * m * n
-        Bx = _operator_rows(op)
-        A = (np.einsum("kij,kl->kilj", Jq, Bx[0]) + np.einsum("kij,kl->kilj", Jv, Bx[1])
-             + np.einsum("kij,kl->kilj", M, Bx[2])).reshape(op.K, n, L)
-        SA = np.linalg.solve(M, A) if self.cost == "covariant" else A
-        return np.einsum("kia,kib->kab", A * op.w[:, None, None], SA).reshape(N, G, L, L).sum(axis=1)
-
-    def _element_blocks(self, op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
-        """Σ_g w_g Ãᵀ Hs_g Ã per element, (N, 2mn, 2mn), for per-sample Hessians Hs (K, 3n, 3n).
-
-        Ã (3n, 2mn) maps an element's coefficients to (q, q̇, q̈) at a sample: two batched matmuls.
-        """
-        N, G = self.mesh.N, op.G
-        A, AT = _expanded_rows(op, self.n)  # (G, 3n, 2mn), (G, 2mn, 3n): the same in every element
-        Hw = (Hs * op.w[:, None, None]).reshape(N, G, 3 * self.n, 3 * self.n)
-        return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1)
-
-    def _banded(self, blocks: np.ndarray) -> "BandedSPD":
+    def banded(self, blocks: np.ndarray) -> BandedSPD:
+        """Element blocks (N, 2mn, 2mn) summed, restricted to the free coefficients and factored."""
         mn = self.mesh.m * self.n
         return BandedSPD.assemble(blocks, stride=mn, size=(self.mesh.N + 1) * mn, free=self.layout.free, shift=1e-12)
-
-
-def _operator_rows(op: QuadratureOperator) -> np.ndarray:
-    """B at every sample: (3, K, 2m), derivative r of the local shape functions (h-scaled)."""
-    return np.repeat(op.B[:, None], op.mesh.N, axis=1).reshape(3, op.K, op.B.shape[-1])
-
-
-@lru_cache(maxsize=64)
-def _expanded_rows(op: QuadratureOperator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ã = B ⊗ I_n at the G points of an element, (G, 3n, 2mn), and its transpose (G, 2mn, 3n)
-    (read-only, cached per operator; every element has the same): row r·n + i, column a·n + j holds
-    B[r, g, a] δ_ij (element coefficient order a, j)."""
-    G, L = op.G, op.B.shape[-1] * n
-    A = np.einsum("rga,ij->griaj", op.B, np.eye(n)).reshape(G, 3 * n, L)
-    AT = np.ascontiguousarray(np.swapaxes(A, 1, 2))
-    A.flags.writeable = AT.flags.writeable = False
-    return A, AT
 
 
 def _inverse_cholesky(M: np.ndarray) -> np.ndarray:
@@ -385,45 +407,3 @@ def _spd_solve(M: np.ndarray, u: np.ndarray) -> np.ndarray:
         raise NumericalError("the mass matrix is singular or not positive definite along the trajectory") from None
     y = np.linalg.solve(Lc, u[..., None])
     return np.linalg.solve(np.swapaxes(Lc, -1, -2), y)[..., 0]
-
-
-@dataclass(eq=False)
-class BandedSPD:
-    """A symmetric positive-definite banded matrix on the free coefficients, Cholesky-factored.
-
-    ``solve(g)`` maps a design-space vector (free coefficients) to P⁻¹ g.
-    """
-
-    factor: np.ndarray
-    free: np.ndarray
-    size: int
-
-    @classmethod
-    def assemble(cls, blocks: np.ndarray, stride: int, size: int, free: np.ndarray, shift: float) -> "BandedSPD":
-        """Sum diagonal blocks (E, L, L) placed at offsets e·stride; fixed rows/cols become identity."""
-        E, L, _ = blocks.shape
-        u = L - 1
-        a, b = np.triu_indices(L)
-        rows = u + a - b
-        cols = (np.arange(E)[:, None] * stride + b[None, :]).ravel()
-        flat = np.tile(rows, E) * size + cols
-        ab = np.bincount(flat, weights=blocks[:, a, b].ravel(), minlength=(u + 1) * size).reshape(u + 1, size)
-        # zero every entry that touches a fixed coefficient, then put a unit scale on fixed diagonals
-        d = np.arange(u + 1)[:, None]
-        j = np.arange(size)[None, :]
-        i = j - (u - d)
-        keep = (i >= 0) & free[np.clip(i, 0, size - 1)] & free[j]
-        ab = np.where(keep, ab, 0.0)
-        diag = ab[u]
-        scale = float(np.mean(diag[free])) if free.any() else 1.0
-        ab[u] = np.where(free, diag * (1.0 + shift) + shift * scale, scale)
-        try:
-            factor = cholesky_banded(ab, lower=False)
-        except np.linalg.LinAlgError:
-            raise NumericalError("the Gauss-Newton matrix is not positive definite") from None
-        return cls(factor=factor, free=free, size=size)
-
-    def solve(self, g: np.ndarray) -> np.ndarray:
-        full = np.zeros(self.size)
-        full[self.free] = g
-        return cho_solve_banded((self.factor, False), full, check_finite=False)[self.free]

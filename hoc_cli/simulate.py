@@ -81,7 +81,7 @@ def collocation_points(order: str, kind: str | None = None) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- results
-class Status(enum.Enum):
+class SimulationStatus(enum.Enum):
     """How a simulation ended. Failures raise ``NumericalError`` instead of returning."""
 
     SUCCESS = "success"
@@ -100,7 +100,7 @@ class HermiteSimulation:
     mesh: HermiteMesh
     coeffs: np.ndarray
     points: np.ndarray
-    status: Status
+    status: SimulationStatus
     newton_iterations: int
     max_newton_iterations: int
     evaluations: int
@@ -128,7 +128,7 @@ class ReferenceSimulation:
     T: float
     n: int
     solution: Callable[[np.ndarray], np.ndarray] = field(repr=False)
-    status: Status
+    status: SimulationStatus
     nfev: int
     steps: int
     wall_time_s: float
@@ -268,7 +268,7 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
             callback(e, N)
     wall = time.perf_counter() - started
     return HermiteSimulation(
-        mesh=mesh, coeffs=C, points=s, status=Status.SUCCESS, newton_iterations=total,
+        mesh=mesh, coeffs=C, points=s, status=SimulationStatus.SUCCESS, newton_iterations=total,
         max_newton_iterations=worst, evaluations=evaluations, wall_time_s=wall,
         message=f"{N} {mesh.order} elements, {total} Newton iterations (at most {worst} per element), "
         f"{evaluations} dynamics evaluations",
@@ -374,7 +374,8 @@ def simulate_reference(
     if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
         raise NumericalError(f"reference integrator ({method}) failed at t = {sol.t[-1]:.6g} s: {sol.message}")
     return ReferenceSimulation(
-        T=float(T), n=n, solution=sol.sol, status=Status.SUCCESS, nfev=int(sol.nfev), steps=int(sol.t.size - 1),
+        T=float(T), n=n, solution=sol.sol, status=SimulationStatus.SUCCESS, nfev=int(sol.nfev),
+        steps=int(sol.t.size - 1),
         wall_time_s=time.perf_counter() - started, message=f"{method}: {sol.t.size - 1} steps, {sol.nfev} evaluations",
     )
 

@@ -41,9 +41,6 @@ class System(Protocol):
     def mass_quadratic_grad(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """∂(vᵀ M(q) v)/∂q with v held fixed, (K, n)."""
 
-    def mass_product_derivative(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """∂(M(q) v)/∂q with v held fixed, (K, n, n) with [k, i, j] = ∂(M v)_i/∂q_j."""
-
     def covariant_gradient_terms(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> tuple[np.ndarray, ...]:
         """(u, M, gq, gdq, w) for L = ½ uᵀM⁻¹u: w = M⁻¹u, gq = ∂L/∂q, gdq = ∂L/∂q̇ (∂L/∂q̈ = u).
 
@@ -84,10 +81,6 @@ class LinearOscillator:
 
     def mass_quadratic_grad(self, q, v):
         return np.zeros_like(np.asarray(q, float))
-
-    def mass_product_derivative(self, q, v):
-        K = np.shape(q)[0]
-        return np.zeros((K, self.n, self.n))
 
     def covariant_gradient_terms(self, q, dq, ddq):
         u = self.inverse_dynamics(q, dq, ddq)
@@ -134,12 +127,6 @@ class RobotSystem:
         from hoc_cli import dynamics
 
         return dynamics.mass_quadratic_grad(self.model, q, v)
-
-    def mass_product_derivative(self, q, v):
-        from hoc_cli import dynamics
-
-        # M(q) v = ID(q, 0, v) without gravity
-        return dynamics.id_derivatives(self.model, q, np.zeros_like(v), v, gravity=False)[1]
 
     def covariant_gradient_terms(self, q, dq, ddq):
         from hoc_cli import dynamics

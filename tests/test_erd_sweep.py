@@ -1,5 +1,5 @@
 """Every URDF shipped with example-robot-data: it loads and agrees with Pinocchio, or hoc refuses it
-with the documented reason (README, Design notes). Guards the URDF reader and the inertial checks
+with the documented reason (docs/design.md, Robot models). Guards the URDF reader and the inertial checks
 against the variety of real robot descriptions (arms, hands, quadrupeds, humanoids, mobile bases)."""
 from __future__ import annotations
 

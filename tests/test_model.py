@@ -110,7 +110,10 @@ def test_mimic_joints_are_always_locked_and_follow_their_locked_master():
     model = load_robot(path, joints=[f"panda_joint{i}" for i in range(1, 8)],
                        locked={"panda_finger_joint1": 0.03})
     assert model.locked == {"panda_finger_joint1": 0.03, "panda_finger_joint2": 0.03}
-    default = load_robot(path)
+    from hoc_cli.errors import HocWarning
+
+    with pytest.warns(HocWarning, match="'panda_finger_joint2' mimics task joint 'panda_finger_joint1'"):
+        default = load_robot(path)
     assert "panda_finger_joint2" not in default.joint_names
     assert default.joint_names[-1] == "panda_finger_joint1"
     with pytest.raises(ModelError, match="mimic joint"):

@@ -277,3 +277,48 @@ def test_planning_a_third_party_ur5_gives_torques_equal_to_pinocchios_rnea(tmp_p
         q[idx], v[idx], a[idx] = tr.q[k], tr.dq[k], tr.ddq[k]
         tau = pin.rnea(model, data, q, v, a)[idx]
         np.testing.assert_allclose(tr.u[k], tau, rtol=1e-10, atol=1e-10 * np.abs(tau).max())
+
+
+def test_check_gradient_passes_on_the_task_and_writes_nothing(task, tmp_path):
+    r = invoke("plan", task, "--check-gradient", "--json")
+    assert r.exit_code == 0, r.output
+    c = json.loads(r.stdout)["gradient_check"]
+    assert c["passed"] is True and c["max_rel_error"] <= c["rtol"] == 1e-6
+    assert c["coordinates"] == c["of"] == (8 + 1) * 3 * 2 - 4 * 2  # every free coefficient of N = 8, quintic, n = 2
+    assert not (tmp_path / "arm.csv").exists() and not (tmp_path / "arm.mcap").exists()
+    assert invoke("plan", task, "--check-gradient", "-o", "x.csv").exit_code == 2
+    r = invoke("plan", task, "--check-gradient", "--json", "-N", "1", "--order", "cubic")  # nothing is free
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["gradient_check"]["coordinates"] == 0
+
+
+def test_check_gradient_catches_a_wrong_gradient_and_exits_1(task, monkeypatch):
+    """A 0.1 % error in ∂L/∂q̈ (a plausible bug) fails the check."""
+    from hoc_cli.problem import ControlProblem
+
+    right = ControlProblem.gradient_from_samples
+    monkeypatch.setattr(ControlProblem, "gradient_from_samples",
+                        lambda self, gq, gdq, gddq: right(self, gq, gdq, 1.001 * gddq))
+    r = invoke("plan", task, "--check-gradient", "--json")
+    assert r.exit_code == 1, r.output
+    c = json.loads(r.stdout)["gradient_check"]
+    assert c["passed"] is False and 1e-4 < c["max_rel_error"] < 1e-2
+    assert c["worst"]["joint"] in ("shoulder", "elbow") and c["worst"]["derivative"] in ("q", "dq", "ddq")
+
+
+def test_tol_below_the_rounding_level_says_the_rounding_level_test_held(task):
+    r = invoke("plan", task, "--tol", "1e-300", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["status"] == "converged" and s["message"].startswith("the rounding-level test held")
+    r = invoke("plan", task, "--json")
+    assert json.loads(r.stdout)["message"].startswith("the stopping test held: ½ gᵀP⁻¹g <= tol·|J|")
+
+
+def test_check_gradient_on_a_large_mesh_checks_a_fixed_subset(task, monkeypatch):
+    from hoc_cli.commands import plan as cmd
+
+    monkeypatch.setattr(cmd, "GRADIENT_MAX_COORDINATES", 5)
+    runs = [json.loads(invoke("plan", task, "--check-gradient", "--json").stdout)["gradient_check"] for _ in range(2)]
+    assert runs[0]["coordinates"] == 5 and runs[0]["of"] == 46 and runs[0]["passed"] is True
+    assert runs[0] == runs[1]  # the same subset every time

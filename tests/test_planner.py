@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hoc_cli.banded import element_blocks
 from hoc_cli.elements import HermiteMesh, error_norm
 from hoc_cli.model import load_robot
 from hoc_cli.planner import plan
@@ -54,7 +55,7 @@ def test_banded_newton_matrix_equals_the_finite_difference_hessian(cost):
         e[i] = 1e-5
         H[:, i] = (P.evaluate(x + e).grad - P.evaluate(x - e).grad) / 2e-5
     assert P.op_h.G == P.G  # with G = 5 the preconditioner quadrature is the cost's own
-    blocks = P._element_blocks(P.op_h, P.sample_hessians(*P.op_h.apply(P.coefficients(x))))
+    blocks = element_blocks(P.op_h, P.sample_hessians(*P.op_h.apply(P.coefficients(x))))
     mn = mesh.m * model.n
     D = np.zeros(((mesh.N + 1) * mn,) * 2)
     for e in range(mesh.N):
@@ -82,7 +83,7 @@ def test_per_sample_hessian_matches_central_differences_of_the_gradient(urdf, co
 
     def grad(x):
         s = P.sample_gradients(x[:, :n], x[:, n:2 * n], x[:, 2 * n:], jacobians=False)
-        return np.concatenate([s["gq"], s["gdq"], s["gddq"]], axis=1)
+        return np.concatenate([s.gq, s.gdq, s.gddq], axis=1)
 
     x = np.concatenate([q, dq, ddq], axis=1)
     eps = 1e-6
@@ -94,6 +95,45 @@ def test_per_sample_hessian_matches_central_differences_of_the_gradient(urdf, co
     ref = 0.5 * (ref + np.swapaxes(ref, 1, 2))
     scale = np.abs(ref).max(axis=(1, 2), keepdims=True)
     assert np.all(np.abs(H - ref) <= 5e-6 * scale)  # forward differences: up to ~2e-6 measured
+
+
+@pytest.mark.parametrize("cost", ["covariant", "torque"])
+def test_sample_gradients_from_full_jacobians_equal_the_reverse_sweep(cost):
+    """The two routes to ∂L/∂(q, q̇, q̈): full ∂u/∂q, ∂u/∂q̇ (id_derivatives) and the RNEA reverse sweep."""
+    rng = np.random.default_rng(11)
+    model = load_robot(ROBOTS / "lbr7.urdf")
+    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 1), *_random_boundary(model, rng), cost=cost)
+    q = _random_boundary(model, rng)[0] + 0.1 * rng.normal(size=(6, model.n))
+    dq, ddq = rng.normal(0, 1.0, (2, 6, model.n))
+    a = P.sample_gradients(q, dq, ddq, jacobians=True)
+    b = P.sample_gradients(q, dq, ddq, jacobians=False)
+    assert a.Jq.shape == (6, model.n, model.n) and b.Jq is None
+    for name in ("L", "gq", "gdq", "gddq", "u", "w"):
+        ref = getattr(a, name)
+        np.testing.assert_allclose(getattr(b, name), ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+
+
+def test_evaluation_samples_and_the_gradient_hook_serve_a_penalty_on_the_samples():
+    """A term Σ_k φ(q_k, q̇_k, q̈_k) built from ``Evaluation``'s samples, differentiated through
+    ``gradient_from_samples``, against central differences of the same term."""
+    rng = np.random.default_rng(3)
+    model = load_robot(ROBOTS / "two_link.urdf")
+    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 3), *_random_boundary(model, rng), G=5)
+    x = P.initial_guess() + 0.05 * rng.normal(size=P.layout.size)
+
+    def penalty(ev):  # φ = Σ q³/3 + q̇²/2 + U q̈ with U a fixed random (K, n) array
+        return float(np.sum(ev.q ** 3 / 3 + ev.dq ** 2 / 2 + ev.ddq * U))
+
+    ev = P.evaluate(x)
+    U = rng.normal(size=ev.u.shape)
+    assert ev.q.shape == ev.u.shape == (P.op.K, model.n)
+    np.testing.assert_array_equal(np.stack([ev.q, ev.dq, ev.ddq]), np.stack(P.op.apply(P.coefficients(x))))
+    g = P.gradient_from_samples(ev.q ** 2, ev.dq, U)
+    eps = 1e-6
+    for _ in range(3):
+        d = rng.normal(size=x.size)
+        fd = (penalty(P.evaluate(x + eps * d, grad=False)) - penalty(P.evaluate(x - eps * d, grad=False))) / (2 * eps)
+        assert g @ d == pytest.approx(fd, rel=1e-7)
 
 
 def _validation(order, Ns=(2, 4, 8, 16, 32)):
@@ -171,7 +211,7 @@ def test_plain_polak_ribiere_without_preconditioner_reaches_the_same_optimum_on_
     pre = plan(LinearOscillator(), mesh, [0.0], [1.0], [0.0], [-1.0], cost="torque")
     plain = plan(LinearOscillator(), mesh, [0.0], [1.0], [0.0], [-1.0], cost="torque", precondition=False)
     assert plain.J == pytest.approx(pre.J, rel=1e-8)
-    assert plain.optimizer.iterations > pre.optimizer.iterations  # the h⁻⁴ conditioning, measured in the README
+    assert plain.optimizer.iterations > pre.optimizer.iterations  # the h⁻⁴ conditioning, measured in docs/benchmarks.md
 
 
 def test_work_counts_on_the_two_link_arm_do_not_grow():

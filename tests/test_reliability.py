@@ -147,7 +147,7 @@ TASK_CASES = [
     ("a task joint the URDF does not have", _task("joints: [shoulder, wrist]\n" + TASK),
      ("arm.urdf", "joint 'wrist'", "no such joint", "shoulder")),
     ("a locked joint the URDF does not have", _task("locked: {wrist: 0.0}\n" + TASK),
-     ("arm.urdf", "joint 'wrist'", "cannot be locked")),
+     ("task.yaml", "locked.wrist", "cannot be locked", "arm.urdf")),
     ("T is infinite", _task(_with("T: 1.5", "T: .inf")), ("task.yaml", "T: expected a duration T > 0")),
     ("T is a boolean", _task(_with("T: 1.5", "T: true")), ("task.yaml", "T: expected a duration T > 0")),
     ("T beyond the range of a double", _task(_with("T: 1.5", "T: 1" + "0" * 400)), ("task.yaml", "T: expected a duration")),
@@ -176,16 +176,24 @@ def test_a_malformed_task_exits_2_with_one_line_and_touches_nothing(workdir, set
     assert_rejected(workdir, setup(workdir), needles)
 
 
-def test_a_start_state_outside_the_urdf_limits_is_a_one_line_warning_not_an_error(workdir):
+def test_a_start_state_outside_the_urdf_limits_is_an_input_error_when_enforced_and_a_warning_when_reported(workdir):
     write_task(workdir, _with("x0: {q: [0.0, 0.0]}", "x0: {q: [3.5, 0.0]}"))
     r = invoke(plan_args())
+    assert r.exit_code == 2
+    (line,) = r.stderr.splitlines()
+    for needle in ("task.yaml", "x0.q.shoulder", "3.5", "outside its position limits", "3.14159", "--limits report"):
+        assert needle in line
+    assert (workdir / "out.csv").read_bytes() == KEEP["out.csv"]  # nothing was written
+    r = invoke(plan_args("task.yaml", "--limits", "report"))
     assert r.exit_code == 0, r.stderr
     lines = r.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("hoc: warning: ")
+    assert len(lines) == 2 and all(line.startswith("hoc: warning: ") for line in lines), r.stderr
     for needle in ("task.yaml", "x0.q.shoulder = 3.5", "outside the URDF limits", "3.14159"):
         assert needle in lines[0]
+    # and, after the outputs are written, the limit the plan breaks (it starts beyond it)
+    assert "joint 'shoulder' exceeds its position limit [-3.142, 3.142]: worst " in lines[1]
     assert (workdir / "out.csv").read_bytes() != KEEP["out.csv"]  # the plan was written
-    assert invoke(plan_args("task.yaml", "-q")).stderr == ""  # --quiet: nothing but errors
+    assert invoke(plan_args("task.yaml", "-q", "--limits", "report")).stderr == ""  # --quiet: nothing but errors
 
 
 # --------------------------------------------------------------------------- URDFs through plan and inspect

@@ -22,7 +22,7 @@ from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
 from hoc_cli.periods import oscillation_period, velocity_zeros
 from hoc_cli.simulate import (
-    Status,
+    SimulationStatus,
     _Element,
     collocation_points,
     collocation_residual,
@@ -242,7 +242,7 @@ def test_pendulum_period_matches_the_complete_elliptic_integral_to_1e_10_with_qu
     result = pendulum_run("quintic", 60)
     period = oscillation_period(result.mesh, result.coeffs)
     assert abs(period - TAU) / TAU < 1e-10, period
-    assert result.status is Status.SUCCESS
+    assert result.status is SimulationStatus.SUCCESS
 
 
 def test_the_papers_printed_period_is_not_what_its_formula_gives():

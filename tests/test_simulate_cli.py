@@ -87,11 +87,13 @@ def test_csv_and_mcap_outputs_read_back_with_the_applied_torque_and_the_hermite_
     assert json.loads(plan.metadata["simulation"])["torque"] == "constant"
 
 
-def test_default_outputs_are_named_after_the_task(tmp_path, monkeypatch):
+def test_default_outputs_are_named_after_the_task_with_a_sim_suffix(tmp_path, monkeypatch):
+    # never <stem>.csv/.mcap: those are the plan's names, and may be the --torque input (issue 12, item 1)
     monkeypatch.chdir(tmp_path)
     task = write_task(tmp_path / "swing.yaml", torque="zero")
     assert invoke(task).exit_code == 0
-    assert (tmp_path / "swing.csv").exists() and (tmp_path / "swing.mcap").exists()
+    assert (tmp_path / "swing-sim.csv").exists() and (tmp_path / "swing-sim.mcap").exists()
+    assert not (tmp_path / "swing.csv").exists() and not (tmp_path / "swing.mcap").exists()
 
 
 def test_dash_output_writes_csv_to_stdout(tmp_path):

@@ -1,5 +1,5 @@
 """Task files: valid ones load with defaults; malformed ones give exit 2 and one clear line."""
-import math
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -130,3 +130,78 @@ def test_exponent_floats_without_a_dot_are_numbers(taskdir):
 def test_yaml_tags_that_construct_python_objects_are_rejected(taskdir):
     with pytest.raises(TaskError, match="invalid YAML"):
         load_task(write(taskdir, GOOD + "x: !!python/object/apply:os.system ['true']\n"))
+
+
+# --------------------------------------------------------------------------- sections and overrides
+def test_each_section_is_a_frozen_dataclass_and_the_flat_views_read_them(taskdir):
+    from hoc_cli.io.task import BoundarySpec, OutputSpec, SolverSpec, State, TimeSpec
+
+    task = load_task(write(taskdir, GOOD + "solver: {method: newton}\noutput: {rate: 50}\n"))
+    assert task.time == TimeSpec(T=1.5, N=16, order="quintic")
+    assert task.solver == SolverSpec(method="newton", tol=1e-10, max_iter=5000)
+    assert task.output == OutputSpec(rate=50.0)
+    assert task.boundary == BoundarySpec(x0=State(q=[0.0, 0.1], dq=None),
+                                         x1=State(q={"b": -0.6, "a": 1.2}, dq=[0.0, 0.0]))
+    assert task.robot_spec.joints == ("a", "b") and task.robot_spec.robot == task.robot
+    assert (task.T, task.N, task.method, task.rate, task.x0) == (1.5, 16, "newton", 50.0, task.boundary.x0)
+    for section in (task, task.time, task.solver, task.output, task.boundary, task.robot_spec, task.limits):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            section.T = 2.0  # type: ignore[misc, union-attr]
+
+
+# How each overridable key is written in the task file.
+IN_FILE = {
+    "N": lambda v: GOOD.replace("N: 16", f"N: {v}"),
+    "T": lambda v: GOOD.replace("T: 1.5", f"T: {v}"),
+    "order": lambda v: GOOD + f"order: {v}\n",
+    "cost": lambda v: GOOD + f"cost: {v}\n",
+    "tol": lambda v: GOOD + f"solver: {{tol: {v}}}\n",
+    "max_iter": lambda v: GOOD + f"solver: {{max_iter: {v}}}\n",
+    "method": lambda v: GOOD + f"solver: {{method: {v}}}\n",
+    "limits": lambda v: GOOD + f"limits: {{mode: {v}}}\n",
+}
+PROBES = [0, -1, 1, 3, 2.5, 1e-6, 1e4, 100000, 100001, True, "x", "quintic", "cubic", "covariant", "torque",
+          "pr-cg", "newton", "enforce", "report", None]
+WHERE = {"N": ("time", "N"), "T": ("time", "T"), "order": ("time", "order"), "cost": ("", "cost"),
+         "tol": ("solver", "tol"), "max_iter": ("solver", "max_iter"), "method": ("solver", "method"),
+         "limits": ("limits", "mode")}
+
+
+@pytest.mark.parametrize("key", sorted(IN_FILE))
+def test_a_cli_override_accepts_and_refuses_exactly_what_the_task_key_does(taskdir, key):
+    import json
+
+    from hoc_cli.io.task import OVERRIDES
+
+    assert set(OVERRIDES) == set(IN_FILE)
+    base = load_task(write(taskdir, GOOD))
+    section, attr = WHERE[key]
+    for value in PROBES:
+        if value is None:
+            continue
+        try:
+            from_file, file_error = load_task(write(taskdir, IN_FILE[key](json.dumps(value)))), None
+        except TaskError as exc:
+            from_file, file_error = None, exc
+        try:
+            from_cli, cli_error = apply_overrides(base, **{key: value}), None
+        except TaskError as exc:
+            from_cli, cli_error = None, exc
+        assert (file_error is None) == (cli_error is None), (key, value, file_error, cli_error)
+        if file_error is None:
+            get = (lambda t: getattr(t, attr)) if not section else (lambda t: getattr(getattr(t, section), attr))
+            assert get(from_file) == get(from_cli) and type(get(from_file)) is type(get(from_cli))
+        else:
+            assert cli_error.key == OVERRIDES[key].option
+            assert file_error.detail.replace("duration T >", "duration >") == cli_error.detail, (file_error, cli_error)
+
+
+def test_an_unknown_override_is_a_programming_error(taskdir):
+    with pytest.raises(ValueError, match="unknown override"):
+        apply_overrides(load_task(write(taskdir, GOOD)), rate=5)
+
+
+def test_a_duration_override_is_checked_against_the_output_rate(taskdir):
+    task = load_task(write(taskdir, GOOD + "output: {rate: 1000}\n"))
+    with pytest.raises(TaskError, match=r"--duration: T·rate = 2000 s × 1000 Hz gives more than 1000000"):
+        apply_overrides(task, T=2000.0)

@@ -52,9 +52,11 @@ def _message(exc: Exception) -> str:
 
 
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
-    from hoc_cli.commands.common import OutputTarget, output_transaction
+    from hoc_cli.commands.common import (OutputTarget, check_columns, check_sample_times, json_ready, load_model,
+                                         output_transaction, read_urdf_text)
     from hoc_cli.commands.outputs import write_outputs
-    from hoc_cli.commands.plan import _reproducible, load_model, sample_plan, solve, summarise
+    from hoc_cli.commands.plan import _reproducible, sample_plan, solve, summarise
+    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
     from hoc_cli.commands.starts import starts_summary
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import load_task, parse_task, resolve
@@ -65,23 +67,29 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         task = load_task(source, purpose="plan")  # raises the reason the file is not a task
     else:
         task = parse_task(job.doc, path=source, text=job.text, purpose="plan")
+    names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
+    targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
+    check_sample_times(targets, task.T, task.rate, file=task.path)
     model = load_model(task)
+    check_columns(targets, model.joint_names)
     states = resolve(task, model.joint_names)
+    limits = task_limits(model, states.limits)
+    if task.limits.mode == "enforce":
+        check_boundary_states(task, limits, states)
     mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
-    result, multi = solve(task, model, states, mesh, starts=job.starts, seed=job.seed)
-    summary = summarise(task, model, result, states) | starts_summary(multi, job.seed)
-    written: list[str] = []
-    if out_dir is not None and kinds:
-        plans = Path(out_dir) / PLANS_DIR
-        plans.mkdir(parents=True, exist_ok=True)
-        names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds]
-        targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)]
+    result, multi = solve(task, model, states, mesh, limits, starts=job.starts, seed=job.seed)
+    summary = summarise(task, model, result, states)
+    summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
+    summary.update(starts_summary(multi, job.seed))
+    summary = json_ready(summary)
+    if targets:
+        (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
+        urdf_text = read_urdf_text(task.robot) if "mcap" in kinds else ""
         traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
         with output_transaction():
-            write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
+            write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
                           summary=_reproducible(summary))
-        written = names
-    return row_of(job, summary, written)
+    return row_of(job, summary, names)
 
 
 def row_of(job: Job, summary: dict, outputs: list[str]) -> dict:

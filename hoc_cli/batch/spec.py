@@ -189,7 +189,7 @@ def _sweep_jobs(doc: dict, where: Path, starts: int, seed: int, label, fail) -> 
         parts = _key_path(key, where_key, label)
         if isinstance(spec, dict) and "random" in spec:
             if model is None and _wants_limits(spec["random"]):
-                from hoc_cli.commands.plan import load_model
+                from hoc_cli.commands.common import load_model
 
                 model = load_model(task)
             values = _random(spec, parts, base_doc, model, where_key, fail)

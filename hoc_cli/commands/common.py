@@ -1,31 +1,47 @@
-"""Shared plumbing for commands: error reporting, exit codes, output targets, atomic writes.
+"""Shared plumbing for commands: error reporting, exit codes, signals, checks made before any work.
 
-Exit codes (SPEC.md): 0 success, 1 ran but did not meet what was asked, 2 invalid input,
-130 interrupted by SIGINT, 143 terminated by SIGTERM.
+Output files (targets, atomic writes) live in :mod:`hoc_cli.commands.files`, re-exported here.
+
+Exit codes (SPEC.md): 0 success, 1 ran but did not meet what was asked (or an output could not
+be written: disk full, I/O error), 2 invalid input (or an output that would replace an input),
+129 hung up (SIGHUP: a closed terminal or ssh session), 130 interrupted by SIGINT, 143 terminated
+by SIGTERM. A failed or interrupted run changes no output and leaves no temporary file.
 """
 from __future__ import annotations
 
 import json
-import os
+import math
 import signal
 import sys
-import tempfile
 import warnings
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 from rich.console import Console
 
-from hoc_cli.errors import HocError, HocWarning, OutputError
+from hoc_cli.commands.files import (  # noqa: F401  (re-exported: the commands import them from here)
+    OUTPUT_KINDS,
+    TERMINATING,
+    OutputTarget,
+    atomic_output,
+    output_transaction,
+    parse_outputs,
+    refuse_inputs,
+    what_changed,
+)
+from hoc_cli.commands import files as _files
+from hoc_cli.errors import HocError, HocWarning, InputFileError, JointSelectionError, OutputError, TaskError
 
-EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 130, 143
-OUTPUT_KINDS = {".csv": "csv", ".mcap": "mcap"}
+EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
+_SIGNAL_WORDS = {getattr(signal, "SIGHUP", -1): "hung up (SIGHUP)", signal.SIGTERM: "terminated"}
 
 
 class Terminated(BaseException):
-    """Raised from the SIGTERM handler so that ``finally`` blocks clean up temporary files."""
+    """Raised from the SIGTERM/SIGHUP handler so that ``finally`` blocks clean up temporary files."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
 def stderr_console(quiet: bool = False, progress: bool = False) -> Console:
@@ -33,33 +49,62 @@ def stderr_console(quiet: bool = False, progress: bool = False) -> Console:
     return Console(stderr=True, quiet=quiet, force_terminal=True if progress else None, highlight=False)
 
 
+def _say(line: str) -> None:
+    """One line on standard error; a closed terminal (SIGHUP, EIO) or pipe is not a second failure."""
+    try:
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+
+
 def report_error(message: str) -> None:
     """One plain line on standard error (no rich markup: paths may contain brackets)."""
-    sys.stderr.write(f"hoc: error: {message}\n")
-    sys.stderr.flush()
+    _say(f"hoc: error: {message}")
+
+
+def warn(message: str) -> None:
+    """A ``hoc: warning:`` line on standard error, terminal or not (silenced by ``-q``: see run_guarded)."""
+    warnings.warn(HocWarning(message), stacklevel=2)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings as one line on standard error (HocWarning only; others are silenced without --debug)."""
-    sys.stderr.write(f"hoc: warning: {message}\n")
-    sys.stderr.flush()
+    _say(f"hoc: warning: {message}")
 
 
-def run_guarded(body: Callable[[], int], debug: bool = False) -> int:
-    """Run a command body and map failures to exit codes; tracebacks only with ``debug``."""
-    previous = signal.getsignal(signal.SIGTERM)
+def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = False) -> int:
+    """Run a command body and map failures to exit codes; tracebacks only with ``debug``.
 
-    def _on_term(signum: int, frame: Any) -> None:
-        raise Terminated()
+    SIGTERM and SIGHUP raise :class:`Terminated` and SIGINT ``KeyboardInterrupt`` in the body, once:
+    a second signal while the first unwinds (removing temporary files) is ignored. ``quiet``
+    silences every warning.
+    """
+    fired = False
 
+    def _on_signal(signum: int, frame: Any) -> None:
+        nonlocal fired
+        if fired:
+            return
+        fired = True
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise Terminated(signum)
+
+    handled = list(TERMINATING)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when SIGINT is ignored
+        handled.append(signal.SIGINT)
+    previous: dict[int, Any] = {}
     try:
-        signal.signal(signal.SIGTERM, _on_term)
+        for sig in handled:
+            previous[sig] = signal.signal(sig, _on_signal)
     except ValueError:  # not in the main thread (e.g. some test runners)
-        previous = None
+        pass
+    _files._committed.clear()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always" if debug else "ignore")
-            warnings.simplefilter("always", HocWarning)
+            warnings.simplefilter("ignore" if quiet else "always", HocWarning)
             warnings.showwarning = _show_warning if not debug else warnings.showwarning
             return body()
     except HocError as exc:
@@ -74,128 +119,115 @@ def run_guarded(body: Callable[[], int], debug: bool = False) -> int:
         report_error(f"internal error ({type(exc).__name__}: {first}); please report it with the output of --debug")
         return EXIT_UNMET
     except KeyboardInterrupt:
-        report_error("interrupted; no output was changed")
+        report_error(f"interrupted; {what_changed()}")
         return EXIT_SIGINT
-    except Terminated:
-        report_error("terminated; no output was changed")
-        return EXIT_SIGTERM
+    except Terminated as exc:
+        report_error(f"{_SIGNAL_WORDS.get(exc.signum, f'signal {exc.signum}')}; {what_changed()}")
+        return 128 + exc.signum
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
-@dataclass(frozen=True)
-class OutputTarget:
-    """One requested output: a path (None for standard output) and its format ("csv" | "mcap")."""
+def load_model(task, *, urdf_label: str | None = None, task_label: str | None = None):
+    """``load_robot`` for a task; a ``joints``/``locked``/``gravity`` misfit blames the task key.
 
-    path: Path | None
-    kind: str
-
-    @property
-    def label(self) -> str:
-        return "-" if self.path is None else str(self.path)
-
-
-def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
-    """Validate ``-o`` values before any work is done. Default: ``<stem>.mcap`` and ``<stem>.csv`` in the cwd."""
-    if not outputs:
-        outputs = [f"{stem}.mcap", f"{stem}.csv"]
-    targets: list[OutputTarget] = []
-    seen: set = set()
-    for raw in outputs:
-        identity = "-" if raw == "-" else os.path.realpath(raw)
-        if identity in seen:
-            raise OutputError("is given twice (expected each output once)", file=raw, key="--output")
-        seen.add(identity)
-        if raw == "-":
-            targets.append(OutputTarget(None, "csv"))
-            continue
-        path = Path(raw)
-        if path.is_dir():
-            raise OutputError("is a directory (expected a file path)", file=path, key="--output")
-        kind = OUTPUT_KINDS.get(path.suffix.lower())
-        if kind is None:
-            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)", file=path, key="--output")
-        parent = path.parent if str(path.parent) else Path(".")
-        if not parent.is_dir():
-            what = "is not a directory" if parent.exists() else "does not exist"
-            raise OutputError(f"directory {str(parent)!r} {what}", file=path, key="--output")
-        if path.is_dir():
-            raise OutputError("is a directory (expected a file path)", file=path, key="--output")
-        if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-            raise OutputError("not writable", file=path, key="--output")
-        targets.append(OutputTarget(path, kind))
-    return targets
-
-
-#: renames deferred by an open ``output_transaction`` (temporary file, target); None when none is open
-_pending: list[tuple[str, Path]] | None = None
-
-
-@contextmanager
-def output_transaction() -> Iterator[None]:
-    """Defer the renames of every ``atomic_output`` in the block to its end: all targets change, or none.
-
-    A run writing a CSV and an MCAP that is interrupted while writing the second leaves the first
-    as it was too; on any exception every temporary file written in the block is removed.
+    ``urdf_label`` and ``task_label`` are what messages call the URDF and the task file (default:
+    their paths), e.g. ``plan.mcap: attachment robot.urdf`` for a plan's attached files.
     """
-    global _pending
-    outer, _pending = _pending, []
-    mine = _pending
+    from hoc_cli.model import load_robot
+
     try:
-        yield
-    except BaseException:
-        for tmp, _ in mine:
-            _unlink(tmp)
-        raise
-    finally:
-        _pending = outer
-    for i, (tmp, path) in enumerate(mine):
-        try:
-            os.replace(tmp, path)
-        except BaseException:
-            for rest, _ in mine[i:]:
-                _unlink(rest)
-            raise
+        return load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
+                          gravity=task.gravity, label=urdf_label)
+    except JointSelectionError as exc:
+        named = exc.key == exc.task_key or exc.task_key.startswith("locked.")  # the key names the joint
+        raise TaskError(exc.detail if named else f"{exc.key}: {exc.detail}",
+                        file=task_label or task.path, key=exc.task_key) from None
 
 
-def _unlink(tmp: str) -> None:
-    try:
-        os.unlink(tmp)
-    except FileNotFoundError:
-        pass
+def check_columns(targets: list[OutputTarget], joints) -> None:
+    """Before any work: every joint name can be a CSV column when a CSV output is asked for."""
+    from hoc_cli.io.csv import column_problem
+
+    csv = [t for t in targets if t.kind == "csv"]
+    if not csv:
+        return
+    for name in joints:
+        problem = column_problem(name)
+        if problem:
+            raise OutputError(f"joint name {name!r} cannot be a CSV column ({problem}); write only an .mcap "
+                              "output, or rename the joint", file=csv[0].label, key="--output")
 
 
-@contextmanager
-def atomic_output(path: Path) -> Iterator[Any]:
-    """Open a temporary binary file beside ``path``; rename it into place only if the block succeeds.
+def check_sample_times(targets: list[OutputTarget], T: float, rate: float, *, file, key: str = "output.rate") -> None:
+    """Before any work: MCAP outputs stamp samples in whole nanoseconds, so no two may share one."""
+    import numpy as np
 
-    On any exception (including KeyboardInterrupt and ``Terminated``) the temporary file is
-    removed and an existing ``path`` is left untouched. Inside ``output_transaction`` the rename
-    waits for the end of the transaction.
-    """
-    if path.is_symlink():  # write through the link, as a plain `open(path, "w")` would
-        path = Path(os.path.realpath(path))
-    parent = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        if path.exists():
-            os.chmod(tmp, path.stat().st_mode & 0o777)
+    from hoc_cli.io.mcap import time_ns
+    from hoc_cli.trajectory import sample_times
+
+    if not any(t.kind == "mcap" for t in targets):
+        return
+    ns = time_ns(sample_times(T, rate))
+    if ns.size > 1 and not np.all(np.diff(ns) > 0):
+        if rate > 1e9:
+            why = f"{rate:g} Hz puts samples less than 1 ns apart"
         else:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-        if _pending is not None:
-            _pending.append((tmp, path))
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        _unlink(tmp)
-        raise
+            why = f"T = {T!r} s leaves the last sample within 1 ns of the one before it"
+        raise TaskError(f"{why}, and MCAP time stamps are whole nanoseconds (expected a rate <= 1e9 Hz and "
+                        "T not within 1 ns of a multiple of 1/rate)", file=file, key=key)
+
+
+def read_urdf_text(path: Path, label: str | None = None) -> str:
+    """The URDF document as text (stored in MCAP outputs), read before any work is done."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputFileError("is not UTF-8 text (hoc stores the URDF in its MCAP outputs as UTF-8)",
+                             file=label or path) from None
+    except OSError as exc:
+        raise InputFileError(f"cannot be read ({exc.strerror or type(exc).__name__})", file=label or path) from None
+
+
+def warn_limit_violations(violations: list[dict]) -> None:
+    """One warning line per limit broken (standard error, terminal or not; silenced by ``-q``)."""
+    def show(x) -> str:
+        return "none" if x is None else f"{x:.4g}"
+
+    for v in violations:
+        limit = v.get("limit", ())
+        if isinstance(limit, list):
+            limit = f"[{', '.join(show(x) for x in limit)}]"
+        elif limit != ():
+            limit = show(limit)
+        where = f" at t = {v['t']:.4g} s" if "t" in v else ""
+        said = f" {limit}" if limit != () else ""
+        warn(f"joint {v['joint']!r} exceeds its {v['kind']} limit{said}: worst {v['worst']:.4g}{where}")
+
+
+def json_ready(obj: Any) -> Any:
+    """``obj`` with every non-finite float (an absent limit is ±inf) as None, ready for strict JSON."""
+    if isinstance(obj, dict):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_ready(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    try:
+        import numpy as np
+    except ImportError:  # pragma: no cover
+        return obj
+    if isinstance(obj, np.ndarray):
+        return json_ready(obj.tolist())
+    if isinstance(obj, np.floating) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def validate_json(obj: Any) -> str:
+    """Strict JSON text of ``obj`` (raises before any output is written if it cannot be serialised)."""
+    return json.dumps(obj, indent=2, allow_nan=False, default=_jsonable)
 
 
 def print_json(obj: Any) -> None:

@@ -4,13 +4,12 @@ from __future__ import annotations
 import io
 import json
 import sys
-from pathlib import Path
 
 from hoc_cli.commands.common import OutputTarget, atomic_output
 from hoc_cli.trajectory import Trajectory
 
 
-def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_path: Path, task_text: str,
+def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
                   summary: dict) -> list[str]:
     """Write ``traj`` to every target; returns the labels written ("-" for stdout).
 
@@ -21,7 +20,6 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
     from hoc_cli.io.csv import write_csv
     from hoc_cli.io.mcap import write_mcap
 
-    urdf_text = Path(urdf_path).read_text(encoding="utf-8")
     written = []
     for target in targets:
         if target.path is None:
@@ -35,7 +33,7 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
         else:
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
-                           metadata={"summary": json.dumps(summary, sort_keys=True, default=float)},
+                           metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
                            link_poses=lambda q: dynamics.link_poses(model, q))
         written.append(target.label)
     return written

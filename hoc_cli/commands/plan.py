@@ -7,36 +7,71 @@ from pathlib import Path
 
 import numpy as np
 from rich.table import Table
+from rich.text import Text
 
 from hoc_cli import __version__
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, output_transaction, parse_outputs, print_json, stderr_console
+from hoc_cli.commands.common import (
+    EXIT_OK,
+    EXIT_UNMET,
+    check_columns,
+    check_sample_times,
+    json_ready,
+    load_model,
+    output_transaction,
+    parse_outputs,
+    print_json,
+    read_urdf_text,
+    refuse_inputs,
+    stderr_console,
+    validate_json,
+    warn_limit_violations,
+)
 from hoc_cli.commands.outputs import write_outputs
+from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.limits import dense_times, limit_violations
+from hoc_cli.optimize import check_gradient
 from hoc_cli.planner import PlanResult, plan
+from hoc_cli.problem import ControlProblem
 from hoc_cli.system import RobotSystem
 from hoc_cli.trajectory import Trajectory, sample_times
 
+GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
+GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
+
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
-        progress: bool = False, overrides: dict | None = None, init: Path | None = None, starts: int = 1,
-        seed: int = 0) -> int:
+        progress: bool = False, overrides: dict | None = None, init: Path | None = None,
+        gradient_check: bool = False, starts: int = 1, seed: int = 0) -> int:
     from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
 
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
     check_starts(starts, seed, init)
+    if gradient_check and outputs:
+        raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
+    refuse_inputs(targets, {"the task": task.path, "the URDF": task.robot, "--init": init})
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
+    check_sample_times(targets, task.T, task.rate, file=task.path)
     model = load_model(task)
+    check_columns(targets, model.joint_names)
+    urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
-    _warn_outside_limits(console, task, model, states)
+    limits = task_limits(model, states.limits)
+    mode = task.limits.mode
+    if mode == "enforce":
+        check_boundary_states(task, limits, states)
+    else:
+        _warn_outside_limits(console, task, model, states)
     mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
     C_init = _warm_start(init, mesh, model.joint_names) if init is not None else None
+    if gradient_check:
+        return _check_gradient(task, model, states, mesh, C_init, console, as_json)
 
     start = time.perf_counter()
 
@@ -51,39 +86,41 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
-    result, multi = solve(task, model, states, mesh, C_init=C_init, callback=report, starts=starts, seed=seed,
+    result, multi = solve(task, model, states, mesh, limits, C_init=C_init, callback=report, starts=starts, seed=seed,
                           client=starts_pool if starts > 1 else None, on_start=report_start)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
-    summary = summarise(task, model, result, states) | starts_summary(multi, seed)
+    summary = summarise(task, model, result, states)
+    summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
+    summary.update(starts_summary(multi, seed))
+    summary = json_ready(summary)  # an absent limit (inf) is null
+    validate_json(summary)  # before any output is written
     with output_transaction():  # every output is replaced, or none
-        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_path=task.robot, task_text=task.text,
+        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
                                            summary=_reproducible(summary))
+    warn_limit_violations(summary["limit_violations"])
     if as_json:
         print_json(summary)
     if show:
         console.print(summary_table(summary))
     if not result.converged:
-        console.print(f"hoc: not converged: {result.optimizer.message}; the best iterate was written",
+        why = summary["message"] if result.limits is not None else result.optimizer.message
+        head = "infeasible" if summary["status"] == "infeasible" else "not converged"
+        tail = "" if head == "infeasible" else "; the best iterate was written"
+        console.print(f"hoc: {head}: {why}{tail}",
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
 
 
-def load_model(task: Task):
-    """The task's robot model (URDF with its joint selection, locked joints and gravity)."""
-    from hoc_cli.model import load_robot
-
-    return load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                      gravity=task.gravity)
-
-
-def solve(task: Task, model, states, mesh: HermiteMesh, *, C_init: np.ndarray | None = None, callback=None,
+def solve(task: Task, model, states, mesh: HermiteMesh, limits, *, C_init: np.ndarray | None = None, callback=None,
           starts: int = 1, seed: int = 0, client=None, on_start=None):
     """Solve the task: (PlanResult, None), or with ``starts`` > 1 (the best start's result, MultiStartResult).
 
+    ``limits`` (``task_limits``) are enforced when ``task.limits.mode`` is "enforce".
     ``client``, ``on_start``: see ``hoc_cli.multistart.solve_starts``.
     """
-    options = dict(cost=task.cost, method=task.method, tol=task.tol, max_iter=task.max_iter)
+    options = dict(cost=task.cost, method=task.method, tol=task.tol, max_iter=task.max_iter,
+                   limits=limits if task.limits.mode == "enforce" else None)
     system = RobotSystem(model)
     with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
         if starts <= 1:
@@ -94,6 +131,35 @@ def solve(task: Task, model, states, mesh: HermiteMesh, *, C_init: np.ndarray | 
         multi = solve_starts(system, mesh, states.q0, states.dq0, states.q1, states.dq1, starts=starts, seed=seed,
                              client=client, on_start=on_start, **options)
     return multi.best, multi
+
+
+def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
+    """``--check-gradient``: the cost gradient at the initial guess against central differences."""
+    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
+    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+    coordinates = None
+    if x.size > GRADIENT_MAX_COORDINATES:
+        coordinates = np.sort(np.random.default_rng(0).choice(x.size, GRADIENT_MAX_COORDINATES, replace=False))
+    with np.errstate(all="ignore"):
+        check = check_gradient(problem.value, x, problem.evaluate(x).grad, coordinates=coordinates)
+    passed = check.passed(GRADIENT_RTOL)
+    worst, where = None, "no free coefficients (every coefficient is fixed by x0 and x1)"
+    if check.coordinates.size:
+        p, d, i = (int(v) for v in np.unravel_index(np.flatnonzero(problem.layout.free)[check.worst[1]],
+                                                      (mesh.N + 1, mesh.m, problem.n)))
+        worst = {"node": p, "t": float(mesh.nodes[p]), "derivative": ("q", "dq", "ddq")[d],
+                 "joint": model.joint_names[i]}
+        where = f"worst {worst['derivative']} of {worst['joint']} at node {p} (t = {worst['t']:.6g} s)"
+    if as_json:
+        print_json({"gradient_check": {"max_rel_error": check.max_rel_error, "rtol": GRADIENT_RTOL, "passed": passed,
+                                       "coordinates": int(check.coordinates.size), "of": int(x.size),
+                                       "step": check.step, "worst": worst, "cost_type": task.cost, "N": mesh.N,
+                                       "order": mesh.order}})
+    console.print(f"hoc: gradient check ({task.cost} cost, {mesh.order} N = {mesh.N}, at the initial guess): "
+                  f"max relative error {check.max_rel_error:.2e} over {check.coordinates.size} of {x.size} "
+                  f"coefficients, {where}; {'passed' if passed else 'FAILED'} (threshold {GRADIENT_RTOL:g})",
+                  highlight=False, markup=False, soft_wrap=True)
+    return EXIT_OK if passed else EXIT_UNMET
 
 
 def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
@@ -153,15 +219,16 @@ def summary_table(summary: dict) -> Table:
                 "N", "order", "T", "boundary_error"):
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
-    table.add_row("max |u|", ", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"])))
+    # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
+    table.add_row("max |u|", Text(", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"]))))
     viol = summary["limit_violations"]
-    table.add_row("limit violations", "none" if not viol else "; ".join(
-        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol))
+    table.add_row("limit violations", Text("none" if not viol else "; ".join(
+        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
     if "starts" in summary:
         table.add_row("starts", "; ".join(
             f"{o['start']}{'*' if o['start'] == summary['best_start'] else ''} "
             f"{'-' if o['cost'] is None else format(o['cost'], '.6g')} {o['status']}" for o in summary["starts"]))
-    table.add_row("outputs", ", ".join(summary["outputs"]))
+    table.add_row("outputs", Text(", ".join(summary["outputs"])))
     return table
 
 

@@ -10,7 +10,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hoc_cli.commands.common import EXIT_OK, atomic_output
+from hoc_cli.commands.common import EXIT_OK, OutputTarget, atomic_output, refuse_inputs
 from hoc_cli.errors import HocError, InputFileError, ModelError, OutputError
 
 MCAP_MAGIC = b"\x89MCAP"
@@ -28,6 +28,7 @@ def run(file: Path, output: Path) -> int:
     parent = output.parent if str(output.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"directory {str(parent)!r} does not exist", file=output, key="--output")
+    refuse_inputs([OutputTarget(output, fmt)], {"the plotted file": file})
     try:
         import matplotlib  # noqa: F401  (checked before reading a possibly large input)
     except ImportError:

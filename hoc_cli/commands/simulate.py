@@ -13,9 +13,10 @@ Torque history, first that applies:
 ``--method hermite`` (default): the paper's collocation integrator with the task's N and order
 (``hoc_cli.simulate.simulate_hermite``); ``--method rk``: scipy's DOP853, rtol = atol = 1e-12.
 
-Outputs as for ``hoc plan``: ``-o`` CSV/MCAP (default ``<task stem>.mcap`` and ``.csv``; for an
-MCAP SOURCE ``<source stem>-sim.mcap`` and ``.csv``, so the plan is never overwritten), samples at
-``output.rate``; ``u`` is the applied torque u(t). The MCAP carries the simulation's Hermite
+Outputs as for ``hoc plan``: ``-o`` CSV/MCAP (default, for every SOURCE: ``<source stem>-sim.mcap``
+and ``<source stem>-sim.csv``, so a plan's ``<stem>.mcap``/``.csv`` is never overwritten; an output
+that is the same file as an input is refused), samples at ``output.rate``; ``u`` is the applied
+torque u(t). The MCAP carries the simulation's Hermite
 coefficients (hermite method) and a ``simulation`` metadata entry (the JSON summary).
 
 ``--json`` summary: ``method``, ``joints``, ``N``, ``order``, ``T``, ``torque`` (its source),
@@ -41,13 +42,21 @@ from hoc_cli.commands.common import (
     EXIT_UNMET,
     OutputTarget,
     atomic_output,
+    check_columns,
+    check_sample_times,
+    json_ready,
+    load_model,
     output_transaction,
     parse_outputs,
     print_json,
+    read_urdf_text,
+    refuse_inputs,
     stderr_console,
+    validate_json,
+    warn_limit_violations,
 )
 from hoc_cli.errors import InputFileError, OutputError, TaskError
-from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve
+from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve, yaml_error_detail
 
 METHODS = ("hermite", "rk")
 
@@ -66,7 +75,6 @@ def run(
     from hoc_cli import simulate as sim
     from hoc_cli import torque as torque_sources
     from hoc_cli.elements import HermiteMesh
-    from hoc_cli.model import load_robot
     from hoc_cli.system import RobotSystem
     from hoc_cli.trajectory import sample_times
 
@@ -78,6 +86,7 @@ def run(
 
     with tempfile.TemporaryDirectory(prefix="hoc-simulate-") as scratch:
         plan = None
+        labels: dict[str, str] = {}
         if source.suffix.lower() == ".csv":
             raise InputFileError("a CSV cannot be the simulation source (expected a task YAML or a plan's MCAP); "
                                  "give a torque CSV with --torque", file=source)
@@ -86,21 +95,25 @@ def run(
 
             plan = read_plan(source)
             task = _task_from_plan(plan, source, Path(scratch))
-            stem = f"{source.stem}-sim"
             urdf_text = plan.urdf_text
+            labels = {"urdf_label": f"{source}: attachment robot.urdf", "task_label": f"{source}: attachment task.yaml"}
         else:
             task = load_task(source, purpose="simulate")
-            stem = task.stem
-            urdf_text = _read_text(task.robot)
+            urdf_text = ""
         task = apply_overrides(task, **(overrides or {}))
-        targets = parse_outputs(outputs, stem)
+        targets = parse_outputs(outputs, f"{source.stem}-sim")  # never a plan's <stem>.csv/.mcap
+        refuse_inputs(targets, {"the simulation source": source, "the URDF": None if plan else task.robot,
+                                "--torque": torque})
         if as_json and any(t.path is None for t in targets):
             raise OutputError("'-o -' writes CSV to standard output, which --json needs for the summary", key="--output")
         if check is not None and task.x1 is None:
             raise TaskError("--check needs a goal state x1 in the task", file=task.path, key="x1")
+        check_sample_times(targets, task.T, task.rate, file=labels.get("task_label", task.path))
+        if plan is None and any(t.kind == "mcap" for t in targets):
+            urdf_text = read_urdf_text(task.robot)  # stored in MCAP outputs
 
-        model = load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                           gravity=task.gravity)
+        model = load_model(task, **labels)
+        check_columns(targets, model.joint_names)
         system = RobotSystem(model)
         joints = tuple(model.joint_names)
         states = resolve(task, joints)
@@ -131,7 +144,7 @@ def run(
         final_error = None
         if states.q1 is not None:
             final_error = float(max(np.max(np.abs(qT - states.q1)), np.max(np.abs(dqT - states.dq1))))
-        summary: dict[str, Any] = {
+        summary: dict[str, Any] = json_ready({
             "method": method,
             "source": str(source),
             "torque": described,
@@ -149,14 +162,16 @@ def run(
             "max_abs_u": np.max(np.abs(traj.u), axis=0).tolist(),
             "limit_violations": _limit_violations(model, traj),
             "outputs": [t.label for t in targets],
-        }
+        })  # a non-finite value (a diverged state) is null: the summary is always valid JSON
         passed = True
         if check is not None:
             passed = bool(final_error is not None and final_error <= check)
             summary["check"] = {"tol": check, "passed": passed}
+        validate_json(summary)  # before any output is written
 
         with output_transaction():  # every output is replaced, or none
             _write_outputs(targets, traj, model, urdf_text, task, summary)
+    warn_limit_violations(summary["limit_violations"])
 
     if as_json:
         print_json(summary)
@@ -170,21 +185,15 @@ def run(
 
 
 # --------------------------------------------------------------------------- sources
-def _read_text(path: Path) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(f"cannot be read ({type(exc).__name__})", file=path) from None
-
-
 def _task_from_plan(plan, source: Path, scratch: Path) -> Task:
     """The task stored in a plan's MCAP, with ``robot`` pointing at the URDF attached to it."""
     urdf = scratch / "robot.urdf"
     urdf.write_text(plan.urdf_text, encoding="utf-8")
     try:
         doc = load_yaml(plan.task_text)
-    except yaml.YAMLError:
-        raise InputFileError("the task attached to this plan is not valid YAML", file=source) from None
+    except yaml.YAMLError as exc:
+        raise InputFileError(f"the task attached to this plan is not valid YAML{yaml_error_detail(exc)}",
+                             file=source) from None
     if not isinstance(doc, dict):
         raise InputFileError("the task attached to this plan is not a mapping of task keys", file=source)
     doc = dict(doc, robot=str(urdf))
@@ -319,8 +328,6 @@ def _human(console, s: dict) -> None:
     say(f"final dq = {s['final_state']['dq']}")
     if s["final_error"] is not None:
         say(f"final error against x1: {s['final_error']:.3g}")
-    for v in s["limit_violations"]:
-        say(f"warning: {v['joint']} exceeds its {v['kind']} limit (worst {v['worst']:.4g})")
     for path in s["outputs"]:
         if path != "-":
             say(f"wrote {path}")

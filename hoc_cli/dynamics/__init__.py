@@ -18,6 +18,8 @@ v, a   spatial velocity / acceleration (ω, v) of a body, in its own frame
 f, F   spatial force (n, f) on one body / transmitted through its joint (subtree sum)
 I      (6, 6) spatial inertia of a body about its frame origin
 X      (6, 6) Plücker transform of a joint's constant part (``model.tree_motion``)
+J      (K, 6, n) frame Jacobian of a link (``frame_jacobian``): [v; ω] = J q̇, rows 0:3 the linear
+       velocity of the link origin (m/s), rows 3:6 the angular velocity (rad/s), root-link frame
 ====== ================================================================================
 
 Implementation. Every joint moves about or along its body's local z axis (see
@@ -45,33 +47,54 @@ operation. The only Python loops are the recursions over bodies.
 * ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
   the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
   shifted acceleration q̈ − ½ w.
+* ``link_poses``, ``frame_jacobian``, ``link_velocity``, ``link_velocity_derivatives``: forward
+  kinematics of a link, batched over samples (:mod:`.kinematics`; J's rows 0:3 are the linear
+  velocity of the link origin, rows 3:6 the angular velocity, both in the root-link frame).
+
+Modules: :mod:`._layout` (input checks, chunk sizes, storage layout, per-model constants),
+:mod:`._passes` (the Newton-Euler forward pass, body forces, subtree sums, read-outs),
+:mod:`._adjoint` (the reverse sweep: vector-Jacobian products and full Jacobians),
+:mod:`.kinematics` (link poses, frame Jacobians, link velocities). This module holds the public
+functions.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..model.tree import RobotModel
-from ._recursions import (  # noqa: F401  (the chunk sizes are tuning knobs, re-exported)
+from ._adjoint import _jac_work, _jacobians_into, _vjp_rows
+from ._layout import (  # noqa: F401  (the chunk sizes are tuning knobs, re-exported)
     DERIV_CHUNK,
+    ID_CHUNK,
     JAC_MIN_K,
     MASS_CHUNK,
     VJP_CHUNK,
-    _backward,
     _chunks,
     _consts,
-    _cos_sin,
-    _forces,
-    _forward,
-    _h_and_mass,
     _inputs,
-    _jac,
-    _jac_work,
-    _mass_from,
     _shape_out,
+)
+from ._passes import (
+    _h_and_mass,
+    _mass_from,
+    _newton_euler,
+    _shift_acceleration,
     _tau,
     _tau_of,
-    _vjp,
 )
+from .kinematics import (
+    frame_jacobian,
+    link_poses,
+    link_velocity,
+    link_velocity_derivatives,
+)
+
+__all__ = [
+    "SINGULAR_PIVOT", "bias_forces", "covariant_gradient_terms", "forward_dynamics",
+    "frame_jacobian", "gravity_forces", "id_derivatives", "id_vjp", "inverse_dynamics",
+    "link_poses", "link_velocity", "link_velocity_derivatives", "mass_cholesky", "mass_matrix",
+    "mass_quadratic_grad",
+]
 
 
 #: a Cholesky pivot L_ii² below this fraction of the largest diagonal entry of M means M is singular
@@ -105,23 +128,20 @@ def inverse_dynamics(model: RobotModel, q, dq, ddq, gravity: bool = True) -> np.
     Returns:
         u: (K, n) N·m (revolute) or N (prismatic).
     """
-    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    (qT, dqT, ddqT), _, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
     return _shape_out(_tau(model, qT, dqT, ddqT, gravity), one_d)
-
 
 
 def bias_forces(model: RobotModel, q, dq) -> np.ndarray:
     """Bias forces h (K, n) = C(q, q̇) q̇ + g(q) = ID(q, q̇, 0), N·m or N."""
-    (qT, dqT), K, one_d = _inputs(model, q=q, dq=dq)
+    (qT, dqT), _, one_d = _inputs(model, q=q, dq=dq)
     return _shape_out(_tau(model, qT, dqT, None, True), one_d)
-
 
 
 def gravity_forces(model: RobotModel, q) -> np.ndarray:
     """Gravity torques g (K, n) = ID(q, 0, 0), N·m or N."""
-    (qT,), K, one_d = _inputs(model, q=q)
+    (qT,), _, one_d = _inputs(model, q=q)
     return _shape_out(_tau(model, qT, None, None, True), one_d)
-
 
 
 def mass_matrix(model: RobotModel, q) -> np.ndarray:
@@ -135,12 +155,8 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
     out = np.empty((K, model.n, model.n))
     if model.n:
         for sl in _chunks(K, MASS_CHUNK):
-            P = _forward(C, qT[:, sl], None, None, False, cols=True)
-            _forces(C, P)
-            _backward(C, P)
-            _mass_from(C, P, out[sl])
+            _mass_from(C, _newton_euler(C, qT[:, sl], None, None, False, cols=True), out[sl])
     return _shape_out(out, one_d)
-
 
 
 def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
@@ -166,7 +182,6 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
     return _shape_out(ddq, one_d)
 
 
-
 def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     """Inverse dynamics and its partial derivatives.
 
@@ -185,23 +200,11 @@ def id_derivatives(model: RobotModel, q, dq, ddq, gravity: bool = True):
     if n and K:
         chunk = max(JAC_MIN_K, min(DERIV_CHUNK, DERIV_CHUNK * 49 // (n * n)))
         work = _jac_work(C, min(K, chunk)) if K >= JAC_MIN_K else None
-        eye = np.eye(n)[:, :, None]
         for sl in _chunks(K, chunk):
-            P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
-            _forces(C, P)
-            _backward(C, P)
-            # Gs[:, j, i, k] = ∂u_i/∂(q_j, q̇_j, q̈_j) at sample k
-            if P.K < JAC_MIN_K:  # few samples: fewer numpy calls with all seeds on all bodies
-                Gs = _vjp(C, P, np.broadcast_to(eye, (n, n, P.K)))
-            else:
-                Gs = np.empty((3, n, n, P.K))
-                _jac(C, P, Gs[0], Gs[1], Gs[2], work)
+            P = _newton_euler(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
+            _jacobians_into(C, P, work, du_dq[sl], du_ddq[sl], M[sl])
             u[sl] = _tau_of(C, P).T
-            du_dq[sl] = np.transpose(Gs[0], (2, 1, 0))
-            du_ddq[sl] = np.transpose(Gs[1], (2, 1, 0))
-            M[sl] = np.transpose(Gs[2], (2, 1, 0))
     return tuple(_shape_out(x, one_d) for x in (u, du_dq, du_ddq, M))
-
 
 
 def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
@@ -221,16 +224,10 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
     gdq = np.empty((K, n))
     gddq = np.empty((K, n))
     for sl in _chunks(K, VJP_CHUNK):
-        P = _forward(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
-        _forces(C, P)
-        _backward(C, P)
-        gqT, gdqT, gddqT = _vjp(C, P, lT[:, None, sl])
+        P = _newton_euler(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], gravity, cols=False)
+        gq[sl], gdq[sl], gddq[sl] = _vjp_rows(C, P, lT[:, sl])
         u[sl] = _tau_of(C, P).T
-        gq[sl] = gqT[:, 0].T
-        gdq[sl] = gdqT[:, 0].T
-        gddq[sl] = gddqT[:, 0].T
     return tuple(_shape_out(x, one_d) for x in (u, gq, gdq, gddq))
-
 
 
 def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
@@ -242,12 +239,9 @@ def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:
     C = _consts(model)
     out = np.empty((K, model.n))
     for sl in _chunks(K, VJP_CHUNK):
-        P = _forward(C, qT[:, sl], None, vT[:, sl], False, cols=False)
-        _forces(C, P)
-        _backward(C, P)
-        out[sl] = _vjp(C, P, vT[:, None, sl])[0][:, 0].T
+        P = _newton_euler(C, qT[:, sl], None, vT[:, sl], False, cols=False)
+        out[sl] = _vjp_rows(C, P, vT[:, sl])[0]
     return _shape_out(out, one_d)
-
 
 
 def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = False):
@@ -288,46 +282,7 @@ def covariant_gradient_terms(model: RobotModel, q, dq, ddq, return_w: bool = Fal
             ws = np.linalg.solve(np.swapaxes(Lc, 1, 2), y)[:, :, 0]
             w[sl] = ws
             wT = np.ascontiguousarray(ws.T)
-            # acceleration at q̈ − ½ w: a ← a − ½ Σ_j w_j (column j); then the forces again
-            TT = P.TT
-            da = TT[:, 4:10, 2:] * wT
-            TT[:, 4:10, 1] -= 0.5 * da.sum(axis=2)
-            _forces(C, P, only_acc=True)
-            P.cols = False
-            _backward(C, P)
-            gqT, gdqT, _ = _vjp(C, P, wT[:, None, :])
-            gq[sl] = gqT[:, 0].T
-            gdq[sl] = gdqT[:, 0].T
+            _shift_acceleration(C, P, wT)  # the same pass at acceleration q̈ − ½ w
+            gq[sl], gdq[sl], _ = _vjp_rows(C, P, wT)
     res = (u, M, gq, gdq, w) if return_w else (u, M, gq, gdq)
     return tuple(_shape_out(x, one_d) for x in res)
-
-
-
-def link_poses(model: RobotModel, q) -> dict[str, np.ndarray]:
-    """Pose (K, 4, 4) of every URDF link (merged and fixed-base links included) in the root-link
-    frame, keyed by link name; translations in m."""
-    (qT,), K, one_d = _inputs(model, q=q)
-    n = model.n
-    body = [None] * n
-    c, s = _cos_sin(qT)
-    for i in model.order:
-        J = np.zeros((K, 4, 4))
-        J[:, 3, 3] = 1.0
-        if model.joint_types[i] == "prismatic":
-            J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = 1.0
-            J[:, 2, 3] = qT[i]
-        else:
-            J[:, 0, 0] = c[i]
-            J[:, 0, 1] = -s[i]
-            J[:, 1, 0] = s[i]
-            J[:, 1, 1] = c[i]
-            J[:, 2, 2] = 1.0
-        p = model.parent[i]
-        base = model.tree_transform[i] if p < 0 else body[p] @ model.tree_transform[i]
-        body[i] = base @ J
-    out = {}
-    for name, b, offset in zip(model.link_names, model.link_body, model.link_offset):
-        T = np.broadcast_to(offset, (K, 4, 4)).copy() if b < 0 else body[b] @ offset
-        out[name] = _shape_out(T, one_d)
-    return out
-

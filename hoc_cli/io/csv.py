@@ -19,12 +19,32 @@ from hoc_cli.errors import InputFileError
 from hoc_cli.trajectory import Trajectory
 
 GROUPS = ("q", "dq", "ddq", "u")
-_FORBIDDEN = set(',"\r\n')
+#: characters that str.splitlines (used by read_csv) treats as line ends
+_LINE_BREAKS = set("\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029")
+_FORBIDDEN = set(',"') | _LINE_BREAKS
 
 
 def header(joints: tuple[str, ...] | list[str]) -> list[str]:
     """Column names for ``joints``: ``["t", "q.j0", …, "dq.j0", …, "ddq.j0", …, "u.j0", …]`` (1 + 4n)."""
     return ["t"] + [f"{g}.{j}" for g in GROUPS for j in joints]
+
+
+def column_problem(joint: str) -> str | None:
+    """Why ``joint`` cannot name CSV columns that :func:`read_csv` reads back as written, or None.
+
+    Refused: an empty name, a comma, a double quote or a line break (they would split or quote the
+    header cell), and leading or trailing white space (the reader strips header cells).
+    """
+    if not joint:
+        return "it is empty"
+    if _LINE_BREAKS & set(joint):
+        return "it contains a line break"
+    bad = sorted(_FORBIDDEN & set(joint))
+    if bad:
+        return "it contains " + " and ".join(repr(c) for c in bad)
+    if joint != joint.strip():
+        return "it starts or ends with white space"
+    return None
 
 
 def write_csv(fh: IO, traj: Trajectory) -> None:
@@ -35,8 +55,9 @@ def write_csv(fh: IO, traj: Trajectory) -> None:
     """
     joints = tuple(traj.joints)
     for j in joints:
-        if not j or _FORBIDDEN & set(j):
-            raise ValueError(f"joint name {j!r} cannot be a CSV column (empty, or contains a comma, quote or line break)")
+        problem = column_problem(j)
+        if problem:
+            raise ValueError(f"joint name {j!r} cannot be a CSV column ({problem})")
     K, n = traj.K, len(joints)
     table = [np.asarray(traj.t, dtype=float).reshape(K, 1)]
     for g in GROUPS:

@@ -1,4 +1,5 @@
-"""URDF → :class:`RobotModel` (the XML itself is read by :mod:`hoc_cli.model.urdf_xml`).
+"""URDF → :class:`RobotModel` (the XML is read by :mod:`hoc_cli.model.urdf_xml` and checked by
+:mod:`hoc_cli.model.urdf_checks`).
 
 Every failure while reading a URDF is raised as :class:`hoc_cli.errors.ModelError` naming the file
 and the joint or link at fault; no other exception type leaves :func:`load_robot`.
@@ -12,157 +13,21 @@ from __future__ import annotations
 
 import math
 import warnings
-import os
-import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import HocWarning, ModelError
+from ..errors import HocWarning, JointSelectionError, ModelError
 from .spatial import align_z, joint_motion, motion_transform, spatial_inertia
-from .tree import JOINT_TYPES, RobotModel
-from .urdf_xml import UrdfSyntaxError, parse_robot
+from .tree import RobotModel
+from .urdf_checks import MAX_MAGNITUDE, MOVABLE, SUPPORTED  # noqa: F401  (re-exported)
+from .urdf_checks import check as _check
+from .urdf_checks import joint_axis as _axis
+from .urdf_checks import joint_origin as _origin
+from .urdf_checks import link_inertial as _inertial
+from .urdf_checks import read as _read
 
-MOVABLE = JOINT_TYPES
-SUPPORTED = MOVABLE + ("fixed",)
 #: subtree inertia about a joint axis below this (kg·m² or kg) is treated as zero (singular M)
 SINGULAR_INERTIA = 1e-12
-
-
-def _read(path) -> tuple[object, str]:
-    """Read a URDF's links and joints; ModelError on a missing file, malformed XML or a bad value."""
-    try:
-        path = os.fspath(path)
-    except TypeError:
-        raise ModelError(f"expected a URDF file path, got {type(path).__name__}", file=str(path)) from None
-    try:
-        exists, found = Path(path).exists(), Path(path).is_file()
-    except (OSError, ValueError):  # a name the system cannot look up (too long, ...)
-        exists = found = False
-    if not found:
-        what = "is not a regular file" if exists else "file not found"
-        raise ModelError(f"{what} (expected a URDF file)", file=path)
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise ModelError(f"malformed XML ({exc}); expected a URDF document", file=path) from None
-    except OSError as exc:
-        raise ModelError(f"cannot be read ({exc.strerror})", file=path) from None
-    if root.tag != "robot":
-        raise ModelError(f"root element is <{root.tag}>, expected <robot>", file=path)
-    try:
-        robot = parse_robot(root)
-    except UrdfSyntaxError as exc:
-        raise ModelError(f"not a valid URDF: {exc.message}", file=path, key=exc.where) from None
-    return robot, path
-
-
-def _inertial(link) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """(mass kg, pose (4,4) of the inertial frame in the link frame, inertia (3,3) about the com)."""
-    inertial = link.inertial
-    if inertial is None:
-        return 0.0, np.eye(4), np.zeros((3, 3))
-    mass = float(inertial.mass) if inertial.mass is not None else 0.0
-    origin = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, dtype=float)
-    inertia = np.zeros((3, 3)) if inertial.inertia is None else np.asarray(inertial.inertia, dtype=float)
-    return mass, origin, inertia
-
-
-def _axis(joint) -> np.ndarray:
-    return np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, dtype=float)
-
-
-def _origin(joint) -> np.ndarray:
-    return np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float)
-
-
-def _check(robot, path: str) -> tuple[str, dict, dict]:
-    """Validate joint types, topology and inertias; return (root link, children map, links by name)."""
-    links = {link.name: link for link in robot.links}
-    if not links:
-        raise ModelError("the URDF has no <link> (expected at least one)", file=path)
-    for kind, items in (("link", robot.links), ("joint", robot.joints)):
-        seen_names: set = set()
-        for item in items:
-            if item.name in seen_names:
-                raise ModelError(f"two {kind}s are named {item.name!r} (names must be unique)",
-                                 file=path, key=f"{kind} {item.name!r}")
-            seen_names.add(item.name)
-    parent_joint: dict[str, str] = {}
-    children: dict[str, list] = {name: [] for name in links}
-    for joint in robot.joints:
-        key = f"joint {joint.name!r}"
-        if joint.type in ("floating", "planar"):
-            raise ModelError(
-                f"{joint.type} joints are not supported (a fixed-base tree needs revolute, "
-                "continuous, prismatic or fixed joints)", file=path, key=key)
-        if joint.type not in SUPPORTED:
-            raise ModelError(f"unknown joint type {joint.type!r} (expected one of {list(SUPPORTED)})",
-                             file=path, key=key)
-        for role, link in (("parent", joint.parent), ("child", joint.child)):
-            if link not in links:
-                raise ModelError(f"{role} link {link!r} is not defined by any <link>", file=path, key=key)
-        if joint.child in parent_joint:
-            raise ModelError(
-                f"link {joint.child!r} is already the child of joint {parent_joint[joint.child]!r} "
-                "(a closed loop; expected a tree)", file=path, key=key)
-        parent_joint[joint.child] = joint.name
-        children[joint.parent].append(joint)
-        if joint.type in MOVABLE:
-            axis = _axis(joint)
-            if not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-12:
-                raise ModelError(f"axis {axis.tolist()} is not a non-zero vector", file=path, key=key)
-        origin = _origin(joint)
-        if not np.all(np.isfinite(origin)):
-            raise ModelError("origin is not finite", file=path, key=key)
-    roots = [name for name in links if name not in parent_joint]
-    if len(roots) > 1:
-        raise ModelError(
-            f"several root links {roots} (expected exactly one link that is no joint's child)",
-            file=path, key=f"link {roots[1]!r}")
-    if not roots:
-        cycle_joint = robot.joints[0].name
-        raise ModelError("every link is a joint's child: the joints form a cycle (expected a tree)",
-                         file=path, key=f"joint {cycle_joint!r}")
-    root = roots[0]
-    seen = set()
-    stack = [root]
-    while stack:
-        name = stack.pop()
-        seen.add(name)
-        stack.extend(j.child for j in children[name])
-    unreached = [name for name in links if name not in seen]
-    if unreached:
-        joint = parent_joint[unreached[0]]
-        raise ModelError(
-            f"links {unreached} are not connected to the root {root!r}: the joints form a cycle "
-            "(expected a tree)", file=path, key=f"joint {joint!r}")
-    # links welded to the root by fixed joints never move: their inertia never enters the dynamics,
-    # so a CAD-rounding defect there (TIAGo's antennas: principal moments down to -3.5e-8 kg·m²) is
-    # not a reason to refuse the robot
-    static = {root}
-    stack = [root]
-    while stack:
-        for j in children[stack.pop()]:
-            if j.type == "fixed":
-                static.add(j.child)
-                stack.append(j.child)
-    for link in robot.links:
-        key = f"link {link.name!r}"
-        mass, origin, inertia = _inertial(link)
-        if not (math.isfinite(mass) and np.all(np.isfinite(origin)) and np.all(np.isfinite(inertia))):
-            raise ModelError("inertial values are not finite", file=path, key=key)
-        if mass < 0.0:
-            raise ModelError(f"mass {mass} kg is negative (expected >= 0)", file=path, key=key)
-        scale = max(1.0, float(np.abs(inertia).max()))
-        if np.abs(inertia - inertia.T).max() > 1e-12 * scale:
-            raise ModelError("inertia tensor is not symmetric", file=path, key=key)
-        eig = np.linalg.eigvalsh(inertia)
-        if eig.min() < -1e-12 * scale and link.name not in static:
-            raise ModelError(
-                f"inertia tensor is not positive (semi)definite: principal moments {eig.tolist()} "
-                "kg·m² (expected all >= 0)", file=path, key=key)
-    return root, children, links
 
 
 def _dfs(root: str, children: dict) -> list:
@@ -180,7 +45,7 @@ def _dfs(root: str, children: dict) -> list:
 
 
 def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] | None = None,
-               gravity=(0.0, 0.0, -9.81)) -> RobotModel:
+               gravity=(0.0, 0.0, -9.81), *, label: str | None = None) -> RobotModel:
     """Read a URDF into a :class:`RobotModel`.
 
     Args:
@@ -191,76 +56,88 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
         locked: value (rad or m) of locked movable joints (every movable joint not in ``joints``;
             default 0.0). Mimic joints are always locked (see the module docstring).
         gravity: (3,) m/s² in the root-link frame.
+        label: what messages call the file (default: ``path``), e.g. ``plan.mcap: attachment
+            robot.urdf`` for a URDF extracted to a scratch file.
 
     Raises:
         ModelError: naming the file and the joint or link at fault, for a missing or malformed
             file, a floating/planar joint, a cycle, several roots, a negative mass, an inertia that
             is not positive semidefinite, a movable joint whose subtree has no mass or no inertia
-            about its axis (a singular mass matrix), or an unknown joint in ``joints``/``locked``.
+            about its axis (a singular mass matrix). A ``joints``, ``locked`` or ``gravity`` value that
+            does not fit the URDF raises the subclass :class:`JointSelectionError`, whose
+            ``task_key`` names the task key at fault (``joints[1]``, ``locked.wrist``, ``gravity``).
     """
-    robot, path = _read(path)
-    root, children, links = _check(robot, path)
+    robot, path, src = _read(path, label)
+    root, children, links = _check(robot, src)
     tree = _dfs(root, children)
     by_name = {j.name: j for j in robot.joints}
     movable = [j.name for j in tree if j.type in MOVABLE and j.mimic is None]
 
+    def selection_error(message: str, task_key: str, key: str | None = None) -> JointSelectionError:
+        return JointSelectionError(message, file=src, key=key or task_key, task_key=task_key)
+
     try:
         g = np.array(gravity, dtype=float).reshape(3)
     except (TypeError, ValueError):
-        raise ModelError(f"gravity {gravity!r} is not 3 numbers (m/s²)", file=path, key="gravity") from None
+        raise selection_error(f"gravity {gravity!r} is not 3 numbers (m/s²)", "gravity") from None
     if not np.all(np.isfinite(g)):
-        raise ModelError(f"gravity {g.tolist()} is not finite", file=path, key="gravity")
+        raise selection_error(f"gravity {g.tolist()} is not finite", "gravity")
 
+    user_joints = joints is not None
     if joints is None:
         joints = list(movable)
     if isinstance(joints, str) or not hasattr(joints, "__iter__"):
-        raise ModelError(f"joints must be a list of joint names, got {joints!r}", file=path, key="joints")
+        raise selection_error(f"joints must be a list of joint names, got {joints!r}", "joints")
     joints = list(joints)
-    for name in joints:
+    for i, name in enumerate(joints):
         key = f"joint {name!r}"
         if name not in by_name:
-            raise ModelError(f"no such joint in the URDF (movable joints: {movable})", file=path, key=key)
+            raise selection_error(f"no such joint in {src} (movable joints: {movable})", f"joints[{i}]", key)
         joint = by_name[name]
         if joint.type not in MOVABLE:
-            raise ModelError(f"is a {joint.type} joint (expected one of {movable})", file=path, key=key)
+            raise selection_error(f"is a {joint.type} joint in {src} (expected one of {movable})", f"joints[{i}]", key)
         if joint.mimic is not None:
-            raise ModelError(f"is a mimic joint of {joint.mimic.joint!r}; mimic joints are always "
-                             f"locked (expected one of {movable})", file=path, key=key)
+            raise selection_error(f"is a mimic joint of {joint.mimic.joint!r} in {src}; mimic joints are always "
+                                  f"locked (expected one of {movable})", f"joints[{i}]", key)
     if len(set(joints)) != len(joints):
         dup = next(n for n in joints if joints.count(n) > 1)
-        raise ModelError("is listed twice in joints", file=path, key=f"joint {dup!r}")
+        raise selection_error("is listed twice in joints", f"joints[{len(joints) - 1 - joints[::-1].index(dup)}]",
+                              f"joint {dup!r}")
     try:
         locked = dict(locked or {})
     except (TypeError, ValueError):
-        raise ModelError(f"locked must map joint names to values, got {locked!r}", file=path, key="locked") from None
+        raise selection_error(f"locked must map joint names to values, got {locked!r}", "locked") from None
     for name, value in locked.items():
         key = f"joint {name!r}"
         if name not in by_name or by_name[name].type not in MOVABLE:
             all_movable = [j.name for j in tree if j.type in MOVABLE]
-            raise ModelError(f"cannot be locked: not a movable joint of the URDF (movable joints: "
-                             f"{all_movable})", file=path, key=key)
+            raise selection_error(f"cannot be locked: not a movable joint of {src} (movable joints: "
+                                  f"{all_movable})", f"locked.{name}", key)
         if name in joints:
-            raise ModelError("is both a task joint and locked (expected one or the other)", file=path, key=key)
+            raise selection_error("is both a task joint and locked (expected one or the other)", f"locked.{name}", key)
         try:
             value = float(value)
         except (TypeError, ValueError):
-            raise ModelError(f"locked value {value!r} is not a number", file=path, key=key) from None
+            raise selection_error(f"locked value {value!r} is not a number", f"locked.{name}", key) from None
         if not math.isfinite(value):
-            raise ModelError(f"locked value {value} is not finite", file=path, key=key)
+            raise selection_error(f"locked value {value} is not finite", f"locked.{name}", key)
         locked[name] = value
 
     if not joints:
-        raise ModelError(f"has no movable joints to plan (expected at least one revolute, continuous or "
-                         f"prismatic joint; movable joints: {movable})", file=path, key="joints")
+        message = (f"has no movable joints to plan (expected at least one revolute, continuous or "
+                   f"prismatic joint; movable joints: {movable})")
+        if user_joints:
+            raise selection_error(message, "joints")
+        raise ModelError(message, file=src, key="joints")
     for joint in robot.joints:
         if joint.mimic is None:
             continue
         master = joint.mimic.joint
         if master not in by_name or by_name[master].type not in MOVABLE:
-            raise ModelError(f"mimics {master!r}, which is not a movable joint of the URDF", file=path,
+            raise ModelError(f"mimics {master!r}, which is not a movable joint of the URDF", file=src,
                              key=f"joint {joint.name!r}")
         if master in joints:
-            warnings.warn(HocWarning(f"{path}: joint {joint.name!r} mimics task joint {master!r} but hoc holds it "
+            warnings.warn(HocWarning(f"{src}: joint {joint.name!r} mimics task joint {master!r} but hoc holds it "
                                      f"fixed (mimic coupling is not modelled); lock {master!r} for exact dynamics"),
                           stacklevel=2)
 
@@ -343,12 +220,16 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
             X = tree_motion[i]
             composite[parent[i]] += X.T @ composite[i] @ X
     for i in order:
+        if not np.all(np.isfinite(composite[i])):
+            raise ModelError(
+                "the inertia of the bodies it moves overflows (masses, inertias or lengths too large, "
+                "or a locked prismatic joint placed too far)", file=src, key=f"joint {joints[i]!r}")
         row = 5 if by_name[joints[i]].type == "prismatic" else 2
         if composite[i][row, row] <= SINGULAR_INERTIA:
             what = "mass" if composite[i][5, 5] <= SINGULAR_INERTIA else "inertia about its axis"
             raise ModelError(
                 f"the bodies it moves have no {what} (a singular mass matrix); give its child links "
-                "an <inertial>, or lock the joint", file=path, key=f"joint {joints[i]!r}")
+                "an <inertial>, or lock the joint", file=src, key=f"joint {joints[i]!r}")
 
     return RobotModel(
         name=str(robot.name),
@@ -376,7 +257,7 @@ def load_robot(path, joints: list[str] | None = None, locked: dict[str, float] |
     )
 
 
-def urdf_joint_table(path) -> list[dict]:
+def urdf_joint_table(path, *, label: str | None = None) -> list[dict]:
     """Every URDF joint as written (before merging), in tree order, for ``hoc inspect``.
 
     Each dict: ``name``, ``type``, ``axis`` (3 floats, normalised; None for fixed joints),
@@ -384,8 +265,8 @@ def urdf_joint_table(path) -> list[dict]:
     m/s), ``effort`` (N·m or N) — None where the URDF gives none — and ``mimic`` (master joint
     name or None). Raises ModelError like :func:`load_robot`.
     """
-    robot, path = _read(path)
-    root, children, _ = _check(robot, path)
+    robot, _, name = _read(path, label)
+    root, children, _ = _check(robot, name)
     rows = []
     for joint in _dfs(root, children):
         movable = joint.type in MOVABLE
@@ -406,11 +287,11 @@ def urdf_joint_table(path) -> list[dict]:
     return rows
 
 
-def urdf_link_table(path) -> list[dict]:
+def urdf_link_table(path, *, label: str | None = None) -> list[dict]:
     """Every URDF link as written, in document order: ``name``, ``mass`` (kg) and ``com`` (3 floats,
     m, centre of mass in the link frame). Raises ModelError like :func:`load_robot`."""
-    robot, path = _read(path)
-    _check(robot, path)
+    robot, _, name = _read(path, label)
+    _check(robot, name)
     rows = []
     for link in robot.links:
         mass, origin, _ = _inertial(link)

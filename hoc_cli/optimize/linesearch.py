@@ -30,6 +30,26 @@ class LineSearchResult:
     message: str = ""
 
 
+class _Trials:
+    """φ counting its calls and keeping the best finite trial (returned when no step satisfies Wolfe)."""
+
+    def __init__(self, phi: Phi, phi0: float, dphi0: float) -> None:
+        self.phi = phi
+        self.n_evals = 0
+        self.best: tuple[float, float, float, Any] = (0.0, phi0, dphi0, None)
+
+    def __call__(self, a: float) -> tuple[float, float, Any]:
+        self.n_evals += 1
+        f, d, payload = self.phi(a)
+        if math.isfinite(f) and f < self.best[1]:
+            self.best = (a, f, d, payload)
+        return f, d, payload
+
+    def failed(self, message: str) -> LineSearchResult:
+        a, f, d, payload = self.best
+        return LineSearchResult(False, a, f, d, payload, self.n_evals, message)
+
+
 def check_parameters(c1: float, c2: float) -> None:
     if not (0.0 < c1 < c2 < 1.0):
         raise ValueError(f"strong Wolfe parameters need 0 < c1 < c2 < 1, got c1={c1}, c2={c2}")
@@ -52,23 +72,19 @@ def _cubic_min(a: float, fa: float, da: float, b: float, fb: float, db: float) -
 
 def strong_wolfe(phi: Phi, phi0: float, dphi0: float, alpha0: float = 1.0, *, c1: float = 1e-4, c2: float = 0.1,
                  alpha_max: float = 1e8, max_evals: int = 40) -> LineSearchResult:
-    """Find α > 0 satisfying the strong Wolfe conditions for φ with φ(0) = phi0, φ'(0) = dphi0 < 0."""
+    """Find α > 0 satisfying the strong Wolfe conditions for φ with φ(0) = phi0, φ'(0) = dphi0 < 0.
+
+    Starts at ``alpha0``, multiplies by 4 while φ keeps decreasing (up to ``alpha_max``), then zooms;
+    at most ``max_evals`` calls of φ. When no step satisfies the conditions the result has
+    ok = False and the best (lowest finite φ) step tried, or α = 0 and payload None.
+    """
     check_parameters(c1, c2)
     if not dphi0 < 0:
         return LineSearchResult(False, 0.0, phi0, dphi0, None, 0, "not a descent direction")
-    evals = 0
-    best = (0.0, phi0, dphi0, None)
-
-    def call(a: float):
-        nonlocal evals, best
-        evals += 1
-        f, d, payload = phi(a)
-        if math.isfinite(f) and f < best[1]:
-            best = (a, f, d, payload)
-        return f, d, payload
+    call = _Trials(phi, phi0, dphi0)
 
     def zoom(lo: float, flo: float, dlo: float, hi: float, fhi: float, dhi: float) -> LineSearchResult:
-        while evals < max_evals:
+        while call.n_evals < max_evals:
             width = hi - lo
             if width == 0:
                 break
@@ -84,17 +100,16 @@ def strong_wolfe(phi: Phi, phi0: float, dphi0: float, alpha0: float = 1.0, *, c1
                 hi, fhi, dhi = trial, f, d
             else:
                 if abs(d) <= -c2 * dphi0:
-                    return LineSearchResult(True, trial, f, d, payload, evals)
+                    return LineSearchResult(True, trial, f, d, payload, call.n_evals)
                 if d * (hi - lo) >= 0:
                     hi, fhi, dhi = lo, flo, dlo
                 lo, flo, dlo = trial, f, d
-        a, f, d, payload = best
-        return LineSearchResult(False, a, f, d, payload, evals, "zoom did not satisfy the Wolfe conditions")
+        return call.failed("zoom did not satisfy the Wolfe conditions")
 
     prev, fprev, dprev = 0.0, phi0, dphi0
     alpha = alpha0
     first = True
-    while evals < max_evals:
+    while call.n_evals < max_evals:
         f, d, payload = call(alpha)
         if not math.isfinite(f):
             # overshoot into a region where the model is undefined: shrink
@@ -102,7 +117,7 @@ def strong_wolfe(phi: Phi, phi0: float, dphi0: float, alpha0: float = 1.0, *, c1
         if f > phi0 + c1 * alpha * dphi0 or (not first and f >= fprev):
             return zoom(prev, fprev, dprev, alpha, f, d)
         if abs(d) <= -c2 * dphi0:
-            return LineSearchResult(True, alpha, f, d, payload, evals)
+            return LineSearchResult(True, alpha, f, d, payload, call.n_evals)
         if d >= 0:
             return zoom(alpha, f, d, prev, fprev, dprev)
         prev, fprev, dprev = alpha, f, d
@@ -110,5 +125,4 @@ def strong_wolfe(phi: Phi, phi0: float, dphi0: float, alpha0: float = 1.0, *, c1
         first = False
         if alpha >= alpha_max:
             break
-    a, f, d, payload = best
-    return LineSearchResult(False, a, f, d, payload, evals, "no step satisfied the Wolfe conditions")
+    return call.failed("no step satisfied the Wolfe conditions")

@@ -1,0 +1,79 @@
+"""``hoc plan``'s limits: the task's limits from URDF and ``limits:``, the x0/x1 check, the summary keys.
+
+The maths (``hoc_cli.constraints``) takes arrays; this module reads the task and the model into
+a ``JointLimits`` and turns an ``EnforceResult`` into the JSON summary's ``limits_mode``,
+``active_limits``, ``limit_violations``, ``status`` and ``message`` (docs/limits.md).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.constraints import JointLimits, check_limits, shortest_duration
+from hoc_cli.errors import TaskError
+from hoc_cli.planner import PlanResult
+
+
+def task_limits(model, overrides) -> JointLimits:
+    """The URDF's limits with the task's per-joint overrides and scale factors applied.
+
+    ``overrides`` is the ``LimitOverrides`` of ``resolve`` (arrays in model joint order, NaN where
+    the task gives nothing), or None.
+    """
+    limits = JointLimits.from_model(model)
+    if overrides is None:
+        return limits
+    joints = model.joint_names
+    named = {
+        "position": {j: (overrides.lower[i], overrides.upper[i]) for i, j in enumerate(joints)
+                     if np.isfinite(overrides.lower[i])},
+        **{kind: {j: getattr(overrides, kind)[i] for i, j in enumerate(joints) if np.isfinite(getattr(overrides, kind)[i])}
+           for kind in ("velocity", "acceleration", "effort")},
+    }
+    scale = {k: getattr(overrides.scale, k) for k in ("velocity", "acceleration", "effort")}
+    return limits.with_overrides(scale=scale, **named)
+
+
+def check_boundary_states(task, limits: JointLimits, states) -> None:
+    """In enforce mode x0 and x1 must lie within the position and velocity limits (TaskError, exit 2)."""
+    for label, q, dq in (("x0", states.q0, states.dq0), ("x1", states.q1, states.dq1)):
+        for i, name in enumerate(limits.joints):
+            lo, hi = limits.lower[i], limits.upper[i]
+            if not lo <= q[i] <= hi:
+                raise TaskError(f"{name} = {q[i]:g} is outside its position limits [{lo:g}, {hi:g}] "
+                                "(limits are enforced; widen them under limits.position or use --limits report)",
+                                file=task.path, key=f"{label}.q.{name}")
+            v = limits.velocity[i]
+            if abs(dq[i]) > v:
+                raise TaskError(f"{name} = {dq[i]:g} exceeds its velocity limit {v:g} "
+                                "(limits are enforced; raise it under limits.velocity or use --limits report)",
+                                file=task.path, key=f"{label}.dq.{name}")
+
+
+def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, states) -> dict:
+    """Summary keys: ``limits_mode``, ``limit_violations`` (exact check), ``active_limits``, and for an
+    infeasible task ``status: infeasible`` with a message naming the binding joint and kind."""
+    check = (result.limits.check if result.limits is not None
+             else check_limits(system, limits, result.mesh, result.coeffs))
+    out: dict = {"limits_mode": mode, "limit_violations": check.violations(),
+                 "active_limits": result.limits.active_limits() if result.limits is not None else []}
+    er = result.limits
+    if er is not None and er.status == "infeasible":
+        out["status"] = "infeasible"
+        out["message"] = infeasible_message(limits, check, result, states)
+    elif er is not None:
+        out["message"] = er.message
+    return out
+
+
+def infeasible_message(limits: JointLimits, check, result: PlanResult, states) -> str:
+    """Which joint and kind bind (the largest relative excess) and, where known, the shortest T."""
+    rel = check.relative_excess()  # (4, n)
+    k, j = np.unravel_index(int(np.nanargmax(np.where(np.isfinite(rel), rel, -np.inf))), rel.shape)
+    from hoc_cli.constraints import KINDS
+
+    msg = (f"no trajectory within the limits was found in T = {result.mesh.T:g} s: {limits.joints[j]} "
+           f"{KINDS[k]} binds; the least-violating plan was written")
+    bound = shortest_duration(limits, states.q0, states.dq0, states.q1, states.dq1)
+    if bound is not None and bound[0] >= result.mesh.T:
+        msg += f" (T >= {bound[0]:.6g} s is needed for {bound[1]} {bound[2]})"
+    return msg

@@ -1,0 +1,11 @@
+"""Constraints on the plan: joint limits as data, their check on a plan, and their enforcement.
+
+``JointLimits`` (bounds.py) holds the limits; ``check_limits`` (check.py) checks a plan exactly;
+``enforce`` (augmented_lagrangian.py) solves the limited problem around the unconstrained
+minimiser, with ``LimitTerms`` (penalty.py) at a ``PointSet`` (points.py).
+"""
+from hoc_cli.constraints.augmented_lagrangian import EnforceResult, enforce, shortest_duration
+from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.check import LimitCheck, check_limits
+
+__all__ = ["JointLimits", "KINDS", "LimitCheck", "check_limits", "EnforceResult", "enforce", "shortest_duration"]

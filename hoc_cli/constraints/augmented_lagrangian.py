@@ -1,0 +1,222 @@
+"""Limits enforced by an augmented-Lagrangian outer loop around the unchanged inner minimiser.
+
+The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
+exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
+Φ's curvature only adds to the element blocks. The outer loop (the method of multipliers as in
+LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working set:
+
+1. Solve the inner problem from the current x. The first solve has an empty working set (unless a
+   coarser level found one): it IS the unconstrained solve, so a task whose optimum respects its
+   limits pays nothing but the check.
+2. Check the plan (``check_limits``: exact extrema of q_h, q̇_h, q̈_h per element, u at 32 points
+   per element). (kind, joint) pairs found beyond their bounds join the working set.
+3. One full Newton step on I + Φ ("polish"; see ``_polish``), then λ ← max(0, λ + ρ_w g) and
+   ρ × 10 whenever the worst violation did not fall to a quarter of the previous one.
+4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
+   imposed bounds are tightened by a relative margin of 1e-9, so the plan ends strictly inside),
+   and the complementarity Σ μ|g| is below tol·|J|. When ρ has grown 1e8-fold and violations
+   remain, the task is infeasible; the least-violating plan found is returned.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.check import LimitCheck, check_limits
+from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.errors import NumericalError
+
+import os
+_DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
+MARGIN = 1e-9  # relative inward margin of the imposed bounds
+RHO_GROWTH = 10.0
+RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
+
+
+class PenalizedProblem:
+    """A ``ControlProblem`` plus limit terms, with the evaluate/newton interface of the inner solver."""
+
+    def __init__(self, base, terms: LimitTerms) -> None:
+        self.base, self.terms = base, terms
+        self.mesh = base.mesh
+        self.last = None
+
+    def evaluate(self, x: np.ndarray, grad: bool = True):
+        ev = self.base.evaluate(x, grad=grad)
+        pv = self.terms.evaluate(self.base.coefficients(x), grad=grad)
+        g = None if ev.grad is None else ev.grad + self.base.layout.pack(pv.grad)
+        ev = dataclasses.replace(ev, J=ev.J + pv.value, grad=g)
+        self.last = ev
+        return ev
+
+    def newton(self, ev):
+        return self.base.newton(ev, extra=self.terms.newton_blocks(self.base.coefficients(ev.x)))
+
+
+@dataclass(frozen=True, eq=False)
+class EnforceResult:
+    """The outcome of the outer loop.
+
+    status : "converged" | "infeasible" | "not_converged"; message : which test held or failed;
+    inner : the last inner OptimizeResult; x : the plan's design vector; J : I(q_h) without Φ;
+    outer_iterations; rho; check : the LimitCheck of the plan; working : (4, n) pairs imposed;
+    rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row).
+    """
+
+    status: str
+    message: str
+    inner: object
+    x: np.ndarray
+    J: float
+    outer_iterations: int
+    rho: float
+    check: LimitCheck
+    working: np.ndarray
+    rows: LimitRows
+    penalty: PenaltyValue | None
+
+    def active_limits(self) -> list[dict]:
+        """(joint, kind, intervals [[t0, t1], …] [s]) where a multiplier is positive at the optimum.
+
+        Kinematic rows stand for a part of an element (1/pieces of it), effort rows for a point;
+        adjacent active parts are merged.
+        """
+        if self.penalty is None:
+            return []
+        mesh = self.rows.mesh
+        out = []
+        for k, kind in enumerate(KINDS):
+            mu = self.penalty.mu_lo[k] + self.penalty.mu_hi[k]
+            for j, name in enumerate(self.check.limits.joints):
+                if k == EFFORT:
+                    on = mu[:, j] > 0
+                    t = self.rows.points.t[on]
+                    spans = np.stack([t, t], axis=1)
+                    gap = 1.5 * mesh.h / 32
+                else:
+                    on = mu[:, :, j] > 0  # (N, R)
+                    e, r = np.nonzero(on)
+                    part = self.rows.part[k][r]
+                    t0 = (e + part / self.rows.pieces) * mesh.h
+                    spans = np.unique(np.stack([t0, t0 + mesh.h / self.rows.pieces], axis=1), axis=0)
+                    gap = 1e-12 * mesh.T
+                if spans.size == 0:
+                    continue
+                spans = spans[np.argsort(spans[:, 0])]
+                merged = [list(spans[0])]
+                for a, b in spans[1:]:
+                    if a <= merged[-1][1] + gap:
+                        merged[-1][1] = max(merged[-1][1], b)
+                    else:
+                        merged.append([a, b])
+                out.append({"joint": name, "kind": kind, "intervals": [[float(a), float(b)] for a, b in merged]})
+        return out
+
+
+def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str, str] | None:
+    """A lower bound on T from one joint: |Δq|/v (velocity) or, rest to rest, 2√(|Δq|/a) (acceleration).
+
+    Returns (T_min [s], joint, kind) for the largest such bound, or None when no joint has one.
+    """
+    dq = np.abs(np.asarray(q1, float) - np.asarray(q0, float))
+    rest = (np.asarray(dq0) == 0) & (np.asarray(dq1) == 0)
+    best = None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bounds = (("velocity", np.where(np.isfinite(limits.velocity), dq / limits.velocity, 0.0)),
+                  ("acceleration", np.where(np.isfinite(limits.acceleration) & rest,
+                                            2.0 * np.sqrt(dq / limits.acceleration), 0.0)))
+    for kind, arr in bounds:
+        j = int(np.argmax(arr)) if arr.size else 0
+        if arr.size and arr[j] > 0 and (best is None or arr[j] > best[0]):
+            best = (float(arr[j]), limits.joints[j], kind)
+    return best
+
+
+def _polish(problem: PenalizedProblem, x: np.ndarray) -> np.ndarray:
+    """One full Newton step on I + Φ from an inner optimum.
+
+    The inner stopping test weighs the decrement against |J|; a violation δ changes Φ by about
+    ½ρ_w δ², below the rounding level of J long before δ reaches 1e-9. The Newton step, made from
+    gradients (which resolve what the value cannot) with Φ's exact curvature for the kinematic
+    rows (linear in x), still removes it. Taken only after the inner test held, so it is small.
+    """
+    ev = problem.evaluate(x)
+    trial = x - problem.newton(ev).solve(ev.grad)
+    try:
+        if np.isfinite(problem.evaluate(trial, grad=False).J):
+            return trial
+    except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
+        pass
+    return x
+
+
+def _zeros(rows: LimitRows, n: int) -> tuple[np.ndarray, ...]:
+    return tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
+
+
+def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
+            inner_solve: Callable[[object, np.ndarray, float], object], *, working: np.ndarray | None = None,
+            max_outer: int = 40) -> EnforceResult:
+    """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
+
+    inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
+    with ``evaluate``/``newton``/``mesh``. ``working`` (4, n) carries over from a coarser level.
+    """
+    mesh, n = base.mesh, limits.n
+    rows = LimitRows.build(mesh, base.layout.free, n)
+    working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
+    lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
+    x = np.asarray(x0, float)
+    rho = rho0 = None
+    prev = math.inf
+    res = check = pv = None
+    status, message = "not_converged", "the augmented-Lagrangian iteration limit was reached"
+    for outer in range(1, max_outer + 1):
+        if working.any() and rho is None:
+            rho = rho0 = 1e4 * max(abs(base.evaluate(x, grad=False).J), 1e-6) / mesh.T
+        terms = LimitTerms(system, limits, rows, working, lam_lo, lam_hi, rho or 1.0, MARGIN)
+        problem = base if terms.empty else PenalizedProblem(base, terms)
+        res = inner_solve(problem, x, tol)
+        x = res.x
+        if not terms.empty and res.converged:
+            x = _polish(problem, x)
+        C = base.coefficients(x)
+        check = check_limits(system, limits, mesh, C)
+        pv = terms.evaluate(C, grad=False)
+        J = base.evaluate(x, grad=False).J
+        within = not ((check.hi_excess > 0).any() or (check.lo_excess > 0).any())
+        newly = ((check.hi_excess > 0) | (check.lo_excess > 0)).any(axis=1) & ~working
+        if within and pv.complementarity() <= tol * max(abs(J), 1.0):
+            if res.converged:
+                status, message = "converged", f"{res.message}; every limit holds (outer iterations: {outer})"
+            else:
+                message = f"every limit holds, but the inner solve stopped: {res.message}"
+            break
+        if res.status.value == "max_iter":
+            message = f"not within tol: {res.message}"
+            break
+        if res.status.value in ("not_finite", "line_search_failed") and not within and outer > 1:
+            message = f"the inner solve failed: {res.message}"
+            break
+        lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
+        if newly.any():
+            working = working | newly
+            if rho is None:
+                rho = rho0 = 1e4 * max(abs(J), 1e-6) / mesh.T
+        excess = pv.max_violation()
+        if _DEBUG:
+            print(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
+                  f"comp {pv.complementarity():.2e} rho {rho} within {within}")
+        if rho is not None and not within and excess > 0.25 * prev:
+            rho *= RHO_GROWTH
+        prev = excess if excess > 0 else prev
+        if rho0 is not None and rho > rho0 * RHO_RANGE and not within:
+            status, message = "infeasible", "no trajectory within the limits was found (the penalty grew 1e8-fold)"
+            break
+    return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
+                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv)

@@ -1,0 +1,243 @@
+"""Augmented-Lagrangian terms of joint limits: value, exact gradient and Newton blocks.
+
+Symbols
+-------
+N elements, n joints, m coefficients per node; kinds k = position, velocity, acceleration
+(kinematic: r = 0, 1, 2) and effort. Each kind has its own constraint rows per element:
+kinematic kinds the Bernstein coefficients of d^r q_h/dt^r (``bernstein_rows``; linear in the
+coefficients C, and bounding them bounds q_h^(r) everywhere), effort the torque u = ID(q, q̇, q̈)
+at 32 equally spaced points per element (``PointSet``). V_k: (N, R_k, n) or (P, n) values.
+σ[k, j] > 0: the size of joint j's limit (``JointLimits.scale_of``); δ: a relative margin. Each
+bound gives a dimensionless inequality g ≤ 0:
+
+    g_hi = (V − (hi − δσ)) / σ,        g_lo = ((lo + δσ) − V) / σ.
+
+With multipliers λ ≥ 0 and per-row penalties ρ_w = ρ·w (w [s]: the time a row stands for), the
+Powell-Hestenes-Rockafellar augmented Lagrangian adds, summed over rows, joints and sides,
+
+    Φ = (max(0, λ + ρ_w g)² − λ²) / (2 ρ_w),     ∂Φ/∂V = ±μ/σ,  μ = max(0, λ + ρ_w g),
+
+and the multiplier update is λ ← μ (Rockafellar 1973; Nocedal & Wright §17.4). Φ is once
+continuously differentiable; its curvature ρ_w/σ² ∇V∇Vᵀ where λ + ρ_w g > 0 is exact for the
+kinematic kinds and the Gauss-Newton part for effort (∇u = [∂u/∂q, ∂u/∂q̇, M]).
+Only the (kind, joint) pairs of the working set take part; the others cost nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from hoc_cli.constraints.bernstein import bernstein_rows
+from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.points import PointSet
+from hoc_cli.elements import HermiteMesh
+
+EFFORT = KINDS.index("effort")
+EFFORT_POINTS_PER_ELEMENT = 32
+
+
+def effective_bounds(limits: JointLimits, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, σ), each (4, n): the bounds moved inwards by margin·σ, and σ."""
+    sig = np.stack([limits.scale_of(k) for k in KINDS])
+    lo = np.stack([limits.bounds(k)[0] for k in KINDS]) + margin * sig
+    hi = np.stack([limits.bounds(k)[1] for k in KINDS]) - margin * sig
+    return lo, hi, sig
+
+
+@dataclass(frozen=True, eq=False)
+class LimitRows:
+    """Where each kind is imposed on a mesh: Bernstein rows (kinematic) and torque points (effort).
+
+    rows[r] : (R_r, 2m) for r = 0, 1, 2; part[r] : (R_r,) the element part of each row;
+    data[r] : (N, R_r) bool, rows fixed by x0/x1 alone (not imposed); points : effort PointSet.
+    """
+
+    mesh: HermiteMesh
+    rows: tuple[np.ndarray, ...]
+    part: tuple[np.ndarray, ...]
+    data: tuple[np.ndarray, ...]
+    points: PointSet
+    pieces: int
+
+    @classmethod
+    def build(cls, mesh: HermiteMesh, free: np.ndarray, n: int) -> "LimitRows":
+        """Rows for ``mesh``; ``free`` (P,) the free mask of the flattened C (N+1, m, n)."""
+        from hoc_cli.constraints.bernstein import PIECES
+
+        m = mesh.m
+        free_nodes = free.reshape(mesh.N + 1, m, n)[:, :, 0]  # (N+1, m): same for every joint
+        free_local = np.concatenate([free_nodes[:-1], free_nodes[1:]], axis=1)  # (N, 2m)
+        rows, parts, data = [], [], []
+        for r in range(3):
+            R, part = bernstein_rows(mesh, r, PIECES)
+            rows.append(R)
+            parts.append(part)
+            data.append(~((np.abs(R)[None, :, :] > 1e-14 * np.abs(R).max()) & free_local[:, None, :]).any(axis=2))
+        return cls(mesh, tuple(rows), tuple(parts), tuple(data),
+                   PointSet.uniform(mesh, EFFORT_POINTS_PER_ELEMENT), PIECES)
+
+    def weight(self, k: int) -> float:
+        """Time [s] each row of kind k stands for."""
+        if k == EFFORT:
+            return self.mesh.h / EFFORT_POINTS_PER_ELEMENT
+        return self.mesh.h / self.rows[k].shape[0]
+
+    def shape(self, k: int, n: int) -> tuple[int, ...]:
+        return (self.points.size, n) if k == EFFORT else (self.mesh.N, self.rows[k].shape[0], n)
+
+    def apply(self, k: int, loc: np.ndarray) -> np.ndarray:
+        """Kinematic values (N, R_k, n) of kind k from element coefficients loc (N, 2m, n)."""
+        return np.einsum("ra,ean->ern", self.rows[k], loc)
+
+    def to_coefficients(self, gloc: np.ndarray) -> np.ndarray:
+        """Element-local gradients (N, 2m, n) summed onto the nodes: (N+1, m, n)."""
+        m = self.mesh.m
+        out = np.zeros((self.mesh.N + 1, m, gloc.shape[-1]))
+        out[:-1] += gloc[:, :m]
+        out[1:] += gloc[:, m:]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class PenaltyValue:
+    """Φ at coefficients C with what the multiplier update and the check need.
+
+    value : Φ; grad : ∂Φ/∂C (N+1, m, n) or None; g_lo, g_hi, mu_lo, mu_hi : per kind, arrays of
+    the kind's row shape (g = −inf where the bound is absent, not imposed or fixed by data).
+    """
+
+    value: float
+    grad: np.ndarray | None
+    g_lo: tuple[np.ndarray, ...]
+    g_hi: tuple[np.ndarray, ...]
+    mu_lo: tuple[np.ndarray, ...]
+    mu_hi: tuple[np.ndarray, ...]
+
+    def max_violation(self) -> float:
+        """The largest g > 0 over all kinds (0 when none), dimensionless."""
+        return max([0.0] + [float(np.max(g, initial=0.0)) for g in self.g_lo + self.g_hi])
+
+    def complementarity(self, slack: float = 1e-8) -> float:
+        """Σ μ |g| over the rows more than ``slack`` inside their bound: the cost-units gap left by
+        multipliers on rows that are not active (rows within the slack count as active)."""
+        total = 0.0
+        for mus, gs in ((self.mu_lo, self.g_lo), (self.mu_hi, self.g_hi)):
+            for mu, g in zip(mus, gs):
+                inside = np.isfinite(g) & (g < -slack)
+                total += float(np.sum(np.where(inside & (mu > 0), mu * np.abs(np.where(inside, g, 0.0)), 0.0)))
+        return total
+
+
+@dataclass(frozen=True, eq=False)
+class LimitTerms:
+    """The augmented-Lagrangian terms for one inner minimisation (fixed λ, ρ, rows, working set).
+
+    system : the dynamics (for effort); limits : JointLimits; rows : LimitRows;
+    working : (4, n) bool; lam_lo, lam_hi : per kind ≥ 0, the kind's row shape;
+    rho : penalty per unit time [cost units / s]; margin : δ.
+    """
+
+    system: object
+    limits: JointLimits
+    rows: LimitRows
+    working: np.ndarray
+    lam_lo: tuple[np.ndarray, ...]
+    lam_hi: tuple[np.ndarray, ...]
+    rho: float
+    margin: float
+
+    @property
+    def empty(self) -> bool:
+        return not bool(self.working.any())
+
+    @cached_property
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return effective_bounds(self.limits, self.margin)
+
+    def _values(self, C: np.ndarray):
+        mesh = self.rows.mesh
+        loc = mesh.local_coefficients(C)
+        V = [self.rows.apply(k, loc) if self.working[k].any() else None for k in range(3)]
+        X = None
+        if self.working[EFFORT].any():
+            X = self.rows.points.apply(C)
+            V.append(self.system.inverse_dynamics(X[0], X[1], X[2]))
+        else:
+            V.append(None)
+        return V, X
+
+    def _residual(self, k: int, V: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        n = self.limits.n
+        shape = self.rows.shape(k, n)
+        if V is None:
+            off = np.full(shape, -np.inf)
+            return off, off
+        lo, hi, sig = self._bounds
+        g_hi = (V - hi[k]) / sig[k]
+        g_lo = (lo[k] - V) / sig[k]
+        off = ~self.working[k] | np.zeros(shape, bool)
+        if k < 2:  # q and q̇ rows set by x0, x1 alone are data, not constraints
+            off = off | self.rows.data[k][:, :, None]
+        g_hi = np.where(off | ~np.isfinite(hi[k]), -np.inf, g_hi)
+        g_lo = np.where(off | ~np.isfinite(lo[k]), -np.inf, g_lo)
+        return g_lo, g_hi
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
+        """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
+        V, X = self._values(C)
+        _, _, sig = self._bounds
+        value = 0.0
+        g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
+        gloc = np.zeros((self.rows.mesh.N, 2 * self.rows.mesh.m, self.limits.n))
+        G = None
+        for k in range(len(KINDS)):
+            gl, gh = self._residual(k, V[k])
+            rw = self.rho * self.rows.weight(k)
+            ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
+            mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
+            value += float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+            g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
+            if grad and V[k] is not None:
+                dV = (mh - ml) / sig[k]
+                if k < 3:
+                    gloc += np.einsum("ra,ern->ean", self.rows.rows[k], dV)
+                elif np.any(dV):
+                    _, gq, gdq, gddq = self.system.id_vjp(X[0], X[1], X[2], dV)
+                    G = self.rows.points.transpose(np.stack([gq, gdq, gddq]))
+        if grad:
+            Gk = self.rows.to_coefficients(gloc)
+            G = Gk if G is None else G + Gk
+        return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        """Element blocks (N, 2mn, 2mn) of Φ's (Gauss-Newton) Hessian at C."""
+        mesh, n = self.rows.mesh, self.limits.n
+        N, m = mesh.N, mesh.m
+        pv = self.evaluate(C, grad=False)
+        _, _, sig = self._bounds
+        blocks = np.zeros((N, 2 * m, n, 2 * m, n))
+        eff = None
+        for k in range(len(KINDS)):
+            rw = self.rho * self.rows.weight(k)
+            active = (self.lam_lo[k] + rw * pv.g_lo[k] > 0) | (self.lam_hi[k] + rw * pv.g_hi[k] > 0)
+            if not active.any():
+                continue
+            c = np.where(active, rw / sig[k] ** 2, 0.0)
+            if k < 3:
+                R = self.rows.rows[k]
+                W = np.einsum("erj,ra,rb->ejab", c, R, R)  # (N, n, 2m, 2m)
+                for j in range(n):
+                    blocks[:, :, j, :, j] += W[:, j]
+            else:
+                eff = c
+        out = blocks.reshape(N, 2 * m * n, 2 * m * n)
+        if eff is not None:
+            which = np.flatnonzero(eff.any(axis=1))
+            X = self.rows.points.apply(C)[:, which]
+            _, Jq, Jv, M = self.system.id_derivatives(X[0], X[1], X[2])
+            D = np.concatenate([Jq, Jv, M], axis=2)  # (P', n, 3n)
+            Hs = np.einsum("pia,pi,pib->pab", D, eff[which], D)
+            out = out + self.rows.points.sample_blocks(Hs, which)
+        return out

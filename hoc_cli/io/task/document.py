@@ -1,0 +1,141 @@
+"""The task as a whole: read the file, run the section parsers in order, assemble a frozen ``Task``."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hoc_cli.errors import TaskError
+from hoc_cli.io.task.checks import Checker, Values
+from hoc_cli.io.task.limits import LimitsSpec, parse_limits
+from hoc_cli.io.task.sections import (
+    BoundarySpec,
+    OutputSpec,
+    RobotSpec,
+    SolverSpec,
+    State,
+    TimeSpec,
+    parse_boundary,
+    parse_cost,
+    parse_output,
+    parse_robot,
+    parse_solver,
+    parse_time,
+    parse_torque,
+    path_exists,
+)
+from hoc_cli.io.task.yaml12 import load_yaml
+
+
+@dataclass(frozen=True)
+class Section:
+    """A task section: the ``Task`` attribute it fills, the top-level keys it reads, its parser."""
+
+    attr: str
+    keys: tuple[str, ...]
+    parse: Callable[[Checker, dict, dict], Any]
+
+
+# Parsed in this order (a later parser may read an earlier section from ``parsed``); the order also
+# decides which error a file with several mistakes reports first.
+SECTIONS: tuple[Section, ...] = (
+    Section("robot_spec", ("robot", "joints", "locked", "gravity"), parse_robot),
+    Section("boundary", ("x0", "x1"), parse_boundary),
+    Section("time", ("T", "N", "order"), parse_time),
+    Section("cost", ("cost",), parse_cost),
+    Section("solver", ("solver",), parse_solver),
+    Section("output", ("output",), parse_output),
+    Section("limits", ("limits",), parse_limits),
+    Section("torque", ("torque",), parse_torque),
+)
+TOP_KEYS = tuple(key for section in SECTIONS for key in section.keys)
+
+
+@dataclass(frozen=True)
+class Task:
+    """A validated task: one frozen dataclass per section, plus flat read-only views of their fields.
+
+    Joint-indexed values (lists in task joint order or name → value mappings) are turned into
+    arrays by ``resolve`` once the model's joints are known.
+    """
+
+    path: Path
+    robot_spec: RobotSpec
+    boundary: BoundarySpec
+    time: TimeSpec
+    cost: str = "covariant"
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    output: OutputSpec = field(default_factory=OutputSpec)
+    limits: LimitsSpec = field(default_factory=LimitsSpec)
+    torque: str | Values | None = None
+    text: str = field(default="", repr=False)
+
+    @property
+    def stem(self) -> str:
+        """The task file's name without its suffix (the default output name)."""
+        return self.path.stem
+
+    # Flat views of the section fields, as consumers read them (task.T, task.tol...).
+    robot = property(lambda self: self.robot_spec.robot, doc="The URDF path.")
+    joints = property(lambda self: self.robot_spec.joints, doc="The planned joints, or None for all.")
+    locked = property(lambda self: self.robot_spec.locked, doc="Locked joint positions.")
+    gravity = property(lambda self: self.robot_spec.gravity, doc="Gravity (m/s²) in the root frame.")
+    x0 = property(lambda self: self.boundary.x0, doc="The start state.")
+    x1 = property(lambda self: self.boundary.x1, doc="The goal state, or None.")
+    T = property(lambda self: self.time.T, doc="The duration (s).")
+    N = property(lambda self: self.time.N, doc="The number of elements.")
+    order = property(lambda self: self.time.order, doc="quintic or cubic.")
+    method = property(lambda self: self.solver.method, doc="pr-cg or newton.")
+    tol = property(lambda self: self.solver.tol, doc="The solver tolerance.")
+    max_iter = property(lambda self: self.solver.max_iter, doc="The iteration limit.")
+    rate = property(lambda self: self.output.rate, doc="The output sample rate (Hz).")
+
+
+def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
+    """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
+    path = Path(path)
+    if not path_exists(path):
+        raise TaskError("file not found (expected a task YAML file)", file=path)
+    if path.is_dir():
+        raise TaskError("is a directory (expected a task YAML file)", file=path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TaskError(f"cannot be read as UTF-8 text ({exc.__class__.__name__})", file=path) from None
+    try:
+        doc = load_yaml(text)
+    except yaml.YAMLError as exc:
+        raise TaskError(f"invalid YAML{yaml_error_detail(exc)}", file=path) from None
+    return parse_task(doc, path=path, text=text, purpose=purpose)
+
+
+def yaml_error_detail(exc: yaml.YAMLError) -> str:
+    """`` at line L, column C: problem`` for a YAML error (position omitted when unknown)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    problem = getattr(exc, "problem", None) or "invalid syntax"
+    return f"{where}: {problem}"
+
+
+def parse_task(doc: Any, *, path: Path, text: str = "", purpose: str = "plan") -> Task:
+    """Validate a parsed YAML document (see ``load_task``)."""
+    c = Checker(path)
+    if doc is None:
+        raise TaskError("empty file (expected a mapping with at least robot, x0, x1, T, N)", file=path)
+    if not isinstance(doc, dict):
+        raise TaskError(f"expected a mapping of task keys at the top level, got {type(doc).__name__}", file=path)
+    top = c.mapping(doc, "", TOP_KEYS)
+    required = ["robot", "x0", "T", "N"] + (["x1"] if purpose == "plan" else [])
+    for key in required:
+        if key not in top:
+            raise TaskError("missing required key", file=path, key=key)
+    parsed: dict[str, Any] = {}
+    for section in SECTIONS:
+        parsed[section.attr] = section.parse(c, top, parsed)
+    return Task(path=path, text=text, **parsed)
+
+
+__all__ = ["SECTIONS", "TOP_KEYS", "Section", "State", "Task", "load_task", "parse_task", "yaml_error_detail"]
