@@ -63,13 +63,13 @@ PANDA = {"joints": [f"panda_joint{i}" for i in range(1, 8)], "locked": {"panda_f
 
 def panda_multistart(seeds: int, starts: int, as_json: bool) -> int:
     """Multi-start on the Panda move for seeds 0 … seeds−1; prints every start's J and the kept J."""
+    import sysconfig
+
     from hoc_cli.commands.common import load_model
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import parse_task, resolve
     from hoc_cli.multistart import solve_starts
     from hoc_cli.system import RobotSystem
-
-    import sysconfig
 
     urdf = (Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
             / "panda_description" / "urdf" / "panda.urdf")

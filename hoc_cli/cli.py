@@ -79,7 +79,8 @@ def plan(
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,
-    starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; keep the lowest-J converged plan.")] = 1,
+    starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; "
+                                        "keep the lowest-J converged plan.")] = 1,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts).")] = 0,
     debug: DebugOpt = False,
 ) -> None:
@@ -103,10 +104,14 @@ def plan(
 
 @app.command()
 def batch(
-    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml...", help="A batch spec (base task + sweep, or a list of task files), or task files / globs.")],
-    output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). Default: <spec stem>_batch.")] = None,
-    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster (default: one per core).")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
+    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml...", help="A batch spec (base task + sweep, or a list of task files), "
+                                                                      "or task files / globs.")],
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). "
+                                                                       "Default: <spec stem>_batch.")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster "
+                                                                         "(default: one per core).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; "
+                                                                  "default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Keep the rows already in DIR/results.parquet and solve only the plans not in it.")] = False,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,

@@ -35,7 +35,8 @@ def chunk_size(plans: int, threads: int) -> int:
 @dataclass(eq=False)
 class BatchRun:
     """What a batch did. ``table``: every row (resumed and new), sorted by id; ``interrupted``: the
-    KeyboardInterrupt or SIGTERM (``Terminated``) that stopped it, after which the rows done were kept."""
+    KeyboardInterrupt or SIGTERM (``Terminated``) that stopped it, after which the rows done were kept.
+    """
 
     table: Any
     total: int

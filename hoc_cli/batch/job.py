@@ -52,8 +52,7 @@ def _message(exc: Exception) -> str:
 
 
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
-    from hoc_cli.commands.common import (OutputTarget, check_columns, check_sample_times, json_ready, load_model,
-                                         output_transaction, read_urdf_text)
+    from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
     from hoc_cli.commands.plan import _reproducible, sample_plan, solve, summarise
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits

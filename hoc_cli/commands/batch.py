@@ -6,8 +6,7 @@ import logging
 import os
 from pathlib import Path
 
-from hoc_cli.commands.common import (EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNMET, Terminated, print_json,
-                                     report_error, stderr_console)
+from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNMET, Terminated, print_json, report_error, stderr_console
 
 
 def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None = None, scheduler: str | None = None,
@@ -57,8 +56,7 @@ class _Reporter:
     """A rich progress bar on standard error: done/total, failed, running, elapsed, ETA."""
 
     def __init__(self, console) -> None:
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
         self.progress = Progress(TextColumn("hoc batch"), BarColumn(), MofNCompleteColumn(),
                                  TextColumn("failed {task.fields[failed]}  running {task.fields[running]}"),
