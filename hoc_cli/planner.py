@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.constraints import EnforceResult, JointLimits, enforce
+from hoc_cli.constraints.augmented_lagrangian import PenalizedProblem
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
@@ -108,7 +109,12 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
                 callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
                                              n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
 
-        res = minimize(evaluate, x0, precondition=problem.newton if precondition else None, method=method,
+        # With limit penalties the objective is only once differentiable (its curvature jumps where a
+        # row becomes active): Newton steps (β = 0) and a loose curvature condition accept more unit
+        # steps there (measured: 20-25 % fewer evaluations on lbr7_swing; docs/limits.md).
+        penalized = isinstance(problem, PenalizedProblem) and precondition
+        res = minimize(evaluate, x0, precondition=problem.newton if precondition else None,
+                       method="newton" if penalized else method, c2=0.9 if penalized else 0.1,
                        tol=tol_level, max_iter=max(max_iter - totals["it"], 0), callback=report,
                        noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:

@@ -23,6 +23,9 @@ from typer.testing import CliRunner
 
 from hoc_cli.cli import app
 
+#: the `dask` command of this interpreter's environment (on PATH only when the venv is activated)
+DASK = str(Path(sys.executable).with_name("dask"))
+
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 pytest.importorskip("distributed")
@@ -227,7 +230,7 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
     spec, _, run = sweep2
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False")
-    procs = [subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+    procs = [subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                                "--scheduler-file", str(sched_file)], stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL, env=env)]
     try:
@@ -236,7 +239,7 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
             time.sleep(0.1)
         address = json.loads(sched_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
-        procs.append(subprocess.Popen(["dask", "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+        procs.append(subprocess.Popen([DASK, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
                                        "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       env=env))
         r = subprocess.run(hoc_command() + ["batch", str(spec), "-o", str(tmp_path / "remote"), "--json"],

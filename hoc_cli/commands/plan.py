@@ -221,6 +221,11 @@ def summary_table(summary: dict) -> Table:
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
     # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
     table.add_row("max |u|", Text(", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"]))))
+    table.add_row("status", Text(str(summary["status"])))
+    table.add_row("limits", Text(str(summary.get("limits_mode", "report"))))
+    active = summary.get("active_limits") or []
+    table.add_row("active limits", Text("none" if not active else "; ".join(
+        f"{a['joint']} {a['kind']} " + ", ".join(f"[{t0:.3g}, {t1:.3g}] s" for t0, t1 in a["intervals"]) for a in active)))
     viol = summary["limit_violations"]
     table.add_row("limit violations", Text("none" if not viol else "; ".join(
         f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
