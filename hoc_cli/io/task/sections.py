@@ -209,9 +209,7 @@ def _mesh(c: Checker, top: dict) -> tuple[int | None, float | None]:
     N = top.get("N", "auto")
     if N == "auto":
         return None, check_accuracy(c, top.get("accuracy", DEFAULT_ACCURACY), "accuracy")
-    if isinstance(N, str):
-        raise c.fail("N", f"an integer >= 1 and <= {MAX_ELEMENTS}, or auto", N)
-    N = check_N(c, N, "N")
+    N = check_N(c, N, "N")  # the same message as -N's (a string other than auto is refused here)
     if "accuracy" in top:
         raise c.error("accuracy", f"applies to N: auto only (N is {N}; expected N: auto, or no accuracy)")
     return N, None
