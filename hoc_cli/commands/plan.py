@@ -41,6 +41,7 @@ from hoc_cli.trajectory import Trajectory, sample_times
 
 GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
 GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
+ESTIMATE_MIN_ITER = 50  # the error estimate's iteration budget: the plan's own iterations, at least this
 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
@@ -93,8 +94,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             result = plan(system, mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
                           method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report,
                           limits=enforced)
+            # the estimate's solves may take as many iterations as the plan did (each costs about twice
+            # as much on 2N elements), so it at most about doubles the time; else it reports null
+            budget = min(task.max_iter, max(ESTIMATE_MIN_ITER, result.optimizer.iterations))
             error = estimate(system, result, cost=task.cost, method=task.method, tol=task.tol,
-                             max_iter=task.max_iter, limits=enforced)
+                             max_iter=budget, limits=enforced)
     traj = sample_plan(system, result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
     summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
