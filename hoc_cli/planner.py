@@ -2,6 +2,12 @@
 
 ``plan`` ties ``ControlProblem`` (cost, gradient, Newton matrix) to the optimiser
 (preconditioned PR+ CG by default) and returns a ``PlanResult``. Pure maths: no I/O.
+
+Continuation levels nest: each coarse level's element count divides the next, so the next level
+starts from a trajectory its own space holds exactly (``resample`` is then exact) and J does not
+rise from level to level. Above 16 elements an even N is reached through N/2, solved as a plan
+of its own: the plan at 2N starts from the plan at N, and J(2N) <= J(N) up to the solver
+tolerance (one optimum followed across meshes).
 """
 from __future__ import annotations
 
@@ -22,6 +28,19 @@ from hoc_cli.problem import ControlProblem
 from hoc_cli.system import System
 
 QUADRATURE_RTOL = 1e-12
+BASE_LEVEL = 16  # above this, an even N is planned as the plan at N/2 refined once
+COARSE_TOL = 1e-6  # relative tolerance of the coarse continuation levels (at least the plan's tol)
+
+
+@dataclass(frozen=True)
+class Level:
+    """One level of a plan's continuation: N elements, J at its end, and whether it was solved to
+    the plan's tolerance with the quadrature check (``full``) or to ``COARSE_TOL`` only.
+    """
+
+    N: int
+    J: float
+    full: bool
 
 
 @dataclass(eq=False)
@@ -30,7 +49,8 @@ class PlanResult:
 
     coeffs : (N+1, m, n) Hermite coefficients; J : cost at the solution;
     G : Gauss points per element used; quadrature_change : |J(G+4) − J(G)| / |J| at the solution;
-    wall_time_s : the solve alone [s].
+    wall_time_s : the solve alone [s]; levels : the continuation levels solved, coarse to fine;
+    coarser : the plan on N/2 elements this one was refined from (full levels only), else None.
     """
 
     mesh: HermiteMesh
@@ -42,6 +62,8 @@ class PlanResult:
     wall_time_s: float
     problem: ControlProblem
     limits: EnforceResult | None = None
+    levels: tuple[Level, ...] = ()
+    coarser: PlanResult | None = None
 
     @property
     def converged(self) -> bool:
@@ -55,46 +77,70 @@ def _cost_with(system: System, mesh: HermiteMesh, boundary, cost: str, G: int, C
     return p.value(p.layout.pack(C))
 
 
-def continuation_levels(N: int, factor: int = 4, coarsest: int = 2) -> list[int]:
-    """Element counts of the coarse-to-fine sequence ending at N: …, ⌈N/16⌉, ⌈N/4⌉, N, none below ``coarsest``.
+def full_levels(N: int) -> list[int]:
+    """The levels solved as plans of their own: N, N/2, N/4, … while above ``BASE_LEVEL`` and even; coarse to fine.
 
-    E.g. 36 → [3, 9, 36], 16 → [4, 16], 8 → [2, 8], 3 → [3].
+    E.g. 64 → [16, 32, 64], 48 → [12, 24, 48], 16 → [16], 36 → [9, 18, 36], 17 → [17].
     """
     levels = [N]
-    while -(-levels[-1] // factor) >= coarsest:
-        levels.append(-(-levels[-1] // factor))
+    while levels[-1] > BASE_LEVEL and levels[-1] % 2 == 0:
+        levels.append(levels[-1] // 2)
     return levels[::-1]
 
 
+def coarse_levels(N: int, factor: int = 4, coarsest: int = 2) -> list[int]:
+    """Coarse levels below N, each dividing the next: the largest divisor of N in [coarsest, ⌈N/factor⌉], repeatedly.
+
+    When N has no such divisor (N prime), ⌈N/factor⌉ is used (as before nesting; its trajectory is
+    then interpolated into the next level, not represented exactly). E.g. 16 → [4], 36 → [3, 9],
+    8 → [2], 10 → [2], 3 → [], 17 → [2, 5].
+    """
+    levels = [N]
+    while True:
+        cap = -(-levels[-1] // factor)
+        if cap < coarsest:
+            break
+        d = next((d for d in range(cap, coarsest - 1, -1) if levels[-1] % d == 0), cap)
+        levels.append(d)
+    return levels[:0:-1]
+
+
+def continuation_levels(N: int) -> list[int]:
+    """Every level of the plan on N elements, coarse to fine: ``coarse_levels`` of the base, then ``full_levels``.
+
+    E.g. 16 → [4, 16], 8 → [2, 8], 32 → [4, 16, 32], 64 → [4, 16, 32, 64], 36 → [3, 9, 18, 36].
+    """
+    full = full_levels(N)
+    return coarse_levels(full[0]) + full
+
+
 def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.ndarray:
-    """Coefficients on ``mesh_to`` taking q, q̇ (, q̈) of the trajectory (mesh_from, C) at its nodes; (N+1, m, n)."""
+    """Coefficients on ``mesh_to`` taking q, q̇ (, q̈) of the trajectory (mesh_from, C) at its nodes; (N+1, m, n).
+
+    Exact (the same piecewise polynomial) when ``mesh_to.N`` is a multiple of ``mesh_from.N``.
+    """
     t = mesh_to.nodes
     return np.stack([mesh_from.evaluate(C, t, r) for r in range(mesh_to.m)], axis=1)
 
 
-def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "covariant", method: str = "pr-cg",
-         tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
-         precondition: bool = True, continuation: bool = True,
-         callback: Callable[[IterLog], None] | None = None, limits: JointLimits | None = None) -> PlanResult:
-    """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
+class _Session:
+    """The solves of one plan: iteration counts and history across levels, the limits' working set."""
 
-    Coarse to fine (``continuation``, unless ``C_init`` is given): the problem is first solved on
-    ⌈N/16⌉, ⌈N/4⌉, … elements to a relative tolerance max(tol, 1e-6), each solution resampled at
-    the next mesh's nodes as its starting point; most iterations then happen where an evaluation
-    is cheap, and the fine mesh needs a few Newton steps. After convergence on the fine mesh the
-    cost is recomputed with 4 more Gauss points per element; while it changes by more than 1e-12
-    relative (and by more than the rounding level of J), G grows by 4 and the solve continues.
+    def __init__(self, system: System, boundary, *, cost: str, method: str, max_iter: int, precondition: bool,
+                 callback: Callable[[IterLog], None] | None, limits: JointLimits | None,
+                 working: np.ndarray | None) -> None:
+        self.system, self.boundary, self.cost, self.method = system, boundary, cost, method
+        self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
+        self.limits = limits if limits is not None and limits.any else None
+        self.working = working
+        self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
+        self.history: list[IterLog] = []
+        self.levels: list[Level] = []
 
-    With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
-    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
-    minimiser); the working set of limits found binding carries over from level to level.
-    """
-    start = time.perf_counter()
-    totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
-    history: list[IterLog] = []
-
-    def solve(problem: ControlProblem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
+    def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
+        """The unconstrained minimiser on ``problem`` from x0 (the inner solve of ``enforce`` too)."""
         failures: list[NumericalError] = []
+        totals, callback = self.totals, self.callback
 
         def evaluate(x: np.ndarray):
             try:
@@ -112,57 +158,104 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
         # With limit penalties the objective is only once differentiable (its curvature jumps where a
         # row becomes active): Newton steps (β = 0) and a loose curvature condition accept more unit
         # steps there (measured: 20-25 % fewer evaluations on lbr7_swing; docs/limits.md).
-        penalized = isinstance(problem, PenalizedProblem) and precondition
-        res = minimize(evaluate, x0, precondition=problem.newton if precondition else None,
-                       method="newton" if penalized else method, c2=0.9 if penalized else 0.1,
-                       tol=tol_level, max_iter=max(max_iter - totals["it"], 0), callback=report,
-                       noise=lambda ev: ev.noise)
+        penalized = isinstance(problem, PenalizedProblem) and self.precondition
+        res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
+                       method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
+                       tol=tol_level, max_iter=max(self.max_iter - totals["it"], 0),
+                       callback=report, noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
         totals["it"] += res.iterations
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
         totals["restarts"] += res.restarts
-        history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
-                                           level=problem.mesh.N) for h in res.history)
+        self.history.extend(dataclasses.replace(h, iteration=h.iteration + totals["it"] - res.iterations,
+                                                level=problem.mesh.N) for h in res.history)
         return res
 
-    limited = limits is not None and limits.any
-    carry: dict = {"working": None}
-
-    def solve_level(problem: ControlProblem, x0: np.ndarray, tol_level: float):
+    def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float):
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
-        if not limited:
-            res = solve(problem, x0, tol_level)
+        if self.limits is None:
+            res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
-        er = enforce(problem, system, limits, x0, tol_level, solve, working=carry["working"])
-        carry["working"] = er.working
+        er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working)
+        self.working = er.working
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
-    if C_init is None and continuation and precondition:
-        coarse_mesh, C_coarse = None, None
-        for N in continuation_levels(mesh.N)[:-1]:
-            level = HermiteMesh(mesh.order, mesh.T, N)
-            problem = ControlProblem(system, level, q0, dq0, q1, dq1, cost=cost, G=G)
-            x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
-            res, _, _ = solve_level(problem, x0, max(tol, 1e-6))
-            coarse_mesh, C_coarse = level, problem.coefficients(res.x)
-        if coarse_mesh is not None:
-            C_init = resample(coarse_mesh, C_coarse, mesh)
+    def problem(self, mesh: HermiteMesh, G: int | None) -> ControlProblem:
+        return ControlProblem(self.system, mesh, *self.boundary, cost=self.cost, G=G)
 
-    while True:
-        problem = ControlProblem(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G)
-        x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
-        res, J, er = solve_level(problem, x0, tol)
-        C = problem.coefficients(res.x)
-        J4 = _cost_with(system, mesh, problem.boundary, cost, problem.G + 4, C)
-        change = abs(J4 - J) / max(abs(J4), 1e-300)
-        noise = problem.last.noise if problem.last is not None else 0.0
-        resolved = change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise  # else: truncation, refine
-        if resolved or not res.converged or problem.G >= 32:
-            break
-        G, C_init = problem.G + 4, C
-    res = dataclasses.replace(res, iterations=totals["it"], n_evals=totals["ev"], n_precond=totals["pre"],
-                              restarts=totals["restarts"], history=tuple(history))
-    return PlanResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
-                      wall_time_s=time.perf_counter() - start, problem=problem, limits=er)
+    def coarse(self, mesh: HermiteMesh, C_start: np.ndarray | None, tol: float, G: int | None) -> np.ndarray:
+        """One coarse level to max(tol, ``COARSE_TOL``); returns its coefficients."""
+        problem = self.problem(mesh, G)
+        x0 = problem.initial_guess() if C_start is None else problem.layout.pack(C_start)
+        res, J, _ = self.solve_level(problem, x0, max(tol, COARSE_TOL))
+        self.levels.append(Level(mesh.N, float(J), False))
+        return problem.coefficients(res.x)
+
+    def full(self, mesh: HermiteMesh, C_start: np.ndarray | None, tol: float, G: int | None,
+             start: float, coarser: PlanResult | None) -> PlanResult:
+        """One level to ``tol``; while 4 more Gauss points change J by more than 1e-12 relative
+        (and by more than the rounding level of J), G grows by 4 and the solve continues.
+        """
+        while True:
+            problem = self.problem(mesh, G)
+            x0 = problem.initial_guess() if C_start is None else problem.layout.pack(C_start)
+            res, J, er = self.solve_level(problem, x0, tol)
+            C = problem.coefficients(res.x)
+            J4 = _cost_with(self.system, mesh, problem.boundary, self.cost, problem.G + 4, C)
+            change = abs(J4 - J) / max(abs(J4), 1e-300)
+            noise = problem.last.noise if problem.last is not None else 0.0
+            resolved = change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise  # else: truncation, refine
+            if resolved or not res.converged or problem.G >= 32:
+                break
+            G, C_start = problem.G + 4, C
+        self.levels.append(Level(mesh.N, float(J), True))
+        t = self.totals
+        res = dataclasses.replace(res, iterations=t["it"], n_evals=t["ev"], n_precond=t["pre"],
+                                  restarts=t["restarts"], history=tuple(self.history))
+        return PlanResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
+                          wall_time_s=time.perf_counter() - start, problem=problem, limits=er,
+                          levels=tuple(self.levels), coarser=coarser)
+
+
+def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "covariant", method: str = "pr-cg",
+         tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
+         precondition: bool = True, continuation: bool = True,
+         callback: Callable[[IterLog], None] | None = None, limits: JointLimits | None = None,
+         working: np.ndarray | None = None) -> PlanResult:
+    """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
+
+    Coarse to fine (``continuation``, unless ``C_init`` is given), over ``continuation_levels(N)``:
+    the coarse levels (about N/16, N/4 of the base level, each dividing the next) are solved to a
+    relative tolerance max(tol, 1e-6), each solution resampled exactly at the next mesh's nodes as
+    its starting point; most iterations then happen where an evaluation is cheap. The full levels
+    (``full_levels``: the base level, then doubling to N) are each solved to ``tol``, with the
+    quadrature check: after convergence the cost is recomputed with 4 more Gauss points per
+    element; while it changes by more than 1e-12 relative (and by more than the rounding level of
+    J), G grows by 4 and the solve continues. A full level's plan is kept in ``coarser`` of the next.
+
+    With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
+    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
+    minimiser); the working set of limits found binding carries over from level to level, and
+    starts from ``working`` (4, n) bool when given (e.g. a coarser plan's).
+    """
+    start = time.perf_counter()
+    session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,
+                       precondition=precondition, callback=callback, limits=limits, working=working)
+    full = [mesh.N]
+    prev_mesh, C_prev = None, None
+    if C_init is None and continuation and precondition:
+        full = full_levels(mesh.N)
+        for N in coarse_levels(full[0]):
+            level = HermiteMesh(mesh.order, mesh.T, N)
+            C_start = None if C_prev is None else resample(prev_mesh, C_prev, level)
+            prev_mesh, C_prev = level, session.coarse(level, C_start, tol, G)
+    result = None
+    for N in full:
+        level = mesh if N == mesh.N else HermiteMesh(mesh.order, mesh.T, N)
+        C_start = C_init if C_prev is None else resample(prev_mesh, C_prev, level)
+        result = session.full(level, C_start, tol, G, start, result)
+        prev_mesh, C_prev, G = level, result.coeffs, result.G
+    assert result is not None
+    return result

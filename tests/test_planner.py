@@ -221,13 +221,22 @@ def test_work_counts_on_the_two_link_arm_do_not_grow():
     assert r.optimizer.iterations <= 7 and r.optimizer.n_evals <= 12
 
 
-def test_continuation_levels_refine_by_four_and_end_at_the_requested_mesh():
+def test_continuation_levels_nest_and_end_at_the_requested_mesh():
     from hoc_cli.planner import continuation_levels
 
-    assert continuation_levels(36) == [3, 9, 36]
+    assert continuation_levels(36) == [3, 9, 18, 36]
     assert continuation_levels(16) == [4, 16]
     assert continuation_levels(8) == [2, 8]
     assert continuation_levels(3) == [3]
+    assert continuation_levels(64) == [4, 16, 32, 64]  # above 16: the plan at N/2, refined
+    assert continuation_levels(17) == [2, 5, 17]  # a prime has no divisor: not nested (interpolated)
+    for N in range(4, 300):
+        levels = continuation_levels(N)
+        assert levels[-1] == N and levels == sorted(set(levels))
+        if any(N % d == 0 for d in range(2, N)) and len(levels) > 1:  # composite: the level below N divides it
+            assert N % levels[-2] == 0
+        if N > 16 and N % 2 == 0:
+            assert levels[:-1] == continuation_levels(N // 2)  # the path of N passes through the plan at N/2
 
 
 def test_coarse_to_fine_and_single_mesh_solves_reach_the_same_optimum():

@@ -130,7 +130,7 @@ TASK_CASES = [
     ("task path that is a directory", _directory_task, ("dir.yaml", "is a directory")),
     ("top level is a plain string", _task("just some words\n"), ("task.yaml", "expected a mapping", "str")),
     ("missing T", _task(_with("T: 1.5\n", "")), ("task.yaml", "T: missing required key")),
-    ("missing N", _task(_with("N: 4\n", "")), ("task.yaml", "N: missing required key")),
+    ("N neither an integer nor auto", _task(_with("N: 4\n", "N: many\n")), ("task.yaml", "N: expected an integer")),
     ("missing x0", _task(_with("x0: {q: [0.0, 0.0]}\n", "")), ("task.yaml", "x0: missing required key")),
     ("unknown key inside x0", _task(_with("{q: [0.0, 0.0]}", "{q: [0.0, 0.0], ddq: [0, 0]}")),
      ("task.yaml", "x0.ddq: unknown key 'ddq'", "expected one of: q, dq")),

@@ -10,6 +10,7 @@ from rich.table import Table
 from rich.text import Text
 
 from hoc_cli import __version__
+from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START, ErrorEstimate, estimate, plan_auto
 from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
@@ -40,6 +41,7 @@ from hoc_cli.trajectory import Trajectory, sample_times
 
 GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
 GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
+ESTIMATE_MIN_ITER = 50  # the error estimate's iteration budget: the plan's own iterations, at least this
 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
@@ -68,8 +70,13 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         check_boundary_states(task, limits, states)
     else:
         _warn_outside_limits(console, task, model, states)
-    mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
-    C_init = _warm_start(init, mesh, model.joint_names) if init is not None else None
+    auto = task.N is None
+    mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
+    C_init = _warm_start(init, mesh, model.joint_names) if init is not None and not auto else None
+    if auto and init is not None:
+        raise OutputError("--init needs a fixed N (the task has N: auto; give -N)", key="--init")
+    if auto and starts > 1:
+        raise OutputError("--starts needs a fixed N (the task has N: auto; give -N)", key="--starts")
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
 
@@ -86,10 +93,25 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
-    result, multi = solve(task, model, states, mesh, limits, C_init=C_init, callback=report, starts=starts, seed=seed,
-                          client=starts_pool if starts > 1 else None, on_start=report_start)
-    traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
+    system, enforced = RobotSystem(model), limits if mode == "enforce" else None
+    multi = None
+    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+        if auto:
+            found = plan_auto(system, task.order, task.T, states.q0, states.dq0, states.q1, states.dq1,
+                              accuracy=task.accuracy, cost=task.cost, method=task.method, tol=task.tol,
+                              max_iter=task.max_iter, limits=enforced, callback=report)
+            result, error = found.plan, found.error
+        else:
+            result, multi = solve(task, model, states, mesh, limits, C_init=C_init, callback=report, starts=starts,
+                                  seed=seed, client=starts_pool if starts > 1 else None, on_start=report_start)
+            # the estimate's solves may take as many iterations as the plan did (each costs about twice
+            # as much on 2N elements), so it at most about doubles the time; else it reports null
+            budget = min(task.max_iter, max(ESTIMATE_MIN_ITER, result.optimizer.iterations))
+            error = estimate(system, result, cost=task.cost, method=task.method, tol=task.tol,
+                             max_iter=budget, limits=enforced)
+    traj = sample_plan(system, result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
+    summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
     summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
     summary.update(starts_summary(multi, seed))
     summary = json_ready(summary)  # an absent limit (inf) is null
@@ -102,6 +124,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         print_json(summary)
     if show:
         console.print(summary_table(summary))
+    if auto and result.converged and not found.reached:
+        console.print(f"hoc: accuracy not reached: estimated relative error of J {error.relative:.2g} > "
+                      f"{task.accuracy:g} at N = {result.mesh.N} (N: auto stops at {AUTO_MAX_ELEMENTS} elements); "
+                      "the plan was written", highlight=False, markup=False, soft_wrap=True)
+        return EXIT_UNMET
     if not result.converged:
         why = summary["message"] if result.limits is not None else result.optimizer.message
         head = "infeasible" if summary["status"] == "infeasible" else "not converged"
@@ -206,9 +233,23 @@ def summarise(task: Task, model, result: PlanResult, states) -> dict:
     }
 
 
+def accuracy_summary(error: ErrorEstimate, accuracy: float | None, steps) -> dict:
+    """``J_error_estimate`` (relative), ``J_error_basis`` (what it rests on), ``J_error_elements`` (per element)
+    and the estimate's own cost; for N: auto also ``accuracy`` and ``N_auto`` (each mesh tried).
+    """
+    out = {"J_error_estimate": error.relative,
+           "J_error_basis": error.basis,
+           "J_error_elements": None if error.indicators is None else [float(v) for v in error.indicators],
+           "J_error_wall_time_s": error.wall_time_s}
+    if steps is not None:
+        out |= {"accuracy": accuracy, "N_auto": list(steps)}
+    return out
+
+
 def _reproducible(summary: dict) -> dict:
     """The summary as stored in the MCAP: without wall-clock timings, so that equal inputs give equal bytes."""
-    return {k: v for k, v in summary.items() if k not in ("wall_time_s", "outputs")} | {"hoc_version": __version__}
+    timings = ("wall_time_s", "J_error_wall_time_s", "outputs")
+    return {k: v for k, v in summary.items() if k not in timings} | {"hoc_version": __version__}
 
 
 def summary_table(summary: dict) -> Table:
@@ -216,7 +257,7 @@ def summary_table(summary: dict) -> Table:
     table.add_column("key")
     table.add_column("value")
     for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
-                "N", "order", "T", "boundary_error"):
+                "N", "order", "T", "boundary_error", "J_error_estimate"):
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
     # user text (joint names, paths) is shown literally: Text is never parsed as rich markup

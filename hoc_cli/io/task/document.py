@@ -44,7 +44,7 @@ class Section:
 SECTIONS: tuple[Section, ...] = (
     Section("robot_spec", ("robot", "joints", "locked", "gravity"), parse_robot),
     Section("boundary", ("x0", "x1"), parse_boundary),
-    Section("time", ("T", "N", "order"), parse_time),
+    Section("time", ("T", "N", "order", "accuracy"), parse_time),
     Section("cost", ("cost",), parse_cost),
     Section("solver", ("solver",), parse_solver),
     Section("output", ("output",), parse_output),
@@ -86,7 +86,8 @@ class Task:
     x0 = property(lambda self: self.boundary.x0, doc="The start state.")
     x1 = property(lambda self: self.boundary.x1, doc="The goal state, or None.")
     T = property(lambda self: self.time.T, doc="The duration (s).")
-    N = property(lambda self: self.time.N, doc="The number of elements.")
+    N = property(lambda self: self.time.N, doc="The number of elements, or None for N: auto.")
+    accuracy = property(lambda self: self.time.accuracy, doc="The target relative error of J (N: auto).")
     order = property(lambda self: self.time.order, doc="quintic or cubic.")
     method = property(lambda self: self.solver.method, doc="pr-cg or newton.")
     tol = property(lambda self: self.solver.tol, doc="The solver tolerance.")
@@ -124,17 +125,19 @@ def parse_task(doc: Any, *, path: Path, text: str = "", purpose: str = "plan") -
     """Validate a parsed YAML document (see ``load_task``)."""
     c = Checker(path)
     if doc is None:
-        raise TaskError("empty file (expected a mapping with at least robot, x0, x1, T, N)", file=path)
+        raise TaskError("empty file (expected a mapping with at least robot, x0, x1, T)", file=path)
     if not isinstance(doc, dict):
         raise TaskError(f"expected a mapping of task keys at the top level, got {type(doc).__name__}", file=path)
     top = c.mapping(doc, "", TOP_KEYS)
-    required = ["robot", "x0", "T", "N"] + (["x1"] if purpose == "plan" else [])
+    required = ["robot", "x0", "T"] + (["x1"] if purpose == "plan" else ["N"])
     for key in required:
         if key not in top:
             raise TaskError("missing required key", file=path, key=key)
     parsed: dict[str, Any] = {}
     for section in SECTIONS:
         parsed[section.attr] = section.parse(c, top, parsed)
+    if purpose != "plan" and parsed["time"].N is None:
+        raise TaskError("N: auto is for hoc plan only (expected an integer number of elements)", file=path, key="N")
     return Task(path=path, text=text, **parsed)
 
 

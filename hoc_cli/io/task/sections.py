@@ -178,22 +178,49 @@ def parse_boundary(c: Checker, top: dict, parsed: dict) -> BoundarySpec:
     return BoundarySpec(x0=x0, x1=x1)
 
 
-# ------------------------------------------------------------------ time: T, N, order
+# ------------------------------------------------------------------ time: T, N, order, accuracy
+DEFAULT_ACCURACY = 1e-8  # N: auto refines until the estimated relative error of J is at most this
+
+
 @dataclass(frozen=True)
 class TimeSpec:
-    """The duration T (s) and its discretisation: N elements of the given order."""
+    """The duration T (s) and its discretisation: N elements of the given order.
+
+    N is None for ``N: auto`` (also when the task gives no N): the mesh is refined until the
+    estimated relative error of J is at most ``accuracy`` (None with a fixed N).
+    """
 
     T: float
-    N: int
+    N: int | None
     order: str = "quintic"
+    accuracy: float | None = None
+
+
+def check_accuracy(c: Checker, value: Any, key: str) -> float:
+    """The target relative error of J for ``N: auto``, in (0, 1)."""
+    x = c.number(value, key, positive=True, what="a relative accuracy in (0, 1), e.g. 1.0e-8")
+    if x >= 1:
+        raise c.fail(key, "a relative accuracy in (0, 1), e.g. 1.0e-8", value)
+    return x
+
+
+def _mesh(c: Checker, top: dict) -> tuple[int | None, float | None]:
+    """(N, accuracy) from ``N`` (an integer, ``auto`` or absent) and ``accuracy``."""
+    N = top.get("N", "auto")
+    if N == "auto":
+        return None, check_accuracy(c, top.get("accuracy", DEFAULT_ACCURACY), "accuracy")
+    N = check_N(c, N, "N")  # the same message as -N's (a string other than auto is refused here)
+    if "accuracy" in top:
+        raise c.error("accuracy", f"applies to N: auto only (N is {N}; expected N: auto, or no accuracy)")
+    return N, None
 
 
 def parse_time(c: Checker, top: dict, parsed: dict) -> TimeSpec:
-    """``T`` (a fixed duration; a free T would be the mapping branch here), ``N``, ``order``."""
+    """``T`` (a fixed duration; a free T would be the mapping branch here), ``N`` and ``accuracy``, ``order``."""
     T = check_T(c, top["T"], "T")
-    N = check_N(c, top["N"], "N")
+    N, accuracy = _mesh(c, top)
     order = check_order(c, top.get("order", "quintic"), "order")
-    return TimeSpec(T=T, N=N, order=order)
+    return TimeSpec(T=T, N=N, order=order, accuracy=accuracy)
 
 
 def parse_cost(c: Checker, top: dict, parsed: dict) -> str:

@@ -1,0 +1,215 @@
+"""How far a plan's J is from the continuous optimum, and ``N: auto`` (refine until it is close enough).
+
+The estimate (``estimate``) compares the plan on N elements with the same problem solved on 2N
+elements, warm-started from the plan itself: the N-element trajectory is exactly representable
+on 2N elements, so the solve follows the same local optimum and J(2N) <= J(N). With the plan on
+N/2 elements (the plan's own coarser level when it was reached by doubling, else a solve on N/2
+elements started from the plan's values at those nodes), the differences d₁ = J(N/2) − J(N) and
+d₂ = J(N) − J(2N) measure the order p = log₂(d₁/d₂) of J(N) − J* ≈ C·N⁻ᵖ, and Richardson
+extrapolation gives
+
+    |J(N) − J*| ≈ d₂ · 2ᵖ / (2ᵖ − 1),
+
+with p capped at the order of a smooth problem (8 for quintic elements, 4 for cubic: J is a
+squared norm of a residual that converges like h⁴, resp. h²). When p cannot be measured (N odd,
+or d₁ and d₂ of different signs or not decreasing: not yet in the asymptotic range) the factor 2
+is used, the largest for any order p >= 1. The estimate is reported relative to |J(N)| and is
+never below the solver's tolerance ``tol`` (J itself is only known to about tol·|J|).
+
+Per-element indicators (``element_indicators``): the hierarchical residual of the plan on 2N
+elements. The 2N-element space is the N-element space plus one node in the middle of each
+element; at the plan, the cost's gradient with respect to the middle node's coefficients g_e
+and the Hessian's block there H_e give η_e = ½ g_eᵀ H_e⁻¹ g_e, the decrease of J one Newton step
+on that node alone would bring. The middle nodes of different elements do not share an element,
+so Σ η_e is the decrease of the quadratic model when only the new nodes move (a lower estimate of
+J(N) − J(2N)). η_e is largest where splitting element e would help most (the input of an
+h-refinement, not done yet: meshes stay uniform). Limit terms are not included.
+
+Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hoc_cli.banded import element_blocks
+from hoc_cli.constraints import JointLimits
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.planner import PlanResult, plan, resample
+from hoc_cli.problem import ControlProblem
+from hoc_cli.system import System
+
+#: the order of J(N) − J* for a smooth problem: J is the squared norm of a residual of order h^(degree − 1)
+SMOOTH_ORDER = {"quintic": 8.0, "cubic": 4.0}
+#: the factor of d₂ when the order is not measured: 2ᵖ/(2ᵖ − 1) for p = 1, the largest for any p >= 1
+UNMEASURED_FACTOR = 2.0
+DEFAULT_ACCURACY = 1e-8
+AUTO_START = 16  # N: auto starts here (the plan on 16 elements, then 32, 64, …)
+AUTO_MAX_ELEMENTS = 1024
+#: N: auto stops when the estimate is below accuracy / AUTO_SAFETY: the estimate is within a factor 2
+#: of the true error on the problems tested (docs/accuracy.md), so the true error is then below accuracy
+AUTO_SAFETY = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorEstimate:
+    """The estimate of |J(N) − J*| / |J(N)| and what it is based on.
+
+    relative : the estimate, or None when the plan (or the solve on 2N elements) did not converge;
+    basis : JSON-ready description (method, N, J at each, measured and used order, factor);
+    indicators : (N,) per-element indicators η_e / |J(N)|, or None; refined : the plan on 2N
+    elements (warm-started from this one); wall_time_s, iterations : the estimate's own cost.
+    """
+
+    relative: float | None
+    basis: dict
+    indicators: np.ndarray | None = field(default=None, repr=False)
+    refined: PlanResult | None = field(default=None, repr=False)
+    wall_time_s: float = 0.0
+    iterations: int = 0
+
+
+def richardson(J_coarse: float | None, J: float, J_fine: float, *, order: str, tol: float) -> tuple[float, dict]:
+    """(relative estimate of |J − J*|, basis) from J on N/2 (or None), N and 2N elements.
+
+    See the module docstring. ``tol`` is the solver's relative tolerance: the floor of the estimate.
+    """
+    scale = max(abs(J), 1e-300)
+    floor = tol * scale
+    d2 = J - J_fine
+    d1 = None if J_coarse is None else J_coarse - J
+    info: dict = {"order_measured": None, "order_used": None, "factor": None}
+    if abs(d2) <= floor:
+        info["note"] = "J(N) and J(2N) agree to the solver tolerance"
+        return max(UNMEASURED_FACTOR * abs(d2), floor) / scale, info
+    if d1 is not None and d1 * d2 > 0 and abs(d1) > abs(d2) and abs(d1) > floor:
+        p = math.log2(d1 / d2)
+        p_used = min(p, SMOOTH_ORDER[order])
+        factor = 2.0**p_used / (2.0**p_used - 1.0)
+        info.update(order_measured=p, order_used=p_used, factor=factor)
+    else:
+        factor = UNMEASURED_FACTOR
+        info.update(factor=factor, note="order not measured (no J on N/2 elements, or J(N/2), J(N), J(2N) "
+                    "not yet decreasing geometrically): factor 2, the largest for any order >= 1")
+    return max(factor * abs(d2), floor) / scale, info
+
+
+def element_indicators(system: System, result: PlanResult, cost: str) -> np.ndarray:
+    """η_e (N,) of the plan on N elements: ½ g_eᵀ H_e⁻¹ g_e at the middle node of each element (absolute, as J).
+
+    g_e (m·n,) is the gradient of I on 2N elements, at the plan, with respect to the coefficients
+    of the node added in the middle of element e; H_e the Hessian's diagonal block there (its
+    positive semi-definite part where the block is not positive definite).
+    """
+    mesh = result.mesh
+    fine = HermiteMesh(mesh.order, mesh.T, 2 * mesh.N)
+    problem = ControlProblem(system, fine, *result.problem.boundary, cost=cost, G=result.G)
+    C = resample(mesh, result.coeffs, fine)
+    ev = problem.evaluate(problem.layout.pack(C))
+    q, dq, ddq = problem.op.apply(C)
+    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+    W = problem.op.w[:, None]
+    g = problem.op.transpose(W * s.gq, W * s.gdq, W * s.gddq)  # (2N+1, m, n)
+    mn = fine.m * problem.n
+    g_mid = g[1::2].reshape(mesh.N, mn)
+    Hs, GNs = problem.hessian_samples(ev)
+
+    def middle_blocks(samples: np.ndarray) -> np.ndarray:  # node 2e+1: right end of element 2e, left of 2e+1
+        B = element_blocks(problem.op_h, samples)
+        return B[0::2, mn:, mn:] + B[1::2, :mn, :mn]
+
+    H = middle_blocks(Hs)
+    eta = np.empty(mesh.N)
+    psd = None
+    for e in range(mesh.N):  # N small (mn × mn) solves; once per plan, not in the solver's loop
+        try:
+            L = np.linalg.cholesky(H[e])
+        except np.linalg.LinAlgError:
+            psd = middle_blocks(GNs) if psd is None else psd
+            L = np.linalg.cholesky(psd[e] + 1e-12 * np.trace(psd[e]) / mn * np.eye(mn))
+        y = np.linalg.solve(L, g_mid[e])
+        eta[e] = 0.5 * float(y @ y)
+    return eta
+
+
+def _refine(system: System, result: PlanResult, N: int, *, cost: str, method: str, tol: float, max_iter: int,
+            limits: JointLimits | None) -> PlanResult:
+    """The problem on N elements solved from ``result``'s trajectory at its nodes (exact when N is a multiple)."""
+    mesh = HermiteMesh(result.mesh.order, result.mesh.T, N)
+    working = result.limits.working if result.limits is not None else None
+    return plan(system, mesh, *result.problem.boundary, cost=cost, method=method, tol=tol, max_iter=max_iter,
+                C_init=resample(result.mesh, result.coeffs, mesh), G=result.G, limits=limits, working=working)
+
+
+def estimate(system: System, result: PlanResult, *, cost: str, method: str = "pr-cg", tol: float = 1e-10,
+             max_iter: int = 5000, limits: JointLimits | None = None) -> ErrorEstimate:
+    """The error estimate of a converged plan (see the module docstring): one warm-started solve on
+    2N elements, and one on N/2 unless the plan already holds it. Same cost, tol and limits as the plan.
+    """
+    start = time.perf_counter()
+    N = result.mesh.N
+    if not result.converged:
+        return ErrorEstimate(None, {"method": "none", "note": "the plan did not converge"})
+    kw = dict(cost=cost, method=method, tol=tol, max_iter=max_iter, limits=limits)
+    fine = _refine(system, result, 2 * N, **kw)
+    iterations = fine.optimizer.iterations
+    if not fine.converged:
+        return ErrorEstimate(None, {"method": "none", "note": f"the solve on {2 * N} elements did not converge"},
+                             wall_time_s=time.perf_counter() - start, iterations=iterations)
+    coarse = result.coarser if result.coarser is not None and result.coarser.mesh.N * 2 == N else None
+    coarse_source = "the plan's own continuation level"
+    if coarse is None and N % 2 == 0:
+        coarse = _refine(system, result, N // 2, **kw)
+        iterations += coarse.optimizer.iterations
+        coarse_source = "solved from the plan's values at its nodes"
+    J_coarse = coarse.J if coarse is not None and coarse.converged else None
+    relative, info = richardson(J_coarse, result.J, fine.J, order=result.mesh.order, tol=tol)
+    eta = element_indicators(system, result, cost) / max(abs(result.J), 1e-300)
+    basis = {"method": "richardson", "description": "J on N/2 (when available), N and 2N elements, the others solved "
+             "from this plan; |J(N) - J*| ~ factor * (J(N) - J(2N)), factor = 2^p / (2^p - 1)", "N": [N // 2, N, 2 * N] if J_coarse is not None else [N, 2 * N],
+             "J": [J_coarse, result.J, fine.J] if J_coarse is not None else [result.J, fine.J], **info}
+    if J_coarse is not None:
+        basis["coarse"] = coarse_source
+    fine = dataclasses.replace(fine, levels=result.levels + fine.levels, coarser=result)
+    return ErrorEstimate(relative, basis, eta, fine, time.perf_counter() - start, iterations)
+
+
+@dataclass(frozen=True, eq=False)
+class AutoResult:
+    """``N: auto``: the plan on the coarsest mesh N = 16·2ᵏ whose estimate is below accuracy / ``AUTO_SAFETY``.
+
+    plan, error : that plan and its estimate; steps : per mesh tried, {N, J, J_error_estimate};
+    reached : whether the estimate met the accuracy (else the finest plan tried, at ``AUTO_MAX_ELEMENTS``).
+    """
+
+    plan: PlanResult
+    error: ErrorEstimate
+    steps: tuple[dict, ...]
+    reached: bool
+
+
+def plan_auto(system: System, order: str, T: float, q0, dq0, q1, dq1, *, accuracy: float = DEFAULT_ACCURACY,
+              cost: str = "covariant", method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000,
+              limits: JointLimits | None = None, start: int = AUTO_START, max_elements: int = AUTO_MAX_ELEMENTS,
+              callback=None) -> AutoResult:
+    """Plan on ``start`` elements, then double N (each mesh warm-started from the last) until the
+    estimate <= accuracy / ``AUTO_SAFETY``.
+
+    Every plan's estimate solves the next mesh; that solve is the next plan, so one optimum is
+    followed and J does not rise from mesh to mesh. The solver tolerance is min(tol, accuracy/100).
+    """
+    tol = min(tol, accuracy / 100)
+    kw = dict(cost=cost, method=method, tol=tol, max_iter=max_iter, limits=limits)
+    result = plan(system, HermiteMesh(order, T, start), q0, dq0, q1, dq1, callback=callback, **kw)
+    steps = []
+    while True:
+        err = estimate(system, result, **kw)
+        steps.append({"N": result.mesh.N, "J": result.J, "J_error_estimate": err.relative})
+        reached = err.relative is not None and err.relative <= accuracy / AUTO_SAFETY
+        if reached or err.refined is None or 2 * result.mesh.N > max_elements:
+            return AutoResult(result, err, tuple(steps), reached)
+        result = err.refined
