@@ -27,13 +27,15 @@ app = typer.Typer(
 
 OutputOpt = Annotated[
     Optional[list[str]],
-    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default: <task stem>.mcap and <task stem>.csv in the current directory. An output that is an input is refused."),
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout; "
+                 "'none' writes no file (e.g. with --json). Default: <task stem>.mcap and <task stem>.csv in the current directory. "
+                 "An output that is an input is refused."),
 ]
 SimOutputOpt = Annotated[
     Optional[list[str]],
-    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default, for a task YAML and an MCAP source alike: <source stem>-sim.mcap and <source stem>-sim.csv "
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout; "
+                 "'none' writes no file (e.g. with --json). Default, for a task YAML and an MCAP source alike: "
+                 "<source stem>-sim.mcap and <source stem>-sim.csv "
                  "in the current directory (never the plan's own files; an output that is an input is refused)."),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
@@ -109,11 +111,17 @@ def simulate(
     elements: ElementsOpt = None,
     order: OrderOpt = None,
     duration: DurationOpt = None,
-    method: Annotated[str, typer.Option("--method", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = "hermite",
+    integrator: Annotated[Optional[str], typer.Option(
+        "--integrator", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = None,
+    method: Annotated[Optional[str], typer.Option(
+        "--method", help="Deprecated spelling of --integrator (kept for one release; a note on stderr).")] = None,
     torque: Annotated[Optional[Path], typer.Option("--torque", help="Torque history from a plan's CSV or MCAP (interpolated in time).")] = None,
     check: Annotated[Optional[float], typer.Option("--check", help="Exit 1 when the final state misses x1 by more than this.")] = None,
-    tol: Annotated[Optional[float], typer.Option("--tol", help="Accepted for symmetry with plan (solver.tol); validated, unused by the integrators.")] = None,
-    max_iter: Annotated[Optional[int], typer.Option("--max-iter", help="Accepted for symmetry with plan (solver.max_iter); validated, unused.")] = None,
+    tol: Annotated[Optional[float], typer.Option(
+        "--tol", help="Integrator tolerance (> 0): hermite, the Newton step per element (default 1e-13); "
+        "rk, DOP853's rtol = atol (default 1e-12). The task's solver.tol is the planner's and is not used.")] = None,
+    max_iter: Annotated[Optional[int], typer.Option(
+        "--max-iter", help="hermite only: Newton iterations per element before it is subdivided (>= 1, default 25).")] = None,
     debug: DebugOpt = False,
 ) -> None:
     """Integrate the motion forward from x0 under a torque history.
@@ -125,8 +133,8 @@ def simulate(
     code = run_guarded(
         lambda: cmd.run(
             source, outputs=output, as_json=json_, quiet=quiet, progress=progress,
-            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter), method=method,
-            torque=torque, check=check,
+            overrides=dict(N=elements, order=order, T=duration), integrator=integrator, method=method,
+            torque=torque, check=check, tol=tol, max_iter=max_iter,
         ),
         debug=debug, quiet=quiet,
     )

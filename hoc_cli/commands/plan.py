@@ -22,6 +22,7 @@ from hoc_cli.commands.common import (
     print_json,
     read_urdf_text,
     refuse_inputs,
+    refuse_urdf_task,
     stderr_console,
     validate_json,
     warn_limit_violations,
@@ -45,6 +46,7 @@ GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None,
         gradient_check: bool = False) -> int:
+    refuse_urdf_task(task_path)
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
     if gradient_check and outputs:
         raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
