@@ -185,3 +185,39 @@ def plot(
     from hoc_cli.commands import plot as cmd
 
     raise typer.Exit(run_guarded(lambda: cmd.run(file, output), debug=debug))
+
+
+@app.command()
+def new(
+    robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file of the robot.")],
+    output: Annotated[Optional[str], typer.Option(
+        "-o", "--output", metavar="FILE", help="Task file to write (.yaml); '-' writes it to stdout. "
+        "Default: <robot stem>.yaml in the current directory.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing output file.")] = False,
+    quiet: QuietOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Write a commented task template for a robot that plans as written (then edit x1, T and N).
+
+    Example: hoc new robots/lbr7.urdf -o reach.yaml && hoc plan reach.yaml
+    """
+    from hoc_cli.commands import new as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(robot, output, force=force, quiet=quiet), debug=debug, quiet=quiet))
+
+
+@app.command()
+def examples(
+    name: Annotated[Optional[str], typer.Argument(metavar="[NAME]", help="Example to copy (omit to list them).")] = None,
+    directory: Annotated[Path, typer.Option("--dir", help="Folder to copy the example and its robot into.")] = Path("."),
+    force: Annotated[bool, typer.Option("--force", help="Replace existing files.")] = False,
+    quiet: QuietOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """List the example tasks shipped with hoc, or copy one (with its robot's URDF) into a folder.
+
+    Example: hoc examples lbr7_reach && hoc plan lbr7_reach.yaml
+    """
+    from hoc_cli.commands import examples as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(name, directory, force=force, quiet=quiet), debug=debug, quiet=quiet))
