@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _robots import ERD, ROBOTS, SHIPPED
 from typer.testing import CliRunner
 
-from _robots import ERD, ROBOTS, SHIPPED
 from hoc_cli.cli import app
 from hoc_cli.errors import HocWarning
 from hoc_cli.io.task import load_yaml
