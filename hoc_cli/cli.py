@@ -174,17 +174,21 @@ def verify(
 
 @app.command()
 def plot(
-    file: Annotated[Path, typer.Argument(metavar="FILE", help="A plan or simulation CSV or MCAP.")],
+    files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="Plan or simulation CSV or MCAP files (several: overlaid).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG (or PDF/SVG) file to write.")] = Path("plot.png"),
+    robot: Annotated[Optional[Path], typer.Option(
+        "--robot", help="URDF whose limits to draw (a CSV carries none; default for an MCAP: its own URDF).")] = None,
+    normalized: Annotated[bool, typer.Option(
+        "--normalized", help="Every joint divided by its limits in three panels (±1 = the limits).")] = False,
     debug: DebugOpt = False,
 ) -> None:
-    """Plot q, q̇ and u per joint against t (needs matplotlib: pip install 'hoc[plot]').
+    """Plot q, q̇ and u of each joint against t, with its limits (needs matplotlib: pip install 'hoc[plot]').
 
-    Example: hoc plot reach.csv -o reach.png
+    Example: hoc plot covariant.mcap torque.mcap -o compare.png
     """
     from hoc_cli.commands import plot as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(file, output), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(files, output, robot=robot, normalized=normalized), debug=debug))
 
 
 @app.command()
