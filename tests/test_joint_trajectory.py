@@ -62,3 +62,21 @@ def test_the_trajectory_agrees_with_joint_states(outputs):
     for (_, message, js), point in zip(states, traj.points):
         assert list(js.position) == list(point.positions) and list(js.effort) == list(point.effort)
         assert message.log_time == point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec
+
+
+def test_the_shipped_foxglove_layout_reads_topics_and_fields_that_hoc_writes(outputs):
+    import json
+
+    layout = json.loads((ROOT / "docs" / "foxglove_layout.json").read_text())
+    mcap, _ = outputs
+    with open(mcap, "rb") as fh:
+        topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}
+    panels = layout["configById"]
+    urdf_layers = [layer for layer in panels["3D!hoc"]["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
+    assert [layer["topic"] for layer in urdf_layers] == ["/robot_description"] and "/tf" in topics
+    (_, _, js), *_ = decoded(mcap, "/joint_states")
+    for name in ("Plot!q", "Plot!dq", "Plot!u"):
+        for path in panels[name]["paths"]:
+            topic, field = path["value"].split(".")
+            assert topic in topics and hasattr(js, field.split("[")[0])
+    assert {"3D!hoc", "Plot!q", "Plot!dq", "Plot!u"} <= set(panels)
