@@ -1,5 +1,6 @@
-"""Symbolic (CasADi SX) rigid-body dynamics of a hoc ``RobotModel``, for the IPOPT baseline of
-``bench_plan.py`` only (CasADi is a benchmark-only dependency; the pip Pinocchio has no casadi module).
+"""Symbolic (CasADi SX) rigid-body dynamics of a hoc ``RobotModel`` and collocation operators, for the
+IPOPT baselines of ``bench_plan.py`` and ``ipopt_limits.py`` only (CasADi is a benchmark-only
+dependency; the pip Pinocchio has no casadi module).
 
 Symbols (SI units): n joints; q, dq, ddq (n,) joint positions, velocities, accelerations;
 u (n,) joint torques; M(q) (n, n) mass matrix; spatial vectors (ω, v) / (n, f), 6 rows.
@@ -20,6 +21,9 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+from numpy.polynomial import legendre as L
+
+from hoc_cli import dynamics
 
 
 def _const(A: np.ndarray) -> ca.DM:
@@ -122,3 +126,73 @@ class CasadiRobot:
         MM = ca.Function("M", [q], [ca.substitute(M, ca.vertcat(dq, ddq), ca.SX.zeros(2 * n))], ["q"], ["M"])
         quad = ca.Function("wMw", [q, w], [self.mass_quadratic(q, w)], ["q", "w"], ["wMw"])
         return ID, MM, quad
+
+
+# --------------------------------------------------------------------------- collocation operators
+def collocation(d: int, scheme: str = "radau") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Collocation points on the unit interval and their operators, in numpy (not
+    ``casadi.collocation_points``, whose coefficients lose accuracy from d ≈ 8).
+
+    scheme: ``"radau"`` (flipped Legendre-Gauss-Radau, tau[-1] = 1, quadrature exact to degree 2d − 2)
+    or ``"gauss"`` (Legendre-Gauss, interior points, exact to degree 2d − 1).
+
+    Returns tau (d,); D (d, d+1): derivative at tau_j of the degree-d interpolant on the nodes
+    {0, tau_1 … tau_d} (barycentric formula); B (d,): quadrature weights on tau; E (d+1,): the
+    interpolant's value at 1 from its node values (the interval's end state; e_d for Radau).
+    """
+    if scheme == "radau":
+        c = np.zeros(d + 1)
+        c[d], c[d - 1] = 1.0, -1.0  # P_d − P_{d−1}: its roots on [−1, 1] include +1
+    elif scheme == "gauss":
+        c = np.zeros(d + 1)
+        c[d] = 1.0  # P_d
+    else:
+        raise ValueError(f"unknown collocation scheme {scheme!r} (expected 'radau' or 'gauss')")
+    x = np.sort(L.legroots(c))
+    dc = L.legder(c)
+    for _ in range(3):  # Newton polish of the roots (+1 is exact for Radau)
+        inner = np.abs(x - 1.0) > 1e-12
+        x[inner] -= L.legval(x[inner], c) / L.legval(x[inner], dc)
+    if scheme == "radau":
+        x[-1] = 1.0
+    tau = 0.5 * (x + 1.0)
+    nodes = np.r_[0.0, tau]
+    diff = nodes[:, None] - nodes[None, :]
+    np.fill_diagonal(diff, 1.0)
+    lam = 1.0 / diff.prod(axis=1)
+    D = (lam[None, :] / lam[:, None]) / diff
+    np.fill_diagonal(D, 0.0)
+    np.fill_diagonal(D, -D.sum(axis=1))
+    V = np.stack([L.legval(x, np.eye(d)[k]) for k in range(d)])  # V[k, j] = P_k(x_j)
+    B = np.linalg.solve(V, np.eye(d)[0] * 2.0) / 2.0  # ∫ P_k over [−1, 1] = 2 δ_k0, mapped to [0, 1]
+    if scheme == "radau":
+        E = np.eye(d + 1)[d]
+    else:  # barycentric formula of the second kind at 1 (no node equals 1)
+        r = lam / (1.0 - nodes)
+        E = r / r.sum()
+    return tau, D[1:], B, E
+
+
+def radau(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(tau, D, B) of ``collocation(d, "radau")``."""
+    return collocation(d, "radau")[:3]
+
+
+def check_dynamics(model, samples: int = 50) -> float:
+    """Largest relative difference of the CasADi ID, M and wᵀMw from hoc_cli.dynamics at random states;
+    exits (SystemExit) above 1e-10."""
+    ID, MM, quad = CasadiRobot(model).functions()
+    rng = np.random.default_rng(7)
+    n = model.n
+    q, dq, ddq, w = (rng.uniform(-lim, lim, (samples, n)) for lim in (3.0, 3.0, 10.0, 1.0))
+    u = dynamics.inverse_dynamics(model, q, dq, ddq)
+    M = dynamics.mass_matrix(model, q)
+    u_c = np.array(ID.map(samples)(q.T, dq.T, ddq.T)).T
+    M_c = np.array(MM.map(samples)(q.T)).T.reshape(samples, n, n)
+    wMw_c = np.array(quad.map(samples)(q.T, w.T)).ravel()
+    wMw = np.einsum("ki,kij,kj->k", w, M, w)
+    err = max(np.abs(u_c - u).max() / np.abs(u).max(), np.abs(M_c - M).max() / np.abs(M).max(),
+              np.abs(wMw_c - wMw).max() / np.abs(wMw).max())
+    if not err <= 1e-10:
+        raise SystemExit(f"CasADi dynamics differ from hoc_cli.dynamics by {err:.1e} (relative); expected <= 1e-10")
+    return err

@@ -51,7 +51,6 @@ from pathlib import Path  # noqa: E402
 
 import casadi as ca  # noqa: E402
 import numpy as np  # noqa: E402
-from numpy.polynomial import legendre as L  # noqa: E402
 
 from hoc_cli import dynamics  # noqa: E402
 from hoc_cli.elements import HermiteMesh  # noqa: E402
@@ -62,7 +61,7 @@ from hoc_cli.problem import ControlProblem  # noqa: E402
 from hoc_cli.system import RobotSystem  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _casadi_robot import CasadiRobot  # noqa: E402
+from _casadi_robot import CasadiRobot, check_dynamics, radau  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 TARGET = 1e-8
@@ -71,35 +70,6 @@ T = 1.5
 Q0 = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
 Q1 = np.array([1.0, 0.3, 0.3, -1.0, 0.2, 1.2, 0.4])
 ZERO = np.zeros(7)
-
-
-# --------------------------------------------------------------------------- collocation coefficients
-def radau(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Flipped Legendre-Gauss-Radau points on (0, 1] and their operators, in numpy.
-
-    Returns tau (d,) with tau[-1] = 1; D (d, d+1): derivative at tau_j of the degree-d interpolant
-    on the nodes {0, tau_1 … tau_d} (barycentric formula); B (d,): quadrature weights on tau (exact to
-    degree 2d − 2).
-    """
-    c = np.zeros(d + 1)
-    c[d], c[d - 1] = 1.0, -1.0  # P_d − P_{d−1}: its roots on [−1, 1] include +1
-    x = np.sort(L.legroots(c))
-    dc = L.legder(c)
-    for _ in range(3):  # Newton polish of the interior roots
-        inner = np.abs(x - 1.0) > 1e-12
-        x[inner] -= L.legval(x[inner], c) / L.legval(x[inner], dc)
-    x[-1] = 1.0
-    tau = 0.5 * (x + 1.0)
-    nodes = np.r_[0.0, tau]
-    diff = nodes[:, None] - nodes[None, :]
-    np.fill_diagonal(diff, 1.0)
-    lam = 1.0 / diff.prod(axis=1)
-    D = (lam[None, :] / lam[:, None]) / diff
-    np.fill_diagonal(D, 0.0)
-    np.fill_diagonal(D, -D.sum(axis=1))
-    V = np.stack([L.legval(x, np.eye(d)[k]) for k in range(d)])  # V[k, j] = P_k(x_j)
-    B = np.linalg.solve(V, np.eye(d)[0] * 2.0) / 2.0  # ∫ P_k over [−1, 1] = 2 δ_k0, mapped to [0, 1]
-    return tau, D[1:], B
 
 
 # --------------------------------------------------------------------------- the IPOPT transcription
@@ -184,25 +154,6 @@ class Collocation:
 
 
 # --------------------------------------------------------------------------- checks and helpers
-def check_dynamics(model, samples: int = 50) -> float:
-    """Largest relative difference of the CasADi ID, M and wᵀMw from hoc_cli.dynamics at random states."""
-    ID, MM, quad = CasadiRobot(model).functions()
-    rng = np.random.default_rng(7)
-    n = model.n
-    q, dq, ddq, w = (rng.uniform(-lim, lim, (samples, n)) for lim in (3.0, 3.0, 10.0, 1.0))
-    u = dynamics.inverse_dynamics(model, q, dq, ddq)
-    M = dynamics.mass_matrix(model, q)
-    u_c = np.array(ID.map(samples)(q.T, dq.T, ddq.T)).T
-    M_c = np.array(MM.map(samples)(q.T)).T.reshape(samples, n, n)
-    wMw_c = np.array(quad.map(samples)(q.T, w.T)).ravel()
-    wMw = np.einsum("ki,kij,kj->k", w, M, w)
-    err = max(np.abs(u_c - u).max() / np.abs(u).max(), np.abs(M_c - M).max() / np.abs(M).max(),
-              np.abs(wMw_c - wMw).max() / np.abs(wMw).max())
-    if not err <= 1e-10:
-        raise SystemExit(f"CasADi dynamics differ from hoc_cli.dynamics by {err:.1e} (relative); expected <= 1e-10")
-    return err
-
-
 def hoc_solve(system, order: str, N: int, tol: float = 1e-10, C_init=None):
     return plan(system, HermiteMesh(order, T, N), Q0, ZERO, Q1, ZERO, cost="covariant", method="pr-cg", tol=tol,
                 C_init=C_init)

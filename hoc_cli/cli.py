@@ -81,6 +81,9 @@ def plan(
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,
+    starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; "
+                                        "keep the lowest-J converged plan.")] = 1,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts).")] = 0,
     debug: DebugOpt = False,
 ) -> None:
     """Solve the optimal-control task and write q(t), u(t).
@@ -94,9 +97,39 @@ def plan(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost,
                            limits=limits),
-            init=init, gradient_check=check_gradient,
+            init=init, gradient_check=check_gradient, starts=starts, seed=seed,
         ),
         debug=debug, quiet=quiet,
+    )
+    raise typer.Exit(code)
+
+
+@app.command()
+def batch(
+    spec: Annotated[list[Path], typer.Argument(metavar="SPEC.yaml...", help="A batch spec (base task + sweep, or a list of task files), "
+                                                                      "or task files / globs.")],
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). "
+                                                                       "Default: <spec stem>_batch.")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster "
+                                                                         "(default: one per core).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; "
+                                                                  "default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Keep the rows already in DIR/results.parquet and solve only the plans not in it.")] = False,
+    json_: JsonOpt = False,
+    quiet: QuietOpt = False,
+    progress: Annotated[bool, typer.Option("--progress", help="Show the progress bar on stderr even when it is not a terminal.")] = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Solve many plans on Dask (a local cluster by default) and tabulate them in DIR/results.parquet and .csv.
+
+    Example: hoc batch sweep.yaml -o sweep_results --workers 2
+    """
+    from hoc_cli.commands import batch as cmd
+
+    code = run_guarded(
+        lambda: cmd.run(spec, out_dir=output, workers=workers, scheduler=scheduler, resume=resume, as_json=json_,
+                        quiet=quiet, progress=progress),
+        debug=debug,
     )
     raise typer.Exit(code)
 

@@ -45,9 +45,12 @@ GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None,
-        gradient_check: bool = False) -> int:
+        gradient_check: bool = False, starts: int = 1, seed: int = 0) -> int:
+    from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
+
     refuse_urdf_task(task_path)
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
+    check_starts(starts, seed, init)
     if gradient_check and outputs:
         raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
@@ -80,13 +83,17 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                           f"dec {log.decrement:.1e}  evals {log.n_evals:4d} {time.perf_counter() - start:6.2f}s",
                           highlight=False, soft_wrap=True)
 
-    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
-        result = plan(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost,
-                      method=task.method, tol=task.tol, max_iter=task.max_iter, C_init=C_init, callback=report,
-                      limits=limits if mode == "enforce" else None)
+    def report_start(o) -> None:
+        if show:
+            console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
+                          f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
+
+    result, multi = solve(task, model, states, mesh, limits, C_init=C_init, callback=report, starts=starts, seed=seed,
+                          client=starts_pool if starts > 1 else None, on_start=report_start)
     traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
+    summary.update(starts_summary(multi, seed))
     summary = json_ready(summary)  # an absent limit (inf) is null
     validate_json(summary)  # before any output is written
     with output_transaction():  # every output is replaced, or none
@@ -105,6 +112,27 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
+
+
+def solve(task: Task, model, states, mesh: HermiteMesh, limits, *, C_init: np.ndarray | None = None, callback=None,
+          starts: int = 1, seed: int = 0, client=None, on_start=None):
+    """Solve the task: (PlanResult, None), or with ``starts`` > 1 (the best start's result, MultiStartResult).
+
+    ``limits`` (``task_limits``) are enforced when ``task.limits.mode`` is "enforce".
+    ``client``, ``on_start``: see ``hoc_cli.multistart.solve_starts``.
+    """
+    options = dict(cost=task.cost, method=task.method, tol=task.tol, max_iter=task.max_iter,
+                   limits=limits if task.limits.mode == "enforce" else None)
+    system = RobotSystem(model)
+    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+        if starts <= 1:
+            return plan(system, mesh, states.q0, states.dq0, states.q1, states.dq1, C_init=C_init, callback=callback,
+                        **options), None
+        from hoc_cli.multistart import solve_starts
+
+        multi = solve_starts(system, mesh, states.q0, states.dq0, states.q1, states.dq1, starts=starts, seed=seed,
+                             client=client, on_start=on_start, **options)
+    return multi.best, multi
 
 
 def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
@@ -198,6 +226,10 @@ def summary_table(summary: dict) -> Table:
     viol = summary["limit_violations"]
     table.add_row("limit violations", Text("none" if not viol else "; ".join(
         f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
+    if "starts" in summary:
+        table.add_row("starts", "; ".join(
+            f"{o['start']}{'*' if o['start'] == summary['best_start'] else ''} "
+            f"{'-' if o['cost'] is None else format(o['cost'], '.6g')} {o['status']}" for o in summary["starts"]))
     table.add_row("outputs", Text(", ".join(summary["outputs"])))
     return table
 

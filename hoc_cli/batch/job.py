@@ -1,0 +1,111 @@
+"""One batch plan, as run on a Dask worker: the same path as ``hoc plan``, failures turned into a row.
+
+``solve_job`` never raises for a bad plan (invalid task, missing URDF, numerical failure): it
+returns a row with status "error" and the one-line message ``hoc plan`` would print. Per-plan
+files are written atomically (``hoc_cli.commands.outputs``) as ``DIR/plans/<id>.<kind>``.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from hoc_cli.batch.results import column_name
+from hoc_cli.batch.spec import Job
+
+PLANS_DIR = "plans"
+
+
+def solve_job(job: Job, out_dir: str | None = None, kinds: tuple[str, ...] = ()) -> dict:
+    """Solve one job; returns its results row (see ``hoc_cli.batch.results.COLUMNS``)."""
+    start = time.perf_counter()
+    try:
+        row = _solve(job, out_dir, kinds)
+    except Exception as exc:  # noqa: BLE001 - every failure of one plan becomes its row
+        row = error_row(job, _message(exc))
+    row["solve_time_s"] = time.perf_counter() - start
+    return row
+
+
+def solve_jobs(jobs: list[Job], out_dir: str | None = None, kinds: tuple[str, ...] = ()) -> list[dict]:
+    """``solve_job`` for a few jobs in a row: one Dask task, so the engine's cost is shared by them."""
+    return [solve_job(job, out_dir, kinds) for job in jobs]
+
+
+def error_row(job: Job, message: str) -> dict:
+    """The row of a plan that produced no result."""
+    return {"id": job.id, "task": job.source, **swept_columns(job), "status": "error", "converged": False,
+            "error": message, "outputs": []}
+
+
+def swept_columns(job: Job) -> dict:
+    """The job's swept values under their results column names."""
+    return {column_name(k): v for k, v in job.swept.items()}
+
+
+def _message(exc: Exception) -> str:
+    from hoc_cli.errors import HocError
+
+    if isinstance(exc, HocError):
+        return str(exc)
+    first = (str(exc).strip().splitlines() or [""])[0][:200]
+    return f"internal error ({type(exc).__name__}: {first})"
+
+
+def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
+    from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
+    from hoc_cli.commands.outputs import write_outputs
+    from hoc_cli.commands.plan import _reproducible, sample_plan, solve, summarise
+    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
+    from hoc_cli.commands.starts import starts_summary
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.io.task import load_task, parse_task, resolve
+    from hoc_cli.system import RobotSystem
+
+    source = Path(job.source)
+    if job.doc is None:
+        task = load_task(source, purpose="plan")  # raises the reason the file is not a task
+    else:
+        task = parse_task(job.doc, path=source, text=job.text, purpose="plan")
+    names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
+    targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
+    check_sample_times(targets, task.T, task.rate, file=task.path)
+    model = load_model(task)
+    check_columns(targets, model.joint_names)
+    states = resolve(task, model.joint_names)
+    limits = task_limits(model, states.limits)
+    if task.limits.mode == "enforce":
+        check_boundary_states(task, limits, states)
+    mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
+    result, multi = solve(task, model, states, mesh, limits, starts=job.starts, seed=job.seed)
+    summary = summarise(task, model, result, states)
+    summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
+    summary.update(starts_summary(multi, job.seed))
+    summary = json_ready(summary)
+    if targets:
+        (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
+        urdf_text = read_urdf_text(task.robot) if "mcap" in kinds else ""
+        traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
+        with output_transaction():
+            write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
+                          summary=_reproducible(summary))
+    return row_of(job, summary, names)
+
+
+def row_of(job: Job, summary: dict, outputs: list[str]) -> dict:
+    """The results row of a solved plan from its ``hoc plan`` summary."""
+    import json
+
+    viol = summary["limit_violations"]
+    row = {
+        "id": job.id, "task": job.source, **swept_columns(job),
+        "status": summary["status"], "converged": bool(summary["converged"]), "cost": float(summary["cost"]),
+        "iterations": int(summary["iterations"]), "evaluations": int(summary["evaluations"]),
+        "boundary_error": float(summary["boundary_error"]),
+        "limits": "violated" if viol else "ok",
+        "limit_violations": json.dumps(viol, sort_keys=True) if viol else None,
+        "outputs": list(outputs), "error": None,
+    }
+    if "starts" in summary:
+        row["best_start"] = int(summary["best_start"])
+        row["start_costs"] = [s["cost"] for s in summary["starts"]]
+    return row

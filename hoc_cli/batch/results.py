@@ -1,0 +1,134 @@
+"""The results table: one row per plan, sorted by id, as Parquet (pyarrow) and CSV, written atomically.
+
+Columns: ``id``, ``task``, one column per sweep key (its key path; a sweep over the task key
+``cost`` is named ``cost_type``, as in ``hoc plan --json``), then ``status``, ``converged``,
+``cost``, ``iterations``, ``evaluations``, ``boundary_error``, ``limits`` (ok | violated),
+``limit_violations`` (JSON text), [``best_start``, ``start_costs`` with multi-start],
+``outputs`` (paths relative to the results directory), ``error``, ``solve_time_s``.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+PARQUET, CSV = "results.parquet", "results.csv"
+HEAD = ("id", "task")
+TAIL = ("status", "converged", "cost", "iterations", "evaluations", "boundary_error", "limits",
+        "limit_violations", "best_start", "start_costs", "outputs", "error", "solve_time_s")
+OPTIONAL = ("best_start", "start_costs")
+RENAMED = {"cost": "cost_type"}  # sweep key -> column, where the key is also a result column
+TIMING = ("solve_time_s",)  # the only columns that differ between runs of the same batch
+
+
+def column_name(sweep_key: str) -> str:
+    """The results column of a sweep key."""
+    return RENAMED.get(sweep_key, sweep_key)
+
+
+def _types() -> dict:
+    import pyarrow as pa
+
+    return {"id": pa.string(), "task": pa.string(), "status": pa.string(), "converged": pa.bool_(),
+            "cost": pa.float64(), "iterations": pa.int64(), "evaluations": pa.int64(),
+            "boundary_error": pa.float64(), "limits": pa.string(), "limit_violations": pa.string(),
+            "best_start": pa.int64(), "start_costs": pa.list_(pa.float64()), "outputs": pa.list_(pa.string()),
+            "error": pa.string(), "solve_time_s": pa.float64()}
+
+
+def columns(rows: list[dict], sweep_columns: Iterable[str] = ()) -> list[str]:
+    """Column order: head, sweep columns (given order, then any others found in the rows), tail."""
+    fixed = set(HEAD) | set(TAIL)
+    middle = list(dict.fromkeys(c for c in sweep_columns if c not in fixed))
+    for row in rows:
+        middle.extend(k for k in row if k not in fixed and k not in middle)
+    tail = [c for c in TAIL if c not in OPTIONAL or any(row.get(c) is not None for row in rows)]
+    return [*HEAD, *middle, *tail]
+
+
+def table(rows: list[dict], sweep_columns: Iterable[str] = ()):
+    """A ``pyarrow.Table`` of the rows sorted by id (known columns typed; a sweep column of mixed types as JSON)."""
+    import pyarrow as pa
+
+    rows = sorted(rows, key=lambda r: r["id"])
+    types = _types()
+    arrays, names = [], []
+    for name in columns(rows, sweep_columns):
+        values = [row.get(name) for row in rows]
+        if name in types:
+            arr = pa.array(values, type=types[name])
+        else:
+            try:
+                arr = pa.array(values)
+            except (pa.ArrowInvalid, pa.ArrowTypeError):
+                arr = pa.array([None if v is None else json.dumps(v) for v in values], type=pa.string())
+        arrays.append(arr)
+        names.append(name)
+    return pa.Table.from_arrays(arrays, names=names)
+
+
+def write(out_dir: Path, tab) -> list[Path]:
+    """Write ``results.parquet`` and ``results.csv`` into ``out_dir`` (both replaced, or neither)."""
+    import pyarrow.parquet as pq
+
+    from hoc_cli.commands.common import atomic_output, output_transaction
+
+    paths = [out_dir / PARQUET, out_dir / CSV]
+    with output_transaction():
+        with atomic_output(paths[0]) as fh:
+            pq.write_table(tab, fh)
+        with atomic_output(paths[1]) as fh:
+            fh.write(csv_text(tab).encode("utf-8"))
+    return paths
+
+
+def csv_text(tab) -> str:
+    """The table as CSV: floats round-trip (repr), lists as JSON, missing values empty, booleans true/false."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(tab.column_names)
+    for row in tab.to_pylist():
+        w.writerow([_cell(v) for v in row.values()])
+    return buf.getvalue()
+
+
+def _cell(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ""
+    if isinstance(v, (list, dict)):
+        return json.dumps(v, allow_nan=False, default=str) if _finite(v) else json.dumps(v, default=str)
+    return str(v)
+
+
+def _finite(v: Any) -> bool:
+    if isinstance(v, float):
+        return math.isfinite(v)
+    if isinstance(v, (list, tuple)):
+        return all(_finite(x) for x in v)
+    return True
+
+
+def read(out_dir: Path) -> list[dict]:
+    """The rows of an existing ``results.parquet`` ([] when there is none)."""
+    import pyarrow.parquet as pq
+
+    from hoc_cli.errors import InputFileError
+
+    path = out_dir / PARQUET
+    if not path.exists():
+        return []
+    try:
+        rows = pq.read_table(path).to_pylist()
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
+        raise InputFileError(f"cannot be read as a results table ({type(exc).__name__}); move it away or drop "
+                             "--resume", file=path, key="--resume") from None
+    if rows and "id" not in rows[0]:
+        raise InputFileError("has no id column (expected a table written by 'hoc batch')", file=path, key="--resume")
+    return rows

@@ -1,0 +1,50 @@
+"""``hoc plan --starts K --seed S``: option checks, where the starts run, and their summary keys.
+
+The starts themselves are ``hoc_cli.multistart``. ``hoc plan`` solves start 0 in its own process,
+then the other K−1 serially, or on a local Dask cluster (min(cores, K−1) single-threaded worker
+processes) when they would take more than ``PARALLEL_STARTS_MIN_S`` serially (judged from start
+0's time) and there are 2 cores or more; with ``DASK_SCHEDULER_ADDRESS`` set, on that cluster. The
+result is the same either way (each start is deterministic).
+"""
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from pathlib import Path
+
+from hoc_cli.errors import TaskError
+
+
+def starts_summary(multi, seed: int) -> dict:
+    """Summary keys of a multi-start solve: the kept start and every start's J and status ({} for one start)."""
+    if multi is None:
+        return {}
+    return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
+
+
+def check_starts(starts: int, seed: int, init: Path | None) -> None:
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+        raise TaskError(f"expected an integer >= 1, got {starts!r}", key="--starts")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
+    if starts > 1 and init is not None:
+        raise TaskError("--starts cannot be combined with --init (a warm start is a single start)", key="--starts")
+
+
+#: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would
+#: take longer than this serially (the cluster costs about 2-3 s to start) and there is more than one core
+PARALLEL_STARTS_MIN_S = 5.0
+
+
+@contextmanager
+def starts_pool(t0: float, remaining: int):
+    """A Dask client for the remaining starts, or None (serial); see ``PARALLEL_STARTS_MIN_S``."""
+    from hoc_cli.batch.engine import available_cores, connect
+
+    cores = available_cores()
+    scheduler = os.environ.get("DASK_SCHEDULER_ADDRESS")
+    if not scheduler and (cores < 2 or remaining < 2 or t0 * remaining < PARALLEL_STARTS_MIN_S):
+        yield None
+        return
+    with connect(workers=min(cores, remaining), scheduler=scheduler) as client:
+        yield client
