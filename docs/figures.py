@@ -158,13 +158,13 @@ def examples() -> str:
     """Every shipped task: plan, then replay the plan from its MCAP (exact) and from its CSV (sampled)."""
     tmp = scratch()
     rows = ["| task | joints | T [s] | N | J | converged | iterations | solve [s] | limit violations "
-            "| replay from MCAP: miss of x1 | from CSV (`--method rk`) |",
+            "| replay from MCAP: miss of x1 | from CSV (`--integrator rk`) |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for task in sorted((tmp / "configs").glob("*.yaml")):
         stem = task.stem
         s = hoc_json(["plan", f"configs/{task.name}", "-o", f"{stem}.mcap", "-o", f"{stem}.csv"], tmp)
         exact = hoc(["simulate", f"{stem}.mcap", "--json", "-q", "-o", f"{stem}-sim.csv"], tmp)
-        sampled = hoc(["simulate", f"configs/{task.name}", "--torque", f"{stem}.csv", "--method", "rk",
+        sampled = hoc(["simulate", f"configs/{task.name}", "--torque", f"{stem}.csv", "--integrator", "rk",
                        "--json", "-q", "-o", f"{stem}-rk.csv"], tmp)
 
         def miss(proc: subprocess.CompletedProcess) -> str:

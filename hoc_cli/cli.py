@@ -27,13 +27,15 @@ app = typer.Typer(
 
 OutputOpt = Annotated[
     Optional[list[str]],
-    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default: <task stem>.mcap and <task stem>.csv in the current directory. An output that is an input is refused."),
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout; "
+                 "'none' writes no file (e.g. with --json). Default: <task stem>.mcap and <task stem>.csv in the current directory. "
+                 "An output that is an input is refused."),
 ]
 SimOutputOpt = Annotated[
     Optional[list[str]],
-    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout. "
-                 "Default, for a task YAML and an MCAP source alike: <source stem>-sim.mcap and <source stem>-sim.csv "
+    typer.Option("-o", "--output", metavar="FILE", help="Output file (.mcap or .csv; repeatable); '-' writes CSV to stdout; "
+                 "'none' writes no file (e.g. with --json). Default, for a task YAML and an MCAP source alike: "
+                 "<source stem>-sim.mcap and <source stem>-sim.csv "
                  "in the current directory (never the plan's own files; an output that is an input is refused)."),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON summary object on stdout.")]
@@ -142,11 +144,17 @@ def simulate(
     elements: ElementsOpt = None,
     order: OrderOpt = None,
     duration: DurationOpt = None,
-    method: Annotated[str, typer.Option("--method", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = "hermite",
+    integrator: Annotated[Optional[str], typer.Option(
+        "--integrator", help="hermite (the paper's collocation, default) | rk (scipy DOP853 reference).")] = None,
+    method: Annotated[Optional[str], typer.Option(
+        "--method", help="Deprecated spelling of --integrator (kept for one release; a note on stderr).")] = None,
     torque: Annotated[Optional[Path], typer.Option("--torque", help="Torque history from a plan's CSV or MCAP (interpolated in time).")] = None,
     check: Annotated[Optional[float], typer.Option("--check", help="Exit 1 when the final state misses x1 by more than this.")] = None,
-    tol: Annotated[Optional[float], typer.Option("--tol", help="Accepted for symmetry with plan (solver.tol); validated, unused by the integrators.")] = None,
-    max_iter: Annotated[Optional[int], typer.Option("--max-iter", help="Accepted for symmetry with plan (solver.max_iter); validated, unused.")] = None,
+    tol: Annotated[Optional[float], typer.Option(
+        "--tol", help="Integrator tolerance (> 0): hermite, the Newton step per element (default 1e-13); "
+        "rk, DOP853's rtol = atol (default 1e-12). The task's solver.tol is the planner's and is not used.")] = None,
+    max_iter: Annotated[Optional[int], typer.Option(
+        "--max-iter", help="hermite only: Newton iterations per element before it is subdivided (>= 1, default 25).")] = None,
     debug: DebugOpt = False,
 ) -> None:
     """Integrate the motion forward from x0 under a torque history.
@@ -158,8 +166,8 @@ def simulate(
     code = run_guarded(
         lambda: cmd.run(
             source, outputs=output, as_json=json_, quiet=quiet, progress=progress,
-            overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter), method=method,
-            torque=torque, check=check,
+            overrides=dict(N=elements, order=order, T=duration), integrator=integrator, method=method,
+            torque=torque, check=check, tol=tol, max_iter=max_iter,
         ),
         debug=debug, quiet=quiet,
     )
@@ -199,14 +207,54 @@ def verify(
 
 @app.command()
 def plot(
-    file: Annotated[Path, typer.Argument(metavar="FILE", help="A plan or simulation CSV or MCAP.")],
+    files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="Plan or simulation CSV or MCAP files (several: overlaid).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG (or PDF/SVG) file to write.")] = Path("plot.png"),
+    robot: Annotated[Optional[Path], typer.Option(
+        "--robot", help="URDF whose limits to draw (a CSV carries none; default for an MCAP: its own URDF).")] = None,
+    normalized: Annotated[bool, typer.Option(
+        "--normalized", help="Every joint divided by its limits in three panels (±1 = the limits).")] = False,
     debug: DebugOpt = False,
 ) -> None:
-    """Plot q, q̇ and u per joint against t (needs matplotlib: pip install 'hoc[plot]').
+    """Plot q, q̇ and u of each joint against t, with its limits (needs matplotlib: pip install 'hoc[plot]').
 
-    Example: hoc plot reach.csv -o reach.png
+    Example: hoc plot covariant.mcap torque.mcap -o compare.png
     """
     from hoc_cli.commands import plot as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(file, output), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(files, output, robot=robot, normalized=normalized), debug=debug))
+
+
+@app.command()
+def new(
+    robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file of the robot.")],
+    output: Annotated[Optional[str], typer.Option(
+        "-o", "--output", metavar="FILE", help="Task file to write (.yaml); '-' writes it to stdout. "
+        "Default: <robot stem>.yaml in the current directory.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing output file.")] = False,
+    quiet: QuietOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Write a commented task template for a robot that plans as written (then edit x1, T and N).
+
+    Example: hoc new robots/lbr7.urdf -o reach.yaml && hoc plan reach.yaml
+    """
+    from hoc_cli.commands import new as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(robot, output, force=force, quiet=quiet), debug=debug, quiet=quiet))
+
+
+@app.command()
+def examples(
+    name: Annotated[Optional[str], typer.Argument(metavar="[NAME]", help="Example to copy (omit to list them).")] = None,
+    directory: Annotated[Path, typer.Option("--dir", help="Folder to copy the example and its robot into.")] = Path("."),
+    force: Annotated[bool, typer.Option("--force", help="Replace existing files.")] = False,
+    quiet: QuietOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """List the example tasks shipped with hoc, or copy one (with its robot's URDF) into a folder.
+
+    Example: hoc examples lbr7_reach && hoc plan lbr7_reach.yaml
+    """
+    from hoc_cli.commands import examples as cmd
+
+    raise typer.Exit(run_guarded(lambda: cmd.run(name, directory, force=force, quiet=quiet), debug=debug, quiet=quiet))

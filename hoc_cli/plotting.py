@@ -1,18 +1,37 @@
 """The figure of ``hoc plot``: q, q̇ and u of every joint against t, with the URDF's limits.
 
+Two layouts:
+
+- per joint (default): one row of three panels (q, q̇, u) per joint, each in that joint's units
+  (rad, rad/s, N·m; m, m/s, N for a prismatic joint) with that joint's limits only, as red dashed
+  lines. A limit within the view (the data's span either side of it) is drawn; one farther out is
+  named in the panel's corner ("limits ±320 N·m off scale") instead of flattening the curve.
+- normalised (``normalized=True``): three panels, each joint's value divided by its limit, so
+  ±1 (dashed) is every limit: q as 2(q − mid)/(upper − lower), q̇ / velocity limit, u / effort
+  limit. Joints without that limit are left out of that panel, and the panel says which.
+
+Several trajectories (e.g. two plans of the same task) are overlaid, one colour (per-joint layout)
+or line style (normalised layout) per trajectory, with a legend naming each. When no limits are
+known (a CSV carries no URDF) the figure says so.
+
 matplotlib is an optional dependency (``pip install 'hoc[plot]'``); it is imported here only,
 lazily, with the non-interactive Agg canvas (no display, no pyplot global state).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import IO, Mapping
+from typing import IO, Mapping, Sequence
 
 import numpy as np
 
 from hoc_cli.trajectory import Trajectory
 
 FORMATS = ("png", "pdf", "svg")
+LIMIT_STYLE = dict(color="tab:red", ls="--", lw=1.0, alpha=0.9)
+FILE_STYLES = ("-", "--", ":", "-.")
+#: one colour per overlaid file in the per-joint layout: matplotlib's cycle without red (the limits' colour)
+FILE_COLOURS = ("C0", "C1", "C2", "C4", "C5", "C6", "C8", "C9")
+NO_LIMITS_NOTE = "limits unknown: a CSV carries no URDF (give --robot ROBOT.urdf to draw them)"
 
 
 @dataclass(frozen=True)
@@ -42,77 +61,189 @@ def _matplotlib():
     return Figure, FigureCanvasAgg
 
 
-def _unit(limits: Mapping[str, JointLimits], joints, rotary: str, linear: str) -> str:
-    kinds = {limits[j].prismatic if j in limits else None for j in joints}
-    if kinds == {False}:
-        return rotary
-    if kinds == {True}:
-        return linear
-    return f"{rotary} or {linear}"
+QUANTITIES = (  # (attribute, panel title, units (revolute, prismatic))
+    ("q", "position $q$", ("rad", "m")),
+    ("dq", r"velocity $\dot{q}$", ("rad/s", "m/s")),
+    ("u", "effort $u$", ("N·m", "N")),
+)
 
 
-def _view(data: np.ndarray, bounds: list[float]) -> tuple[float, float]:
-    """Y range: the data, plus every limit within one data span of it (far limits would flatten
-    the curves), padded by 5 %.
-    """
+def bounds(L: JointLimits | None, quantity: str) -> tuple[float | None, float | None]:
+    """(lower, upper) limit of ``quantity`` ("q" | "dq" | "u") for a joint; None where unknown or infinite."""
+    if L is None:
+        return None, None
+    lo, hi = {"q": (L.lower, L.upper),
+              "dq": (None if L.velocity is None else -L.velocity, L.velocity),
+              "u": (None if L.effort is None else -L.effort, L.effort)}[quantity]
+    finite = lambda x: x if x is not None and np.isfinite(x) else None
+    return finite(lo), finite(hi)
+
+
+def _view(data: np.ndarray, limits: Sequence[float]) -> tuple[tuple[float, float], list[float], list[float]]:
+    """Y range, the limits drawn (within one data span of the data) and those left off scale."""
     lo, hi = float(np.min(data)), float(np.max(data))
     span = max(hi - lo, 1e-3 * max(abs(lo), abs(hi)), 1e-9)
-    for b in bounds:
-        if lo - span <= b <= hi + span:
-            lo, hi = min(lo, b), max(hi, b)
-    pad = 0.05 * (hi - lo if hi > lo else span)
-    return lo - pad, hi + pad
+    shown, off = [], []
+    for b in limits:
+        (shown if lo - span <= b <= hi + span else off).append(b)
+    for b in shown:
+        lo, hi = min(lo, b), max(hi, b)
+    pad = 0.06 * (hi - lo if hi > lo else span)
+    return (lo - pad, hi + pad), shown, off
 
 
-def plot_trajectory(
-    traj: Trajectory,
+def off_scale_note(off: list[float], shown: list[float], data: np.ndarray, unit: str) -> str:
+    """What a panel says about limits too far from its data to draw, e.g. "limits ±320 N·m off scale (peak 23 %)"."""
+    if len(off) == 2 and off[0] == -off[1]:
+        peak = float(np.max(np.abs(data))) / abs(off[0])
+        return f"limits ±{abs(off[0]):.4g} {unit} off scale (peak {100 * peak:.0f} %)"
+    if len(off) == 2:
+        return f"limits [{min(off):.4g}, {max(off):.4g}] {unit} off scale"
+    return f"limit {off[0]:.4g} {unit} off scale"
+
+
+def normalise(traj: Trajectory, quantity: str, joint: int, L: JointLimits | None) -> np.ndarray | None:
+    """The joint's ``quantity`` divided by its limit (±1 at the limits), or None without that limit."""
+    x = np.asarray(getattr(traj, quantity), dtype=float)[:, joint]
+    lo, hi = bounds(L, quantity)
+    if lo is None or hi is None or hi <= lo:
+        return None
+    return (2.0 * x - (lo + hi)) / (hi - lo)
+
+
+def plot_trajectories(
+    runs: Sequence[tuple[str, Trajectory]],
     out: IO[bytes],
     *,
     fmt: str = "png",
     limits: Mapping[str, JointLimits] | None = None,
+    limits_note: str | None = None,
+    normalized: bool = False,
     title: str = "",
-    dpi: int = 120,
+    dpi: int = 110,
 ) -> None:
-    """Draw q, q̇, u (K, n) against t (K,) [s] in three stacked panels and save the figure to ``out``.
+    """Draw one or more trajectories (label, Trajectory with t (K,) s; q, dq, u (K, n)) and save to ``out``.
 
-    Each joint has one colour; its limits from ``limits`` (position lower/upper, ±velocity,
-    ±effort) are dashed horizontal lines of the same colour. Raises MatplotlibMissing if
-    matplotlib is not installed, ValueError for an unknown ``fmt`` (one of FORMATS).
+    Every trajectory must have the same joints. ``limits`` maps joint → JointLimits (missing:
+    unknown). ``limits_note`` is written under the title (e.g. why no limits are drawn). Raises
+    MatplotlibMissing if matplotlib is not installed, ValueError for an unknown ``fmt`` or
+    trajectories whose joints differ.
     """
     if fmt not in FORMATS:
         raise ValueError(f"figure format {fmt!r} is not one of {FORMATS}")
+    if not runs:
+        raise ValueError("nothing to plot")
+    joints = list(runs[0][1].joints)
+    for label, traj in runs[1:]:
+        if list(traj.joints) != joints:
+            raise ValueError(f"{label} has joints {list(traj.joints)}, the first file {joints}")
     Figure, FigureCanvasAgg = _matplotlib()
     limits = dict(limits or {})
-    joints = list(traj.joints)
-    t = np.asarray(traj.t, dtype=float)
-    panels = (
-        ("position $q$", _unit(limits, joints, "rad", "m"), np.asarray(traj.q), lambda L: (L.lower, L.upper)),
-        (r"velocity $\dot{q}$", _unit(limits, joints, "rad/s", "m/s"), np.asarray(traj.dq),
-         lambda L: (None, None) if L.velocity is None else (-L.velocity, L.velocity)),
-        ("effort $u$", _unit(limits, joints, "N·m", "N"), np.asarray(traj.u),
-         lambda L: (None, None) if L.effort is None else (-L.effort, L.effort)),
-    )
-    fig = Figure(figsize=(9.0, 8.0), layout="constrained")
+    draw = _draw_normalised if normalized else _draw_per_joint
+    fig = draw(Figure, runs, joints, limits)
     FigureCanvasAgg(fig)
-    axes = fig.subplots(3, 1, sharex=True)
-    colours = [f"C{i % 10}" for i in range(len(joints))]
-    for ax, (name, unit, data, bounds_of) in zip(axes, panels):
-        drawn = []
-        for i, joint in enumerate(joints):
-            ax.plot(t, data[:, i], color=colours[i], lw=1.4, label=joint)
-            if joint in limits:
-                for b in bounds_of(limits[joint]):
-                    if b is not None and np.isfinite(b):
-                        ax.axhline(b, color=colours[i], ls="--", lw=0.9, alpha=0.8)
-                        drawn.append(b)
-        ax.set_ylim(*_view(data, drawn))
-        ax.set_ylabel(f"{name} [{unit}]")
-        ax.grid(True, alpha=0.3)
-    axes[-1].set_xlabel("t [s]")
-    if t[-1] > t[0]:
-        axes[-1].set_xlim(t[0], t[-1])
-    axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small",
-                   title="joints (dashed: URDF limits)" if limits else "joints", title_fontsize="small")
-    if title:
-        fig.suptitle(title)
+    heading = title
+    if limits_note:
+        heading = f"{title}\n{limits_note}" if title else limits_note
+    if heading:
+        fig.suptitle(heading, fontsize="medium")
+    t_all = np.concatenate([np.asarray(tr.t, dtype=float) for _, tr in runs])
+    for ax in fig.axes:
+        if t_all.max() > t_all.min():
+            ax.set_xlim(t_all.min(), t_all.max())
     fig.savefig(out, format=fmt, dpi=dpi, metadata={"Software": "hoc"} if fmt == "png" else None)
+
+
+def _draw_per_joint(Figure, runs, joints, limits):
+    n = len(joints)
+    fig = Figure(figsize=(12.0, max(5.5, 1.2 + 1.5 * n)), layout="constrained")
+    axes = np.asarray(fig.subplots(n, 3, sharex=True, squeeze=False))
+    many = len(runs) > 1
+    for i, joint in enumerate(joints):
+        L = limits.get(joint)
+        known = L is not None and L.prismatic is not None
+        for c, (quantity, name, units) in enumerate(QUANTITIES):
+            ax = axes[i, c]
+            data = []
+            for r, (label, traj) in enumerate(runs):
+                y = np.asarray(getattr(traj, quantity), dtype=float)[:, i]
+                ax.plot(traj.t, y, color=FILE_COLOURS[r % len(FILE_COLOURS)], lw=1.3, label=label)
+                data.append(y)
+            unit = units[bool(L.prismatic)] if known else f"{units[0]} or {units[1]}"
+            lo, hi = bounds(L, quantity)
+            (y0, y1), shown, off = _view(np.concatenate(data), [b for b in (lo, hi) if b is not None])
+            for b in shown:
+                ax.axhline(b, **LIMIT_STYLE)
+            if off:
+                ax.text(0.99, 0.96, off_scale_note(off, shown, np.concatenate(data), unit),
+                        transform=ax.transAxes, ha="right", va="top", fontsize="x-small", color="tab:red",
+                        zorder=1.5)  # under the curves (zorder 2): neither hides the other
+            ax.set_ylim(y0, y1)
+            ax.grid(True, alpha=0.3)
+            ax.tick_params(labelsize="x-small")
+            ax.set_ylabel(f"[{unit}]", fontsize="x-small")
+            if i == 0:
+                ax.set_title(name, fontsize="medium")
+        axes[i, 0].annotate(joint, xy=(0, 0.5), xycoords="axes fraction", xytext=(-42, 0), textcoords="offset points",
+                            ha="right", va="center", rotation=90, fontsize="small", fontweight="bold")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    handles = [axes[0, 0].lines[r] for r in range(len(runs))] if many else []
+    labels = [label for label, _ in runs] if many else []
+    if any(bounds(limits.get(j), q) != (None, None) for j in joints for q, _, _ in QUANTITIES):
+        from matplotlib.lines import Line2D
+
+        handles.append(Line2D([], [], **LIMIT_STYLE))
+        labels.append("URDF limit")
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=min(len(handles), 4), fontsize="small")
+    return fig
+
+
+def _draw_normalised(Figure, runs, joints, limits):
+    fig = Figure(figsize=(11.0, 9.0), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    for ax, (quantity, name, _) in zip(axes, QUANTITIES):
+        missing = []
+        for i, joint in enumerate(joints):
+            for r, (label, traj) in enumerate(runs):
+                y = normalise(traj, quantity, i, limits.get(joint))
+                if y is None:
+                    if r == 0:
+                        missing.append(joint)
+                    continue
+                ax.plot(traj.t, y, color=f"C{i % 10}", ls=FILE_STYLES[r % len(FILE_STYLES)], lw=1.3,
+                        label=joint if r == 0 else None)
+        for b in (-1.0, 1.0):  # black, and the region beyond shaded: no joint colour or file style is like it
+            ax.axhline(b, color="k", lw=1.2)
+            ax.axhspan(b, 50.0 * b, color="tab:red", alpha=0.08, lw=0)
+        what = "(q − mid) / half range" if quantity == "q" else "/ limit"
+        ax.set_ylabel(f"{name} {what}", fontsize="small")
+        ax.grid(True, alpha=0.3)
+        if missing:
+            ax.text(0.01, 0.04, "no limit, not shown: " + ", ".join(missing), transform=ax.transAxes,
+                    fontsize="x-small", color="0.3")
+        data = [line.get_ydata() for line in ax.lines if len(line.get_ydata()) > 2]
+        lo = min([-1.0, *(float(np.min(d)) for d in data)])
+        hi = max([1.0, *(float(np.max(d)) for d in data)])
+        ax.set_ylim(lo - 0.1, hi + 0.1)
+    axes[-1].set_xlabel("t [s]")
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [Line2D([], [], color="k", lw=1.2), Patch(color="tab:red", alpha=0.15)]
+    labels += ["limit (±1)", "beyond the limit"]
+    axes[0].legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small", title="joints",
+                   title_fontsize="small")
+    if len(runs) > 1:
+        handles = [Line2D([], [], color="0.2", ls=FILE_STYLES[r % len(FILE_STYLES)]) for r in range(len(runs))]
+        axes[1].legend(handles, [label for label, _ in runs], loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                       fontsize="small", title="files", title_fontsize="small")
+    return fig
+
+
+def plot_trajectory(traj: Trajectory, out: IO[bytes], *, fmt: str = "png",
+                    limits: Mapping[str, JointLimits] | None = None, title: str = "", **kw) -> None:
+    """One trajectory: :func:`plot_trajectories` with a single run."""
+    plot_trajectories([(title or "trajectory", traj)], out, fmt=fmt, limits=limits, title=title, **kw)

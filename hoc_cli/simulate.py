@@ -51,6 +51,8 @@ POINT_KINDS = ("gauss", "lobatto", "radau")
 DEFAULT_POINTS = {"cubic": "gauss", "quintic": "lobatto"}
 NEWTON_XTOL = 1e-13
 NEWTON_MAX_ITER = 25
+#: an element whose Newton iteration fails is solved as 2, 4, … up to 2**MAX_SPLIT_DEPTH sub-elements
+MAX_SPLIT_DEPTH = 5
 
 
 # --------------------------------------------------------------------------- collocation points
@@ -95,6 +97,9 @@ class HermiteSimulation:
     ``newton_iterations`` is the total number of Newton steps (Jacobian factorisations) over all
     elements, ``max_newton_iterations`` the worst element, ``evaluations`` the number of batched
     ``id_derivatives`` calls (m samples each), ``wall_time_s`` the march alone.
+    ``subdivided`` lists (element, sub-elements) for each element whose Newton iteration failed and
+    that was solved as 2, 4, … equal sub-elements instead (the node values at its ends then come
+    from the sub-elements; between them the trajectory is the element's Hermite interpolant).
     """
 
     mesh: HermiteMesh
@@ -106,6 +111,7 @@ class HermiteSimulation:
     evaluations: int
     wall_time_s: float
     message: str
+    subdivided: tuple[tuple[int, int], ...] = ()
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """q_h(t), q̇_h(t) at times t (K,) [s]; each (K, n)."""
@@ -210,13 +216,17 @@ def simulate_hermite(
     xtol : Newton stops when the step, scaled to position units (Δa, h Δb, h² Δc), is below
         xtol·(1 + |R|) (the error left is then of order step²); a step that stops shrinking
         below 1e3·xtol is accepted as the round-off floor
-    max_iter : Newton iterations allowed per element
+    max_iter : Newton iterations allowed per element (and per sub-element)
     callback : called as callback(e, N) after element e is solved (progress)
+
+    An element whose Newton iteration fails (no decrease, too many iterations, a non-finite
+    or singular step) is solved as 2, 4, … up to 2**MAX_SPLIT_DEPTH equal sub-elements; the
+    result's ``subdivided`` and ``message`` say which.
 
     Raises
     ------
-    NumericalError when Newton does not converge or meets a non-finite value; the message
-    names the element and its time interval.
+    NumericalError when an element fails even split into 2**MAX_SPLIT_DEPTH sub-elements, or
+    meets a non-finite torque; the message names the element and its time interval.
     """
     started = time.perf_counter()
     m = mesh.m
@@ -232,6 +242,10 @@ def simulate_hermite(
 
     with np.errstate(all="ignore"):  # overflow and NaN are detected and reported below, with the element
         return _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started)
+
+
+class _NewtonFailure(Exception):
+    """One element's Newton iteration failed (the reason is the message); the march may subdivide."""
 
 
 def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started) -> HermiteSimulation:
@@ -253,13 +267,19 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
         C[0, 2] = ddq0
     scale = (h ** np.arange(m))[:, None]  # a, h b, h² c: all in position units
     total = worst = evaluations = 0
+    split = _Splitter(system, mesh, s, torque, xtol, max_iter)
+    subdivided: list[tuple[int, int]] = []
     for e in range(N):
         left = C[e]
         if e == 0:  # Taylor predictor from the initial state
             guess = np.stack([q0 + h * dq0 + 0.5 * h * h * ddq0, dq0 + h * ddq0, ddq0][:m])
         else:  # extrapolate the previous element's polynomial to s = 2
             guess = el.BX[:m] @ np.concatenate([C[e - 1], C[e]])
-        right, iterations, calls = _newton(system, el, left, guess, U[e], scale, xtol, max_iter, e, h)
+        try:
+            right, iterations, calls = _newton(system, el, left, guess, U[e], scale, xtol, max_iter)
+        except _NewtonFailure as first:  # solve the element as 2, 4, … sub-elements
+            right, iterations, calls, pieces = split.solve(left, e * h, h, e, str(first))
+            subdivided.append((e, pieces))
         C[e + 1] = right
         total += iterations
         evaluations += calls
@@ -267,17 +287,69 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
         if callback is not None:
             callback(e, N)
     wall = time.perf_counter() - started
+    message = (f"{N} {mesh.order} elements, {total} Newton iterations (at most {worst} per element), "
+               f"{evaluations} dynamics evaluations")
+    if subdivided:
+        message += "; Newton failed in " + ", ".join(
+            f"element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s), solved as {k} sub-elements" for e, k in subdivided)
     return HermiteSimulation(
         mesh=mesh, coeffs=C, points=s, status=SimulationStatus.SUCCESS, newton_iterations=total,
-        max_newton_iterations=worst, evaluations=evaluations, wall_time_s=wall,
-        message=f"{N} {mesh.order} elements, {total} Newton iterations (at most {worst} per element), "
-        f"{evaluations} dynamics evaluations",
+        max_newton_iterations=worst, evaluations=evaluations, wall_time_s=wall, message=message,
+        subdivided=tuple(subdivided),
     )
+
+
+class _Splitter:
+    """Solves one element of length h as equal sub-elements, halving where Newton fails again.
+
+    Each sub-element is an element of the same order and collocation points on a shorter span
+    (its matrices are cached per length); its predictor is the Taylor polynomial of its left node
+    (q̈ there from the forward dynamics for cubic elements, which do not carry it).
+    """
+
+    def __init__(self, system: System, mesh: HermiteMesh, s: np.ndarray, torque: TorqueSource, xtol: float,
+                 max_iter: int) -> None:
+        self.system, self.order, self.m, self.s = system, mesh.order, mesh.m, s
+        self.torque, self.xtol, self.max_iter = torque, xtol, max_iter
+        self._elements: dict[int, _Element] = {}
+
+    def _element(self, depth: int, length: float) -> _Element:
+        if depth not in self._elements:
+            self._elements[depth] = _Element.build(HermiteMesh(self.order, length, 1), self.s)
+        return self._elements[depth]
+
+    def solve(self, left: np.ndarray, t0: float, h: float, e: int, why: str) -> tuple[np.ndarray, int, int, int]:
+        """Right node (m, n) of element e = [t0, t0 + h], Newton steps, evaluations, sub-elements used."""
+        total = calls = 0
+        pieces = 2
+        for depth in range(1, MAX_SPLIT_DEPTH + 1):
+            pieces = 2 ** depth
+            try:
+                node = left
+                for k in range(pieces):
+                    node, its, c = self._piece(node, t0 + k * h / pieces, h / pieces, depth)
+                    total, calls = total + its, calls + c
+                return node, total, calls, pieces
+            except _NewtonFailure as exc:
+                why = str(exc)
+        raise NumericalError(_where(e, h, f"{why}, even as {pieces} sub-elements"))
+
+    def _piece(self, left: np.ndarray, t0: float, H: float, depth: int) -> tuple[np.ndarray, int, int]:
+        el, m = self._element(depth, H), self.m
+        q, dq = left[0], left[1]
+        if m == 3:
+            ddq = left[2]
+        else:
+            ddq = self.system.forward_dynamics(q[None], dq[None], self.torque(np.array([t0])))[0]
+        guess = np.stack([q + H * dq + 0.5 * H * H * ddq, dq + H * ddq, ddq][:m])
+        u = np.asarray(self.torque(t0 + self.s * H), dtype=float)
+        scale = (H ** np.arange(m))[:, None]
+        return _newton(self.system, el, left, guess, u, scale, self.xtol, self.max_iter)
 
 
 def _newton(
     system: System, el: _Element, left: np.ndarray, guess: np.ndarray, u: np.ndarray, scale: np.ndarray,
-    xtol: float, max_iter: int, e: int, h: float,
+    xtol: float, max_iter: int,
 ) -> tuple[np.ndarray, int, int]:
     """Solve one element's collocation equations for the right node (m, n).
 
@@ -288,7 +360,8 @@ def _newton(
     it is below xtol·(1 + |R|) (the error left is then of order its square), so a converged
     element costs one Jacobian factorisation per Newton step plus the initial evaluation.
 
-    Returns the right-node coefficients, Newton steps and ``id_derivatives`` calls.
+    Returns the right-node coefficients, Newton steps and ``id_derivatives`` calls; raises
+    ``_NewtonFailure`` (the reason) when the iteration fails.
     """
     from scipy.linalg import lu_factor, lu_solve
 
@@ -304,16 +377,16 @@ def _newton(
     F, J = collocation_residual(system, el, left, right, u)
     calls = 1
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(J))):
-        raise NumericalError(_where(e, h, "non-finite residual at the predicted state (motion blew up?)"))
+        raise _NewtonFailure("non-finite residual at the predicted state (motion blew up?)")
     for it in range(1, max_iter + 1):
         lu = lu_factor(J.reshape(m * n, m * n), check_finite=False)
         if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) == 0.0:
-            raise NumericalError(_where(e, h, "singular Newton Jacobian"))
+            raise _NewtonFailure("singular Newton Jacobian")
         delta = correction(lu, F)
         step = size(delta)
         tol = xtol * (1.0 + size(right))
         if not np.isfinite(step):
-            raise NumericalError(_where(e, h, "non-finite Newton step (motion blew up?)"))
+            raise _NewtonFailure("non-finite Newton step (motion blew up?)")
         if step <= tol:
             return right + delta, it, calls
         lam = 1.0
@@ -328,16 +401,16 @@ def _newton(
                     break
             lam *= 0.5
             if lam < 2.0 ** -12:
-                raise NumericalError(_where(e, h, f"Newton step rejected down to λ = {2 * lam:.2g} (no decrease)"))
+                raise _NewtonFailure(f"Newton step rejected down to λ = {2 * lam:.2g} (no decrease)")
         right, F, J = trial, F_t, J_t
         if lam == 1.0 and (small <= tol or (small <= 1e3 * tol and small >= 0.5 * step)):
             return right + bar, it, calls  # converged (or at the round-off floor)
-    raise NumericalError(_where(e, h, f"Newton did not converge in {max_iter} iterations (last step {step:.3g})"))
+    raise _NewtonFailure(f"Newton did not converge in {max_iter} iterations (last step {step:.3g})")
 
 
 def _where(e: int, h: float, what: str) -> str:
     return (f"Hermite simulation failed in element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s): {what}; "
-            f"shorter elements (more of them: -N) or --method rk may get through")
+            f"more elements (-N) or --integrator rk may get through")
 
 
 # --------------------------------------------------------------------------- reference integrator

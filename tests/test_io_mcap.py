@@ -205,7 +205,7 @@ def test_the_file_is_valid_for_a_streaming_reader_that_checks_every_crc(plan):
     _, _, data = plan
     reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True)
     topics = {c.topic for _, c, _ in reader.iter_messages()}
-    assert topics == {"/joint_states", "/joint_accelerations", "/robot_description", "/tf"}
+    assert topics == {"/joint_states", "/joint_accelerations", "/joint_trajectory", "/robot_description", "/tf"}
     assert make_reader(io.BytesIO(data)).get_header().profile == "ros2"
 
 

@@ -75,8 +75,9 @@ def test_the_limits_of_an_mcap_come_from_its_attached_urdf(files):
 def test_a_limit_near_the_data_is_in_view_and_a_far_one_does_not_flatten_the_curves():
     from hoc_cli.plotting import _view
 
-    lo, hi = _view(np.array([0.0, 1.0]), [1.5, 100.0, -0.5])
+    (lo, hi), shown, off = _view(np.array([0.0, 1.0]), [1.5, 100.0, -0.5])
     assert lo < -0.5 and 1.5 < hi < 2.0
+    assert shown == [1.5, -0.5] and off == [100.0]  # named in the panel, not silently left off
 
 
 def test_pdf_and_svg_are_written_too(files, tmp_path):
@@ -116,12 +117,129 @@ def test_a_failure_while_drawing_leaves_an_existing_figure_untouched(files, tmp_
     out = tmp_path / "fig.png"
     out.write_bytes(b"old")
 
-    def boom(traj, fh, **kw):
+    def boom(runs, fh, **kw):
         fh.write(b"partial")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(hoc_cli.plotting, "plot_trajectory", boom)
+    monkeypatch.setattr(hoc_cli.plotting, "plot_trajectories", boom)
     r = CliRunner().invoke(app, ["plot", str(files[0]), "-o", str(out)])
     assert r.exit_code == 130
     assert out.read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png", "plan.csv", "plan.mcap"]
+
+
+# --------------------------------------------------------------------------- issue 13 item 4
+def figure_of(runs, limits, **kw):
+    """The matplotlib Figure hoc plot draws (per-joint or normalised layout)."""
+    matplotlib = pytest.importorskip("matplotlib")  # noqa: F841
+    from matplotlib.figure import Figure
+
+    from hoc_cli.plotting import _draw_normalised, _draw_per_joint
+
+    draw = _draw_normalised if kw.get("normalized") else _draw_per_joint
+    return draw(Figure, runs, list(runs[0][1].joints), limits)
+
+
+def hlines(ax):
+    """y of every horizontal line across an axes (the limits)."""
+    return sorted(float(line.get_ydata()[0]) for line in ax.lines
+                  if len(line.get_ydata()) == 2 and line.get_ydata()[0] == line.get_ydata()[1])
+
+
+def test_each_joint_has_its_own_panels_with_only_its_own_limits_and_units(files):
+    from hoc_cli.commands.plot import read_for_plot
+
+    traj, limits = read_for_plot(files[1])
+    fig = figure_of([("plan.mcap", traj)], limits)
+    axes = np.array(fig.axes).reshape(len(JOINTS), 3)
+    for i, joint in enumerate(JOINTS):
+        L = limits[joint]
+        for c, (quantity, expected) in enumerate((("q", [L.lower, L.upper]), ("dq", [-L.velocity, L.velocity]),
+                                                  ("u", [-L.effort, L.effort]))):
+            ax = axes[i, c]
+            drawn = hlines(ax)
+            notes = " ".join(t.get_text() for t in ax.texts)
+            data = getattr(traj, quantity)[:, i]
+            for b in expected:  # every limit is drawn in its own joint's panel, or named there as off scale
+                assert b in drawn or f"{abs(b):.4g}" in notes, (joint, quantity, b)
+            assert set(drawn) <= set(expected)  # no other joint's limit
+            lo, hi = ax.get_ylim()
+            assert lo <= data.min() and data.max() <= hi
+        units = [ax.get_ylabel() for ax in axes[i]]
+        assert units == (["[m]", "[m/s]", "[N]"] if joint == "slider" else ["[rad]", "[rad/s]", "[N·m]"])
+
+
+def test_a_far_limit_is_named_in_its_panel_with_the_peak_fraction():
+    from hoc_cli.plotting import off_scale_note
+
+    assert off_scale_note([-320.0, 320.0], [], np.array([-7.0, 16.0]), "N·m") == "limits ±320 N·m off scale (peak 5 %)"
+    assert off_scale_note([-2.0, 3.0], [], np.array([0.0]), "rad") == "limits [-2, 3] rad off scale"
+
+
+def test_normalised_values_are_plus_minus_one_at_the_limits():
+    from hoc_cli.plotting import JointLimits, normalise
+
+    t = np.array([0.0, 1.0, 2.0])
+    q = np.array([[-1.5], [0.25], [2.0]])
+    traj = Trajectory(("j",), t, q, q * 3.0, q * 0.0, q * 40.0 / 2.0)
+    L = JointLimits(-1.5, 2.0, 6.0, 40.0, False)
+    np.testing.assert_allclose(normalise(traj, "q", 0, L), [-1.0, 0.0, 1.0])
+    np.testing.assert_allclose(normalise(traj, "dq", 0, L), q[:, 0] * 3.0 / 6.0)
+    np.testing.assert_allclose(normalise(traj, "u", 0, L), q[:, 0] * 20.0 / 40.0)
+    assert normalise(traj, "u", 0, JointLimits(-1.5, 2.0, 6.0, None, False)) is None
+
+
+def test_from_a_csv_the_figure_says_limits_are_unknown_and_robot_supplies_them(files, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    import hoc_cli.plotting
+
+    seen = {}
+    real = hoc_cli.plotting.plot_trajectories
+
+    def spy(runs, fh, **kw):
+        seen.update(kw, labels=[label for label, _ in runs])
+        return real(runs, fh, **kw)
+
+    monkeypatch.setattr(hoc_cli.plotting, "plot_trajectories", spy)
+    assert CliRunner().invoke(app, ["plot", str(files[0]), "-o", str(tmp_path / "a.png")]).exit_code == 0
+    assert seen["limits"] is None and "limits unknown" in seen["limits_note"] and "--robot" in seen["limits_note"]
+    urdf = tmp_path / "r.urdf"
+    urdf.write_text(URDF)
+    r = CliRunner().invoke(app, ["plot", str(files[0]), "--robot", str(urdf), "-o", str(tmp_path / "b.png")])
+    assert r.exit_code == 0, r.output
+    assert seen["limits_note"] is None and seen["limits"]["shoulder"].effort == 40.0
+
+
+def test_two_files_are_overlaid_with_a_legend_per_file(files, tmp_path):
+    pytest.importorskip("matplotlib")
+    from hoc_cli.commands.plot import read_for_plot
+
+    other = synthetic(np.random.default_rng(1))
+    second = tmp_path / "other.mcap"
+    with open(second, "wb") as fh:
+        write_mcap(fh, other, urdf_text=URDF, task_text="T: 2.0\n")
+    for extra in ([], ["--normalized"]):
+        out = tmp_path / f"overlay{len(extra)}.png"
+        r = CliRunner().invoke(app, ["plot", str(files[1]), str(second), *extra, "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        open_png(out)
+    traj, limits = read_for_plot(files[1])
+    fig = figure_of([("plan.mcap", traj), ("other.mcap", other)], limits)
+    legend_texts = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    assert legend_texts[:2] == ["plan.mcap", "other.mcap"] and "URDF limit" in legend_texts
+    assert len(fig.axes[0].lines) >= 2  # both files in the first panel
+    fig = figure_of([("plan.mcap", traj), ("other.mcap", other)], limits, normalized=True)
+    assert [t.get_text() for t in fig.axes[1].get_legend().get_texts()] == ["plan.mcap", "other.mcap"]
+
+
+def test_files_of_different_joints_are_refused_with_exit_2(files, tmp_path):
+    pytest.importorskip("matplotlib")
+    t = sample_times(1.0, 10.0)
+    z = np.zeros((t.size, 1))
+    csv = tmp_path / "one.csv"
+    with open(csv, "wb") as fh:
+        write_csv(fh, Trajectory(("elbow",), t, z, z, z, z))
+    out = tmp_path / "x.png"
+    r = CliRunner().invoke(app, ["plot", str(files[0]), str(csv), "-o", str(out)])
+    assert r.exit_code == 2 and "same robot" in r.stderr and r.stderr.count("\n") == 1
+    assert not out.exists()

@@ -100,7 +100,7 @@ def commands(draw) -> list[str]:
     if kind == "plan":
         args += ["--max-iter", "3"]
     else:
-        args += draw(st.sampled_from([[], ["--method", "rk"], ["--torque", "torque.csv"]]))
+        args += draw(st.sampled_from([[], ["--integrator", "rk"], ["--torque", "torque.csv"]]))
     return args
 
 

@@ -513,7 +513,7 @@ def test_replaying_a_plan_gives_byte_identical_outputs_with_either_integrator(wo
     assert invoke(["plan", "task.yaml", "-o", "plan.mcap", "-q"]).exit_code == 0
     for method in ("hermite", "rk"):
         for run in ("a", "b"):
-            args = ["simulate", "plan.mcap", "--method", method, "-o", f"{method}-{run}.csv", "-o", f"{method}-{run}.mcap", "-q"]
+            args = ["simulate", "plan.mcap", "--integrator", method, "-o", f"{method}-{run}.csv", "-o", f"{method}-{run}.mcap", "-q"]
             assert invoke(args).exit_code == 0
         for ext in ("csv", "mcap"):
             assert (workdir / f"{method}-a.{ext}").read_bytes() == (workdir / f"{method}-b.{ext}").read_bytes()

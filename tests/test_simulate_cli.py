@@ -63,7 +63,7 @@ def test_check_exits_0_within_the_tolerance_and_1_beyond_it(tmp_path):
 
 def test_rk_and_hermite_reach_the_same_final_state_under_a_constant_torque(tmp_path):
     task = write_task(tmp_path / "pend.yaml", torque=[0.8], T=1.5, N=40)
-    docs = [json.loads(invoke(task, "--json", "--method", m, "-o", tmp_path / "o.csv").stdout) for m in ("hermite", "rk")]
+    docs = [json.loads(invoke(task, "--json", "--integrator", m, "-o", tmp_path / "o.csv").stdout) for m in ("hermite", "rk")]
     for key in ("q", "dq"):
         np.testing.assert_allclose(docs[0]["final_state"][key], docs[1]["final_state"][key], atol=1e-9)
     assert docs[1]["method"] == "rk" and docs[0]["final_error"] is None
@@ -170,7 +170,7 @@ def test_a_plans_csv_torque_replays_to_1e_6_and_a_perturbed_one_fails_the_check(
 # --------------------------------------------------------------------------- bad input: exit 2, one line
 @pytest.mark.parametrize("extra, keys, needle", [
     ([], {}, "torque"),  # no torque history at all
-    (["--method", "euler"], {"torque": "zero"}, "--method"),
+    (["--integrator", "euler"], {"torque": "zero"}, "--integrator"),
     (["--check", "1e-6"], {"torque": "zero"}, "x1"),
     (["--check", "-1"], {"torque": "zero"}, "--check"),
     (["-o", "-", "--json"], {"torque": "zero"}, "--output"),
@@ -224,7 +224,7 @@ def test_the_7dof_arm_accepts_joint_name_mappings_for_x0_and_torque(tmp_path):
            "T": 0.5, "N": 40, "order": "quintic"}
     task = tmp_path / "arm.yaml"
     task.write_text(json.dumps(doc))
-    docs = [json.loads(invoke(task, "--json", "--method", m, "-o", tmp_path / "a.csv").stdout) for m in ("hermite", "rk")]
+    docs = [json.loads(invoke(task, "--json", "--integrator", m, "-o", tmp_path / "a.csv").stdout) for m in ("hermite", "rk")]
     np.testing.assert_allclose(docs[0]["final_state"]["q"], docs[1]["final_state"]["q"], atol=1e-8)
     assert docs[0]["joints"] == names
 

@@ -246,3 +246,19 @@ def _jsonable(x: Any) -> Any:
     if isinstance(x, Path):
         return str(x)
     raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+
+
+def refuse_urdf_task(path: Path) -> None:
+    """InputFileError (exit 2) when a URDF is given where a task YAML is expected, pointing to ``hoc new``."""
+    path = Path(path)
+    looks_like_xml = path.suffix.lower() in (".urdf", ".xml")
+    if not looks_like_xml:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(512).lstrip(b"\xef\xbb\xbf \t\r\n")
+        except OSError:
+            return  # load_task reports a missing or unreadable file
+        looks_like_xml = head.startswith((b"<?xml", b"<robot"))
+    if looks_like_xml:
+        raise InputFileError(f"is a URDF (a robot), not a task; write a task for this robot with: hoc new {path} "
+                             "-o task.yaml (then edit x1 and plan it)", file=path)

@@ -19,6 +19,8 @@ from typing import Any, Iterator
 from hoc_cli.errors import OutputError, OutputWriteError
 
 OUTPUT_KINDS = {".csv": "csv", ".mcap": "mcap"}
+#: ``-o none``: write no file at all (the JSON summary alone, with --json)
+NO_OUTPUT = "none"
 #: signals that end a run like SIGTERM: the exception unwinds, temporary files are removed
 TERMINATING = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
@@ -41,9 +43,16 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
     Refused (OutputError, exit 2), each with its own message naming the file: a path given twice,
     a directory, an unknown extension, a missing or read-only directory, a name longer than the
     file system allows, a symbolic link loop, a dangling link into a missing directory.
+    ``-o none`` alone writes no file (an empty list: e.g. for ``--json`` only); with another ``-o`` it
+    is refused.
     """
     if not outputs:
         outputs = [f"{stem}.mcap", f"{stem}.csv"]
+    if NO_OUTPUT in outputs:
+        if len(outputs) > 1:
+            raise OutputError(f"'-o {NO_OUTPUT}' writes no file and cannot be combined with another -o "
+                              "(expected either none or files)", file=NO_OUTPUT, key="--output")
+        return []
     targets: list[OutputTarget] = []
     seen: set = set()
     for raw in outputs:
@@ -63,7 +72,7 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
         if real.is_dir():
             raise OutputError("is a directory (expected a file path)", file=path, key="--output")
         if kind is None:
-            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, or - for CSV on stdout)",
+            raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, - for CSV on stdout, or none for no file)",
                               file=path, key="--output")
         parent = path.parent if str(path.parent) else Path(".")
         if not parent.is_dir():

@@ -23,6 +23,7 @@ from hoc_cli.commands.common import (
     print_json,
     read_urdf_text,
     refuse_inputs,
+    refuse_urdf_task,
     stderr_console,
     validate_json,
     warn_limit_violations,
@@ -49,6 +50,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         gradient_check: bool = False, starts: int = 1, seed: int = 0) -> int:
     from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
 
+    refuse_urdf_task(task_path)
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
     check_starts(starts, seed, init)
     if gradient_check and outputs:

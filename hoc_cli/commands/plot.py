@@ -1,6 +1,9 @@
-"""``hoc plot FILE -o fig.png``: q, q̇ and u per joint against t, from a plan's CSV or MCAP.
+"""``hoc plot FILE… -o fig.png``: q, q̇ and u per joint against t, from plans' CSV or MCAP files.
 
-The URDF limits are drawn when the file carries the URDF (an MCAP does, a CSV does not).
+One row of panels per joint, each with that joint's limits and units (``--normalized``: every
+joint divided by its limits in three panels). Several files are overlaid with a legend naming
+each; they must have the same joints. The limits come from ``--robot ROBOT.urdf``, else from the
+first MCAP (it carries its URDF); with neither (CSV files alone) the figure says limits are unknown.
 The figure is written atomically: on any failure the output path is left untouched.
 """
 from __future__ import annotations
@@ -17,10 +20,11 @@ MCAP_MAGIC = b"\x89MCAP"
 INSTALL_HINT = "matplotlib is needed for 'hoc plot' (install it with: pip install 'hoc[plot]')"
 
 
-def run(file: Path, output: Path) -> int:
-    """Read ``file`` (.csv or .mcap), draw the figure, write ``output`` (.png, .pdf or .svg)."""
-    from hoc_cli.plotting import FORMATS, MatplotlibMissing, plot_trajectory
+def run(files: Path | list[Path], output: Path, *, robot: Path | None = None, normalized: bool = False) -> int:
+    """Read each file (.csv or .mcap), draw the figure, write ``output`` (.png, .pdf or .svg)."""
+    from hoc_cli.plotting import FORMATS, NO_LIMITS_NOTE, MatplotlibMissing, plot_trajectories
 
+    files = [Path(files)] if isinstance(files, (str, Path)) else [Path(f) for f in files]
     fmt = output.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
         raise OutputError(f"unknown figure extension {output.suffix or '(none)'!r} (expected .png, .pdf or .svg)",
@@ -28,19 +32,50 @@ def run(file: Path, output: Path) -> int:
     parent = output.parent if str(output.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"directory {str(parent)!r} does not exist", file=output, key="--output")
-    refuse_inputs([OutputTarget(output, fmt)], {"the plotted file": file})
+    refuse_inputs([OutputTarget(output, fmt)], {**{f"the plotted file {i + 1}": f for i, f in enumerate(files)},
+                                                "--robot": robot})
     try:
         import matplotlib  # noqa: F401  (checked before reading a possibly large input)
     except ImportError:
         raise HocError(INSTALL_HINT) from None
 
-    traj, limits = read_for_plot(file)
+    runs, limits = [], None
+    for f in files:
+        traj, found = read_for_plot(f)
+        if runs and tuple(traj.joints) != tuple(runs[0][1].joints):
+            raise InputFileError(f"has joints {list(traj.joints)}; {files[0]} has {list(runs[0][1].joints)} "
+                                 "(expected files of the same robot and joints to overlay)", file=f)
+        runs.append((_label(f, files), traj))
+        if limits is None and found:
+            limits = found
+    if robot is not None:
+        limits = robot_limits(robot, runs[0][1].joints)
+    note = None if limits else NO_LIMITS_NOTE
+    title = " vs ".join(label for label, _ in runs)
     try:
         with atomic_output(output) as fh:
-            plot_trajectory(traj, fh, fmt=fmt, limits=limits, title=file.name)
+            plot_trajectories(runs, fh, fmt=fmt, limits=limits, limits_note=note, normalized=normalized, title=title)
     except MatplotlibMissing:
         raise HocError(INSTALL_HINT) from None
     return EXIT_OK
+
+
+def _label(f: Path, files: list[Path]) -> str:
+    """The file's name, or its path when two files share a name."""
+    return f.name if sum(g.name == f.name for g in files) == 1 else str(f)
+
+
+def robot_limits(robot: Path, joints) -> dict:
+    """{joint: JointLimits} from a URDF file given with ``--robot``; InputFileError when it names none of ``joints``."""
+    from hoc_cli.model import urdf_joint_table
+    from hoc_cli.plotting import JointLimits
+
+    rows = urdf_joint_table(robot)
+    found = {r["name"]: JointLimits(r["lower"], r["upper"], r["velocity"], r["effort"], r["type"] == "prismatic")
+             for r in rows if r["name"] in set(joints)}
+    if not found:
+        raise InputFileError(f"has none of the plotted joints {list(joints)}", file=robot, key="--robot")
+    return found
 
 
 def read_for_plot(file: Path):

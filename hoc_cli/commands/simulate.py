@@ -10,8 +10,12 @@ Torque history, first that applies:
 2. An MCAP SOURCE's own plan, as in 1.
 3. The task's ``torque:`` key (``zero`` or one constant per joint).
 
-``--method hermite`` (default): the paper's collocation integrator with the task's N and order
-(``hoc_cli.simulate.simulate_hermite``); ``--method rk``: scipy's DOP853, rtol = atol = 1e-12.
+``--integrator hermite`` (default): the paper's collocation integrator with the task's N and order
+(``hoc_cli.simulate.simulate_hermite``; an element whose Newton iteration fails is solved as 2, 4, …
+sub-elements and the summary's ``subdivided`` says so); ``--integrator rk``: scipy's DOP853,
+rtol = atol = 1e-12. ``--tol`` sets the Newton tolerance (hermite) or rtol = atol (rk), ``--max-iter``
+the Newton iterations per element (hermite); the task's ``solver:`` keys are the planner's and are not
+used. ``--method`` is the deprecated spelling of ``--integrator``.
 
 Outputs as for ``hoc plan``: ``-o`` CSV/MCAP (default, for every SOURCE: ``<source stem>-sim.mcap``
 and ``<source stem>-sim.csv``, so a plan's ``<stem>.mcap``/``.csv`` is never overwritten; an output
@@ -19,10 +23,10 @@ that is the same file as an input is refused), samples at ``output.rate``; ``u``
 torque u(t). The MCAP carries the simulation's Hermite
 coefficients (hermite method) and a ``simulation`` metadata entry (the JSON summary).
 
-``--json`` summary: ``method``, ``joints``, ``N``, ``order``, ``T``, ``torque`` (its source),
+``--json`` summary: ``integrator`` (and ``method``, the same, for one release), ``joints``, ``N``, ``order``, ``T``, ``torque`` (its source),
 ``final_state`` {q, dq} at T, ``final_error`` (max |x(T) − x1|, when the task has x1; else null),
 ``check`` {tol, passed} (with ``--check``), ``converged``, ``iterations`` (Newton steps or RK
-steps), ``evaluations`` (dynamics calls), ``wall_time_s`` (the integration alone), ``max_abs_u``,
+steps), ``subdivided`` (hermite: [{element, t, sub_elements}]), ``evaluations`` (dynamics calls), ``wall_time_s`` (the integration alone), ``max_abs_u``,
 ``limit_violations``, ``outputs``. Exit 1 when ``--check TOL`` is given and final_error > TOL.
 """
 from __future__ import annotations
@@ -51,8 +55,10 @@ from hoc_cli.commands.common import (
     print_json,
     read_urdf_text,
     refuse_inputs,
+    refuse_urdf_task,
     stderr_console,
     validate_json,
+    warn,
     warn_limit_violations,
 )
 from hoc_cli.errors import InputFileError, OutputError, TaskError
@@ -68,9 +74,12 @@ def run(
     quiet: bool = False,
     progress: bool = False,
     overrides: dict | None = None,
-    method: str = "hermite",
+    integrator: str | None = None,
     torque: Path | None = None,
     check: float | None = None,
+    tol: float | None = None,
+    max_iter: int | None = None,
+    method: str | None = None,
 ) -> int:
     from hoc_cli import simulate as sim
     from hoc_cli import torque as torque_sources
@@ -79,8 +88,14 @@ def run(
     from hoc_cli.trajectory import sample_times
 
     source = Path(source)
-    if method not in METHODS:
-        raise TaskError(f"expected one of {', '.join(METHODS)}, got {method!r}", key="--method")
+    method = _integrator(integrator, method)
+    if tol is not None and not (math.isfinite(tol) and tol > 0):
+        raise TaskError(f"expected a tolerance > 0, got {tol!r}", key="--tol")
+    if max_iter is not None and max_iter < 1:
+        raise TaskError(f"expected an integer >= 1, got {max_iter!r}", key="--max-iter")
+    if max_iter is not None and method != "hermite":
+        raise TaskError("sets the Newton iterations of --integrator hermite; rk has none (expected no --max-iter "
+                        "with --integrator rk)", key="--max-iter")
     if check is not None and not (math.isfinite(check) and check > 0):
         raise TaskError(f"expected a tolerance > 0, got {check!r}", key="--check")
 
@@ -98,6 +113,7 @@ def run(
             urdf_text = plan.urdf_text
             labels = {"urdf_label": f"{source}: attachment robot.urdf", "task_label": f"{source}: attachment task.yaml"}
         else:
+            refuse_urdf_task(source)
             task = load_task(source, purpose="simulate")
             urdf_text = ""
         task = apply_overrides(task, **(overrides or {}))
@@ -133,11 +149,17 @@ def run(
         if method == "hermite":
             mesh = HermiteMesh(task.order, task.T, task.N)
             with _progress(console, task.N, progress) as tick:
-                result = sim.simulate_hermite(system, states.q0, states.dq0, history, mesh, callback=tick)
+                result = sim.simulate_hermite(system, states.q0, states.dq0, history, mesh, callback=tick,
+                                              xtol=sim.NEWTON_XTOL if tol is None else tol,
+                                              max_iter=sim.NEWTON_MAX_ITER if max_iter is None else max_iter)
             iterations, evaluations = result.newton_iterations, result.evaluations
+            h = mesh.h
+            subdivided = [{"element": e, "t": [e * h, (e + 1) * h], "sub_elements": k} for e, k in result.subdivided]
         else:
-            result = sim.simulate_reference(system, states.q0, states.dq0, history, task.T)
+            rtol = 1e-12 if tol is None else tol
+            result = sim.simulate_reference(system, states.q0, states.dq0, history, task.T, rtol=rtol, atol=rtol)
             iterations, evaluations = result.steps, result.nfev
+            subdivided = []
         qT, dqT = result.final_state()
         traj = sim.sample(result, system, history, sample_times(task.T, task.rate), joints)
 
@@ -145,6 +167,7 @@ def run(
         if states.q1 is not None:
             final_error = float(max(np.max(np.abs(qT - states.q1)), np.max(np.abs(dqT - states.dq1))))
         summary: dict[str, Any] = json_ready({
+            "integrator": method,
             "method": method,
             "source": str(source),
             "torque": described,
@@ -155,6 +178,7 @@ def run(
             "converged": True,
             "iterations": iterations,
             "evaluations": evaluations,
+            "subdivided": subdivided,
             "wall_time_s": result.wall_time_s,
             "message": result.message,
             "final_state": {"q": qT.tolist(), "dq": dqT.tolist()},
@@ -182,6 +206,21 @@ def run(
         sys.stderr.write(f"hoc: check failed: the final state misses x1 by {miss} > {check:g}\n")
         return EXIT_UNMET
     return EXIT_OK
+
+
+def _integrator(integrator: str | None, method: str | None) -> str:
+    """The integrator from ``--integrator``, or from the deprecated ``--method`` (with a note on stderr)."""
+    if method is not None:
+        if integrator is not None and integrator != method:
+            raise TaskError(f"--integrator {integrator} and the deprecated --method {method} disagree (expected "
+                            "--integrator alone)", key="--method")
+        warn("simulate --method is deprecated and will be removed in the next release; use --integrator "
+             f"{method}")
+    chosen = integrator if integrator is not None else (method if method is not None else "hermite")
+    if chosen not in METHODS:
+        raise TaskError(f"expected one of {', '.join(METHODS)}, got {chosen!r}",
+                        key="--integrator" if integrator is not None else "--method")
+    return chosen
 
 
 # --------------------------------------------------------------------------- sources

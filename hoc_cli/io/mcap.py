@@ -11,6 +11,12 @@ topic                       schema (ROS 2 ``ros2msg``)              content, one
 ``/joint_accelerations``    ``trajectory_msgs/msg/JointTrajectory`` joint_names = joints, one point with
                                                                     accelerations = q̈ [rad/s²|m/s²] and
                                                                     time_from_start = t
+``/joint_trajectory``       ``trajectory_msgs/msg/JointTrajectory`` ONE message at t = 0 (stamp 0: "start
+                                                                    on receipt"): every sample k is a
+                                                                    point with positions = q, velocities
+                                                                    = q̇, accelerations = q̈, effort = u,
+                                                                    time_from_start = t_k; what a ROS 2
+                                                                    joint_trajectory_controller accepts
 ``/tf``                     ``tf2_msgs/msg/TFMessage``              one TransformStamped per URDF joint:
                                                                     child link in its parent link
 =========================== ======================================= ==================================
@@ -45,6 +51,7 @@ from hoc_cli.trajectory import Trajectory
 
 TOPIC_JOINT_STATES = "/joint_states"
 TOPIC_ACCELERATIONS = "/joint_accelerations"
+TOPIC_TRAJECTORY = "/joint_trajectory"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
 TOPIC_TF = "/tf"
 METADATA_NAME = "hoc"
@@ -160,6 +167,19 @@ def relative_transforms(link_poses: LinkPoses, parents: Mapping[str, str], K: in
     return out
 
 
+def trajectory_message(joints: list[str], ns: np.ndarray, arrays: Mapping[str, list]) -> dict:
+    """The ``/joint_trajectory`` message: every sample as a JointTrajectoryPoint.
+
+    ``ns`` (K,) sample times [ns]; ``arrays`` maps q, dq, ddq, u to (K, n) nested lists. The header
+    stamp is 0, which a ROS 2 joint_trajectory_controller reads as "start when received".
+    """
+    points = [{"positions": arrays["q"][k], "velocities": arrays["dq"][k], "accelerations": arrays["ddq"][k],
+               "effort": arrays["u"][k],
+               "time_from_start": {"sec": int(t // 1_000_000_000), "nanosec": int(t % 1_000_000_000)}}
+              for k, t in enumerate(ns.tolist())]
+    return {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "joint_names": joints, "points": points}
+
+
 def hermite_json(traj: Trajectory) -> bytes:
     """The exact Hermite representation of ``traj`` as JSON bytes (see the module docstring)."""
     mesh, C = traj.mesh, np.asarray(traj.coeffs, dtype=float)
@@ -238,6 +258,8 @@ def write_mcap(
         schemas = {name: writer.register_msgdef(name, text) for name, text in MSGDEFS.items()}
         writer.write_message(TOPIC_ROBOT_DESCRIPTION, schemas["std_msgs/msg/String"], {"data": urdf_text},
                              log_time=0, publish_time=0)
+        writer.write_message(TOPIC_TRAJECTORY, schemas["trajectory_msgs/msg/JointTrajectory"],
+                             trajectory_message(joints, ns, arrays), log_time=0, publish_time=0)
         for k in range(K):
             stamp = {"sec": int(ns[k] // 1_000_000_000), "nanosec": int(ns[k] % 1_000_000_000)}
             header = {"stamp": stamp, "frame_id": ""}
