@@ -52,9 +52,15 @@ def test_a_signal_while_outputs_are_written_leaves_no_temporary_file_and_every_o
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert f"hoc: error: {word}; no output was changed" in err
     assert "Traceback" not in err
     assert not list(tmp_path.glob(".*.tmp")), "a temporary output file was left behind"
+    if f"hoc: error: {word}; every output was already written" in err:
+        # on a loaded machine the signal may land after the renames (made with signals blocked): then
+        # every output is complete, none is the earlier file, and the message says so
+        assert all((tmp_path / name).read_bytes() != data for name, data in KEEP.items())
+        assert (tmp_path / "big.csv").read_text().count("\n") == 10 * 1000 + 2  # header + every sample
+        return
+    assert f"hoc: error: {word}; no output was changed" in err
     for name, data in KEEP.items():
         assert (tmp_path / name).read_bytes() == data
 
