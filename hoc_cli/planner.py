@@ -28,6 +28,9 @@ from hoc_cli.problem import ControlProblem
 from hoc_cli.system import System
 
 QUADRATURE_RTOL = 1e-12
+#: outer (augmented-Lagrangian) iterations at a coarse level of the continuation: it only has to give
+#: the next level a start near the limited optimum (measured: 6 halves the torque-cost reach's time)
+COARSE_MAX_OUTER = 6
 BASE_LEVEL = 16  # above this, an even N is planned as the plan at N/2 refined once
 COARSE_TOL = 1e-6  # relative tolerance of the coarse continuation levels (at least the plan's tol)
 
@@ -173,12 +176,13 @@ class _Session:
                                                 level=problem.mesh.N) for h in res.history)
         return res
 
-    def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float):
+    def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int = 40):
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
-        er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working)
+        er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
+                     max_outer=max_outer)
         self.working = er.working
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
@@ -189,7 +193,7 @@ class _Session:
         """One coarse level to max(tol, ``COARSE_TOL``); returns its coefficients."""
         problem = self.problem(mesh, G)
         x0 = problem.initial_guess() if C_start is None else problem.layout.pack(C_start)
-        res, J, _ = self.solve_level(problem, x0, max(tol, COARSE_TOL))
+        res, J, _ = self.solve_level(problem, x0, max(tol, COARSE_TOL), max_outer=COARSE_MAX_OUTER)
         self.levels.append(Level(mesh.N, float(J), False))
         return problem.coefficients(res.x)
 

@@ -34,6 +34,7 @@ from hoc_cli.errors import NumericalError
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
+RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
 RHO_GROWTH = 10.0
 RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
 
@@ -178,7 +179,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     status, message = "not_converged", "the augmented-Lagrangian iteration limit was reached"
     for outer in range(1, max_outer + 1):
         if working.any() and rho is None:
-            rho = rho0 = 1e4 * max(abs(base.evaluate(x, grad=False).J), 1e-6) / mesh.T
+            rho = rho0 = RHO_START * max(abs(base.evaluate(x, grad=False).J), 1e-6) / mesh.T
         terms = LimitTerms(system, limits, rows, working, lam_lo, lam_hi, rho or 1.0, MARGIN)
         problem = base if terms.empty else PenalizedProblem(base, terms)
         res = inner_solve(problem, x, tol)
@@ -207,7 +208,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         if newly.any():
             working = working | newly
             if rho is None:
-                rho = rho0 = 1e4 * max(abs(J), 1e-6) / mesh.T
+                rho = rho0 = RHO_START * max(abs(J), 1e-6) / mesh.T
         excess = pv.max_violation()
         if _DEBUG:
             print(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
