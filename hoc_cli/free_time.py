@@ -222,3 +222,21 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
         return TimePoint(T=T, J=result.J, dJ_dT=plan_time_derivative(result, system, limits), result=result)
 
     return solve
+
+
+def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None,
+                **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
+    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``): warm-started
+    from ``nearest`` rescaled to T, its multipliers and penalty too.
+    """
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals import plan_goals
+
+    def solve(T: float, nearest: TimePoint | None) -> TimePoint:
+        warm = {} if nearest is None else {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
+                                           "terms": nearest.result.terms}
+        result = plan_goals(system, HermiteMesh(order, T, N), q0, dq0, goals, limits=limits, **warm, **plan_options)
+        d = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
+        return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)
+
+    return solve
