@@ -26,7 +26,7 @@ from hoc_cli.goals.residuals import FrameResidual, JointResidual
 from hoc_cli.goals.terms import GoalPoint, GoalTerms
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
 from hoc_cli.planner import QUADRATURE_RTOL, PlanResult, continuation_levels, resample
-from hoc_cli.problem import ControlProblem, Layout, boundary_coefficients, minimum_jerk_guess
+from hoc_cli.problem import ControlProblem, Layout, minimum_jerk_guess
 
 EQ_TOL = 1e-12  # the outer loop stops when every goal row is met to this (m, rad, m/s)
 EQ_COARSE = 1e-6  # … on the coarse levels of the continuation

@@ -71,7 +71,7 @@ class GoalTerms:
         return [(*gp.residual(X[0, i], X[1, i], T), X[0, i], X[1, i]) for i, gp in enumerate(self.points)]
 
     def violation(self, C: np.ndarray) -> float:
-        """max |c| over every row (0 without rows); units of the rows (m, rad, m/s)."""
+        """The largest |c| over every row (0 without rows); units of the rows (m, rad, m/s)."""
         return max([0.0] + [float(np.max(np.abs(r[0]), initial=0.0)) for r in self.residuals(C)])
 
     def multipliers(self, C: np.ndarray) -> list[np.ndarray]:
