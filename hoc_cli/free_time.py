@@ -19,6 +19,7 @@ zero by a bracketing root finder (Brent) or the bound decides. Pure maths: no I/
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -28,6 +29,8 @@ from scipy.optimize import brentq
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.penalty import EFFORT, effective_bounds
+
+WARM_RATIO = 1.25  # goal plans are warm-started from a solved T within this ratio
 
 
 def rescale(C: np.ndarray, T_from: float, T_to: float) -> np.ndarray:
@@ -226,15 +229,20 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
 
 def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None,
                 **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
-    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``): warm-started
-    from ``nearest`` rescaled to T, its multipliers and penalty too.
+    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``).
+
+    Warm-started from ``nearest`` rescaled to T, with its multipliers, when T is within 25 % of it,
+    else solved coarse to fine from the initial guess. The penalty restarts from its default
+    (carrying one grown at another T was measured 2-3× slower on the lbr7 catch).
     """
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.goals import plan_goals
 
     def solve(T: float, nearest: TimePoint | None) -> TimePoint:
-        warm = {} if nearest is None else {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
-                                           "terms": nearest.result.terms}
+        warm = {}
+        if nearest is not None and abs(math.log(T / nearest.T)) <= math.log(WARM_RATIO):
+            warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
+                    "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
         result = plan_goals(system, HermiteMesh(order, T, N), q0, dq0, goals, limits=limits, **warm, **plan_options)
         d = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
         return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)

@@ -209,3 +209,44 @@ def test_matched_velocity_at_a_moving_target():
     p, v = res.target(T)
     assert np.max(np.abs(link_poses(LBR, qN)[FLANGE][:3, 3] - p)) < 1e-9
     assert np.max(np.abs(link_velocity(LBR, qN, dqN, FLANGE)[:3] - v)) < 1e-9
+
+
+@pytest.fixture(scope="module")
+def passing_target():
+    """A target passing the arm at 0.25 m/s (through the flange position at QG at t = 0.8 s)."""
+    v = np.array([0.0, 0.25, 0.0])
+    pc = link_poses(LBR, QG)[FLANGE][:3, 3]
+    res = FrameResidual(LBR, FLANGE, pc - 0.8 * v, velocity=v, match_velocity=True)
+    q1 = inverse_kinematics(res, QG, 0.8, LBR.lower, LBR.upper)
+    return Goals(final=res, q1_guess=q1, dq1_guess=np.zeros(7))
+
+
+def test_goal_envelope_derivative_against_re_solved_optima(passing_target):
+    from hoc_cli.free_time import plan_time_derivative, rescale
+
+    system = RobotSystem(LBR)
+    T, h = 0.4, 1e-4
+    r = plan_goals(system, HermiteMesh("quintic", T, 4), Q0, np.zeros(7), passing_target)
+    d = plan_time_derivative(r, system, goals=r.terms)
+
+    def J(Tn):
+        return plan_goals(system, HermiteMesh("quintic", Tn, 4), Q0, np.zeros(7), passing_target,
+                          C_init=rescale(r.coeffs, T, Tn), terms=r.terms).J
+
+    fd = (J(T + h) - J(T - h)) / (2 * h)
+    assert abs(d - fd) < 1e-6 * abs(fd), (d, fd)
+
+
+def test_catching_a_moving_target_in_a_free_final_time(passing_target):
+    """With gravity the lbr7's covariant J*(T) has an interior minimum at weight 0; the link meets the
+    target's position and velocity at the optimal T."""
+    from hoc_cli.free_time import goal_solver, minimize_time
+
+    system = RobotSystem(LBR)
+    ft = minimize_time(goal_solver(system, "quintic", 4, Q0, np.zeros(7), passing_target), 0.2, 1.2, guess=0.5)
+    assert ft.bound is None and ft.result.converged
+    assert abs(ft.dJ_dT) < 1e-8 * ft.J / ft.T
+    qN, dqN = ft.result.coeffs[-1, 0], ft.result.coeffs[-1, 1]
+    p, v = passing_target.final.target(ft.T)
+    assert np.max(np.abs(PinocchioOracle(LBR).link_pose(qN, FLANGE)[:3, 3] - p)) < 1e-9
+    assert np.max(np.abs(link_velocity(LBR, qN, dqN, FLANGE)[:3] - v)) < 1e-9

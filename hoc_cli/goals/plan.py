@@ -167,7 +167,8 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                eq_tol: float = EQ_TOL, max_outer: int = 30) -> GoalResult:
     """Solve the optimal-control problem with ``goals`` on ``mesh`` (see the module docstring).
 
-    ``terms`` warm-starts the multipliers and ρ (e.g. from the plan of a nearby T). The outer
+    ``terms`` warm-starts the multipliers and ρ (e.g. from the plan of a nearby T; ρ <= 0: the
+    default ρ = 10·|J| of the starting trajectory). The outer
     loop stops when every row is met to ``eq_tol`` after a converged inner solve; ρ grows ×10
     whenever max |c| did not fall to a quarter.
     """
@@ -205,8 +206,6 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float):
         terms = terms.on(problem.mesh)
         prev, er = math.inf, None
-        if terms.rho <= 0 or not np.isfinite(terms.rho):
-            terms = dataclasses.replace(terms, rho=1.0)
         for _ in range(max_outer):
             totals["outer"] += 1
             pen = problem if not problem.points else GoalPenalized(problem, terms)
@@ -235,9 +234,10 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
         return GoalProblem(system, level, q0, dq0, goals, cost=cost, G=G_level)
 
     probe = build(mesh, G)
-    if terms is None:
+    if terms is None or terms.rho <= 0:
         J0 = probe.value(probe.initial_guess() if C_init is None else probe.layout.pack(C_init))
-        terms = GoalTerms.start(mesh, probe.points, rho=RHO0 * max(abs(J0), 1e-6))
+        rho = RHO0 * max(abs(J0), 1e-6)
+        terms = GoalTerms.start(mesh, probe.points, rho) if terms is None else dataclasses.replace(terms, rho=rho)
     if C_init is None and continuation:
         coarse_mesh, C_coarse = None, None
         for N in continuation_levels(mesh.N)[:-1]:
