@@ -268,25 +268,41 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                       violation=violation, outer_iterations=totals["outer"], goals=goals)
 
 
+def _pose_rows(residual: FrameResidual, q: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """IK rows: (p − p̄(T), vec(R − R̄)) (3 or 12,) and their Jacobian; smooth, zero only at the pose,
+    and with a nonzero Jacobian even half a turn away (where any function of the angle is stationary).
+    """
+    from hoc_cli.dynamics import frame_jacobian
+    from hoc_cli.goals.residuals import _GENERATORS
+
+    p, R = residual.pose(q)
+    J = frame_jacobian(residual.model, q, residual.link)
+    rows, jac = [p - residual.target(T)[0]], [J[:3]]
+    if residual.orientation is not None:
+        rows.append((R - residual.orientation).ravel())
+        dR = np.einsum("kij,jl->kil", _GENERATORS, R).reshape(3, 9)  # vec([e_k]× R)
+        jac.append(dR.T @ J[3:])
+    return np.concatenate(rows), np.vstack(jac)
+
+
 def inverse_kinematics(residual: FrameResidual, q_seed, T: float, lower=None, upper=None,
                        max_iter: int = 200, tol: float = 1e-12) -> np.ndarray:
-    """A joint position q (n,) with the link at the residual's pose at time T (position, orientation rows).
+    """A joint position q (n,) with the link at the residual's pose at time T (position, orientation).
 
-    Damped least squares (Levenberg-Marquardt with a fixed damping 1e-6·‖J‖²) from ``q_seed``,
-    clipped to [lower, upper]; returns the last iterate (check its residual: it may not reach the pose).
+    Damped least squares (Levenberg-Marquardt with a fixed damping 1e-6·‖J‖²) on ``_pose_rows`` from
+    ``q_seed``, at most 0.5 rad per step, clipped to [lower, upper]; returns the last iterate (check
+    its residual: the pose may be out of reach).
     """
-    static = dataclasses.replace(residual, match_velocity=False)
     q = np.array(q_seed, float)
     n = q.size
     lo = np.full(n, -np.inf) if lower is None else np.asarray(lower, float)
     hi = np.full(n, np.inf) if upper is None else np.asarray(upper, float)
-    zero = np.zeros(n)
     for _ in range(max_iter):
-        c, J, _, _ = static(q, zero, T)
+        c, J = _pose_rows(residual, q, T)
         if np.max(np.abs(c)) <= tol:
             break
         damping = 1e-6 * float(np.sum(J * J)) + 1e-12
-        step = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(J.shape[0]), c)
-        scale = min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))  # at most 0.5 rad per step
+        step = np.linalg.solve(J.T @ J + damping * np.eye(n), J.T @ c)
+        scale = min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))
         q = np.clip(q - scale * step, lo, hi)
     return q

@@ -10,10 +10,10 @@ Frames (``hoc_cli.dynamics.kinematics``): p(q) (3,) the link origin and R(q) (3,
 the root-link frame; J(q) (6, n) the frame Jacobian, rows 0:3 ∂p/∂q, rows 3:6 the angular part
 (δθ = J_ω δq, a rotation δR = [δθ]× R). The orientation residual is
 
-    e = ½ vee(A − Aᵀ),  A = R R̄ᵀ,   so e = sin θ · axis of the rotation from R̄ to R (root frame),
+    e = vee(A − Aᵀ) / √(1 + tr A),  A = R R̄ᵀ,   so e = 2 sin(θ/2) · axis of the rotation from R̄ to R,
 
-zero at R = R̄; its derivative is ∂e/∂q = ½ (tr A · I − A) J_ω (from vee([w]× A + Aᵀ[w]×) =
-(tr A · I − A) w), which is J_ω at the goal. A target moving with constant acceleration a is at
+zero only at R = R̄ (``orientation_residual``; ½ vee(A − Aᵀ) = sin θ · axis would vanish at θ = π
+too); ∂e/∂q = (∂e/∂δθ) J_ω, which is J_ω at the goal. A target moving with constant acceleration a is at
 p̄(T) = p0 + v0 T + ½ a T², with velocity v̄(T) = v0 + a T.
 """
 from __future__ import annotations
@@ -41,6 +41,26 @@ def rotation_angle(R: np.ndarray, R_goal: np.ndarray) -> float:
     s = 0.5 * np.linalg.norm([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1]])
     c = 0.5 * (np.trace(A) - 1.0)
     return float(np.arctan2(s, c))
+
+
+_GENERATORS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                        [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                        [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], float)  # [e_k]×
+
+
+def orientation_residual(R: np.ndarray, R_goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(e (3,), ∂e/∂δθ (3, 3)): e = vee(A − Aᵀ)/√(1 + tr A) = 2 sin(θ/2)·axis, A = R R̄ᵀ (root frame).
+
+    Zero only at R = R̄ (θ = 0; the rotation by π is a pole, not a spurious zero); ≈ θ·axis near the
+    goal. For a rotation δR = [δθ]× R: δA = [δθ]× A, δ vee(A − Aᵀ) = (tr A·I − A) δθ and
+    δ tr A = tᵀδθ with t_k = tr([e_k]× A), so ∂e/∂δθ = (tr A·I − A)/g − f tᵀ/(2g³), f = vee(A − Aᵀ), g = √(1 + tr A).
+    """
+    A = R @ R_goal.T
+    f = np.array([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1]])
+    tr = np.trace(A)
+    g = np.sqrt(max(1.0 + tr, 1e-12))
+    t = np.einsum("kij,ji->k", _GENERATORS, A)
+    return f / g, (tr * np.eye(3) - A) / g - np.outer(f, t) / (2 * g**3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,9 +132,9 @@ class FrameResidual:
         cq.append(J[:3])
         cv.append(np.zeros((3, n)))
         if self.orientation is not None:
-            A = R @ self.orientation.T
-            c.append(0.5 * np.array([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1]]))
-            cq.append(0.5 * (np.trace(A) * np.eye(3) - A) @ J[3:])
+            e, de = orientation_residual(R, self.orientation)
+            c.append(e)
+            cq.append(de @ J[3:])
             cv.append(np.zeros((3, n)))
             cT.append(np.zeros(3))
         if self.match_velocity:
