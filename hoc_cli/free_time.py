@@ -30,7 +30,7 @@ from scipy.optimize import brentq
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.penalty import EFFORT, effective_bounds
 
-WARM_RATIO = 1.25  # goal plans are warm-started from a solved T within this ratio
+STEP = 1.25  # the search for a bracket moves T by this factor, growing ×1.25 a step up to 2
 
 
 def rescale(C: np.ndarray, T_from: float, T_to: float) -> np.ndarray:
@@ -118,7 +118,8 @@ class TimePoint:
 @dataclass(frozen=True, eq=False)
 class FreeTimeResult:
     """The optimal duration: T [s], J* at T, dJ*/dT there (≈ −weight at an interior optimum),
-    the objective J* + weight·T, which bound is active ("min", "max" or None), every solve made.
+    the objective J* + weight·T, which bound is active ("min", "max" or None), every solve made;
+    ``converged`` False when the search ended at a jump of dJ*/dT (|F'| > 1e-4 relative) instead of F' = 0.
     """
 
     T: float
@@ -129,6 +130,7 @@ class FreeTimeResult:
     bound: str | None
     point: TimePoint
     history: list[TimePoint] = field(default_factory=list)
+    converged: bool = True
 
     @property
     def result(self):
@@ -143,13 +145,14 @@ class _Done(Exception):
 
 
 def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min: float, T_max: float,
-                  guess: float | None = None, weight: float = 0.0, rtol: float = 1e-9,
+                  guess: float | None = None, weight: float = 0.0, rtol: float = 1e-7,
                   max_solves: int = 40) -> FreeTimeResult:
     """Minimise over T ∈ [T_min, T_max] F(T) = J*(T) + weight·T from the derivative F' = dJ*/dT + weight.
 
     ``solve(T, nearest)`` solves the fixed-T problem (``nearest``: the solved point closest to T,
     for a warm start, or None) and returns a ``TimePoint``. From ``guess`` (default √(T_min·T_max))
-    T doubles or halves until F' changes sign or a bound is reached (an active bound: F' < 0 at
+    T grows or shrinks (by 1.25, then 1.56, … up to 2 a step; halfway back after a failed solve)
+    until F' changes sign or a bound is reached (an active bound: F' < 0 at
     T_max or F' > 0 at T_min); Brent's method then finds the zero of F' in the bracket, stopping
     when |F'| <= rtol·(|J*|/T + |weight|) or the bracket is narrower than rtol·T.
     """
@@ -169,6 +172,9 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
         history.append(p)
         return p
 
+    def converged(p: TimePoint) -> bool:
+        return bool(getattr(p.result, "converged", True))
+
     def slope(p: TimePoint) -> float:
         return p.dJ_dT + weight
 
@@ -176,25 +182,32 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
         return abs(slope(p)) <= rtol * (abs(p.J) / p.T + abs(weight))
 
     def finish(p: TimePoint, bound: str | None) -> FreeTimeResult:
+        ok = bound is not None or small(p) or abs(slope(p)) <= 1e-4 * (abs(p.J) / p.T + abs(weight))
         return FreeTimeResult(T=p.T, J=p.J, dJ_dT=p.dJ_dT, objective=p.J + weight * p.T, weight=weight,
-                              bound=bound, point=p, history=history)
+                              bound=bound, point=p, history=history, converged=ok)
 
     T0 = math.sqrt(T_min * T_max) if guess is None else min(max(guess, T_min), T_max)
     p = at(T0)
     if small(p):
         return finish(p, None)
     up = slope(p) < 0
+    factor = STEP
     while True:
         if up and p.T >= T_max:
             return finish(p, "max")
         if not up and p.T <= T_min:
             return finish(p, "min")
-        prev, p = p, at(p.T * 2.0 if up else p.T / 2.0)
+        prev, p = p, at(p.T * factor if up else p.T / factor)
+        for _ in range(3):  # a solve that failed (a far warm start): step back halfway
+            if converged(p):
+                break
+            p = at(math.sqrt(prev.T * p.T))
         if small(p):
             return finish(p, None)
         if (slope(p) > 0) == up:  # the sign changed: a bracket
             lo, hi = (prev, p) if up else (p, prev)
             break
+        factor = min(factor * STEP, 2.0)
 
     def f(T: float) -> float:
         q = at(T)
@@ -231,16 +244,17 @@ def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None,
                 **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
     """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``).
 
-    Warm-started from ``nearest`` rescaled to T, with its multipliers, when T is within 25 % of it,
-    else solved coarse to fine from the initial guess. The penalty restarts from its default
-    (carrying one grown at another T was measured 2-3× slower on the lbr7 catch).
+    Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
+    from the initial guess): solves from scratch at distant T may land in other local minima, and
+    J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
+    measured 2-3× slower on the lbr7 catch).
     """
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.goals import plan_goals
 
     def solve(T: float, nearest: TimePoint | None) -> TimePoint:
         warm = {}
-        if nearest is not None and abs(math.log(T / nearest.T)) <= math.log(WARM_RATIO):
+        if nearest is not None:
             warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
                     "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
         result = plan_goals(system, HermiteMesh(order, T, N), q0, dq0, goals, limits=limits, **warm, **plan_options)

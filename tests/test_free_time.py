@@ -32,7 +32,7 @@ def test_rest_to_rest_free_time_matches_the_closed_form(order, weight):
     """
     D = 1.0
     solve = joint_goal_solver(LinearOscillator(1, omega=0.0), order, 4, [0.0], [0.0], [D], [0.0])
-    r = minimize_time(solve, 0.3, 5.0, guess=1.0, weight=weight)
+    r = minimize_time(solve, 0.3, 5.0, guess=1.0, weight=weight, rtol=1e-10)
     T_star = (18 * D**2 / weight) ** 0.25
     assert r.bound is None
     assert abs(r.T / T_star - 1) < 1e-8
@@ -100,7 +100,7 @@ def test_free_time_with_an_active_limit_approaches_the_analytic_optimum():
     D, v, w = 1.0, 1.3, 28.0
     limits = JointLimits.from_arrays(system.joint_names, velocity=[v])
     r = minimize_time(joint_goal_solver(system, "quintic", 32, [0.0], [0.0], [D], [0.0], limits=limits),
-                      0.5, 3.0, guess=1.5, weight=w)
+                      0.5, 3.0, guess=1.5, weight=w, rtol=1e-10)
     T_star = D / v + np.sqrt(8 * v**2 / (9 * w))
     assert r.bound is None and r.result.limits.status == "converged"
     assert abs(r.T / T_star - 1) < 1e-4
@@ -120,7 +120,7 @@ def test_gravity_gives_an_interior_optimum_at_zero_weight():
     """Pendulum held away from hanging (1 → 1.5 rad): short moves cost ~1/T³, holding costs ~T."""
     system = RobotSystem(load_robot(ROBOTS / "pendulum.urdf"))
     bc = ([1.0], [0.0], [1.5], [0.0])
-    r = minimize_time(joint_goal_solver(system, "quintic", 8, *bc), 0.2, 3.0, weight=0.0)
+    r = minimize_time(joint_goal_solver(system, "quintic", 8, *bc), 0.2, 3.0, weight=0.0, rtol=1e-10)
     assert r.bound is None
     assert abs(r.dJ_dT) < 1e-8 * r.J / r.T
     for f in (0.99, 1.01):  # a local minimum of J*(T) (warm-started neighbours on the same branch)

@@ -243,7 +243,8 @@ def test_catching_a_moving_target_in_a_free_final_time(passing_target):
     from hoc_cli.free_time import goal_solver, minimize_time
 
     system = RobotSystem(LBR)
-    ft = minimize_time(goal_solver(system, "quintic", 4, Q0, np.zeros(7), passing_target), 0.2, 1.2, guess=0.5)
+    ft = minimize_time(goal_solver(system, "quintic", 4, Q0, np.zeros(7), passing_target), 0.2, 1.2, guess=0.5,
+                       rtol=1e-10)
     assert ft.bound is None and ft.result.converged
     assert abs(ft.dJ_dT) < 1e-8 * ft.J / ft.T
     qN, dqN = ft.result.coeffs[-1, 0], ft.result.coeffs[-1, 1]

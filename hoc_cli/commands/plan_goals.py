@@ -6,6 +6,9 @@ against the model, joint values in model order), picks the solver and reports ``
 """
 from __future__ import annotations
 
+import dataclasses
+import time
+
 import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity
@@ -94,9 +97,11 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
                                    limits=limits, **options)
     else:
         solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits, **options)
+    start = time.perf_counter()
     ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
-    return ft.result, {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
-                       "T_bound": ft.bound, "T_solves": len(ft.history)}
+    result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search
+    return result, {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
+                       "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged}
 
 
 def goal_summary(model, result, goals: Goals | None) -> dict:

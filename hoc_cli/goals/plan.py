@@ -204,31 +204,39 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
         return res
 
     def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float):
-        terms = terms.on(problem.mesh)
-        prev, er = math.inf, None
-        for _ in range(max_outer):
-            totals["outer"] += 1
-            pen = problem if not problem.points else GoalPenalized(problem, terms)
-            if limited:
-                er = enforce(pen, system, limits, x, tol_level, inner, working=carry["working"])
-                carry["working"] = er.working
-                res = dataclasses.replace(er.inner, x=er.x)
-                x = er.x
-            else:
-                res = inner(pen, x, tol_level)
+        """One mesh: the limits' outer loop (``enforce``) around the goal rows' loop around ``inner``.
+
+        The goal multipliers live in ``pen.terms`` and carry over between the limits' iterations.
+        """
+        pen = GoalPenalized(problem, terms.on(problem.mesh)) if problem.points else problem
+
+        def goal_inner(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
+            prev = math.inf
+            for _ in range(max_outer):
+                totals["outer"] += 1
+                res = inner(p, x, tol_inner)
                 x = res.x
-                if problem.points and res.converged:
-                    x = _polish(pen, x)
-            if not problem.points:
-                break
-            C = problem.coefficients(x)
-            violation = terms.violation(C)
-            if (violation <= eq_level and res.converged) or res.status is Status.MAX_ITER:
-                break
-            rho = terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
-            prev = violation
-            terms = dataclasses.replace(terms, lam=terms.multipliers(C), rho=rho)
-        return x, res, er, terms
+                if not problem.points:
+                    return res
+                if res.converged:
+                    x = _polish(p, x)
+                C = problem.coefficients(x)
+                violation = pen.terms.violation(C)
+                if (violation <= eq_level and res.converged) or res.status is Status.MAX_ITER:
+                    break
+                rho = pen.terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
+                prev = violation
+                pen.terms = dataclasses.replace(pen.terms, lam=pen.terms.multipliers(C), rho=rho)
+            return dataclasses.replace(res, x=x)
+
+        er = None
+        if limited:
+            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"])
+            carry["working"] = er.working
+            res = dataclasses.replace(er.inner, x=er.x)
+        else:
+            res = goal_inner(pen, x, tol_level)
+        return res.x, res, er, pen.terms if problem.points else terms
 
     def build(level: HermiteMesh, G_level: int | None) -> GoalProblem:
         return GoalProblem(system, level, q0, dq0, goals, cost=cost, G=G_level)
