@@ -60,10 +60,18 @@ class Layout:
     free: np.ndarray = field(repr=False)  # (P,) bool over the flattened C
 
     @classmethod
-    def build(cls, mesh: HermiteMesh, n: int) -> "Layout":
+    def build(cls, mesh: HermiteMesh, n: int, free_q1: bool = False, free_dq1: bool = False,
+              pinned: tuple[tuple[int, int], ...] = ()) -> "Layout":
+        """x0 and x1 fixed; ``free_q1``/``free_dq1`` free the final q/q̇ (end-effector goals);
+        ``pinned`` (node p, derivative d) pairs fixed too (via points at nodes).
+        """
         mask = np.ones((mesh.N + 1, mesh.m, n), dtype=bool)
         mask[0, 0:2] = False
         mask[-1, 0:2] = False
+        mask[-1, 0] = free_q1
+        mask[-1, 1] = free_dq1
+        for p, d in pinned:
+            mask[p, d] = False
         return cls(mesh=mesh, n=n, free=mask.ravel())
 
     @property
@@ -162,10 +170,12 @@ class ControlProblem:
     q0, dq0, q1, dq1 : (n,) boundary states [rad, rad/s]
     cost : "covariant" (½ uᵀM⁻¹u) or "torque" (½ uᵀu)
     G : Gauss points per element (default ``default_gauss_points``)
+    layout : which coefficients are free (default ``Layout.build``: all but x0 and x1); a fixed
+        coefficient takes its value from ``C_fixed`` (x0, x1 here; goals may set more)
     """
 
     def __init__(self, system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, cost: str = "covariant",
-                 G: int | None = None) -> None:
+                 G: int | None = None, layout: Layout | None = None) -> None:
         if cost not in COSTS:
             raise ValueError(f"cost must be one of {COSTS}, got {cost!r}")
         self.system, self.mesh, self.cost = system, mesh, cost
@@ -173,7 +183,7 @@ class ControlProblem:
         self.G = G or default_gauss_points(mesh.order)
         self.op: QuadratureOperator = mesh.quadrature(self.G)
         self.op_h: QuadratureOperator = mesh.quadrature(min(self.G, mesh.m + 3))
-        self.layout = Layout.build(mesh, self.n)
+        self.layout = Layout.build(mesh, self.n) if layout is None else layout
         self.C_fixed = boundary_coefficients(mesh, q0, dq0, q1, dq1)
         self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
         self.n_evals = 0

@@ -29,9 +29,11 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
+from hoc_cli.commands.plan_goals import goal_summary, task_goals
+from hoc_cli.commands.plan_goals import solve as solve_goals
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import InputFileError, OutputError
+from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.limits import dense_times, limit_violations
 from hoc_cli.optimize import check_gradient
@@ -59,11 +61,15 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     refuse_inputs(targets, {"the task": task.path, "the URDF": task.robot, "--init": init})
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
-    check_sample_times(targets, task.T, task.rate, file=task.path)
+    check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)
     model = load_model(task)
     check_columns(targets, model.joint_names)
     urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
+    goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
+    if goals is not None and gradient_check:
+        raise TaskError("--check-gradient checks joint goals in a fixed T (the task has goals: docs/goals.md)",
+                        file=task.path, key="x1")
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
     limits = task_limits(model, states.limits)
@@ -79,6 +85,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         raise OutputError("--init needs a fixed N (the task has N: auto; give -N)", key="--init")
     if auto and starts > 1:
         raise OutputError("--starts needs a fixed N (the task has N: auto; give -N)", key="--starts")
+    if goals is not None and auto:
+        raise TaskError("goals (a link goal, vias or a free T) need a fixed number of elements "
+                        "(expected an integer N >= 1, not auto)", file=task.path, key="N")
+    if goals is not None and starts > 1:
+        raise OutputError("--starts applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
+                          key="--starts")
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
 
@@ -98,7 +110,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     system, enforced = RobotSystem(model), limits if mode == "enforce" else None
     multi = None
     with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
-        if auto:
+        extra: dict = {}
+        error = None
+        if goals is not None:
+            result, extra = solve_goals(task, model, states, goals, enforced, report, C_init=C_init)
+        elif auto:
             found = plan_auto(system, task.order, task.T, states.q0, states.dq0, states.q1, states.dq1,
                               accuracy=task.accuracy, cost=task.cost, method=task.method, tol=task.tol,
                               max_iter=task.max_iter, limits=enforced, callback=report)
@@ -113,9 +129,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                              max_iter=budget, limits=enforced)
     traj = sample_plan(system, result, model.joint_names, task.rate)
     summary = summarise(task, model, result, states)
-    summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
+    if error is not None:  # goals: no estimate yet (docs/goals.md)
+        summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
     summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
     summary.update(starts_summary(multi, seed))
+    summary.update(extra | goal_summary(model, result, goals))
     summary = json_ready(summary)  # an absent limit (inf) is null
     validate_json(summary)  # before any output is written
     with output_transaction():  # every output is replaced, or none
@@ -205,8 +223,10 @@ def summarise(task: Task, model, result: PlanResult, states) -> dict:
     td = dense_times(mesh.T, mesh.N)
     q, dq, ddq = mesh.evaluate_all(C, td)
     u = RobotSystem(model).inverse_dynamics(q, dq, ddq)
-    end = np.concatenate([np.abs(q[0] - states.q0), np.abs(dq[0] - states.dq0),
-                          np.abs(q[-1] - states.q1), np.abs(dq[-1] - states.dq1)])
+    end = [np.abs(q[0] - states.q0), np.abs(dq[0] - states.dq0)]
+    if states.q1 is not None:  # a link goal is reported by goal_summary
+        end += [np.abs(q[-1] - states.q1), np.abs(dq[-1] - states.dq1)]
+    end = np.concatenate(end)
     o = result.optimizer
     return {
         "cost": result.J,
@@ -282,6 +302,8 @@ def summary_table(summary: dict) -> Table:
 
 def _warn_outside_limits(console, task: Task, model, states) -> None:
     for label, q in (("x0.q", states.q0), ("x1.q", states.q1)):
+        if q is None:  # a link goal
+            continue
         for i, name in enumerate(model.joint_names):
             if q[i] < model.lower[i] or q[i] > model.upper[i]:
                 console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "

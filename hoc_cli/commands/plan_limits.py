@@ -36,6 +36,8 @@ def task_limits(model, overrides) -> JointLimits:
 def check_boundary_states(task, limits: JointLimits, states) -> None:
     """In enforce mode x0 and x1 must lie within the position and velocity limits (TaskError, exit 2)."""
     for label, q, dq in (("x0", states.q0, states.dq0), ("x1", states.q1, states.dq1)):
+        if q is None:  # a link goal: its final q is planned within the limits
+            continue
         for i, name in enumerate(limits.joints):
             lo, hi = limits.lower[i], limits.upper[i]
             if not lo <= q[i] <= hi:
@@ -74,7 +76,7 @@ def infeasible_message(limits: JointLimits, check, result: PlanResult, states) -
 
     msg = (f"no trajectory within the limits was found in T = {result.mesh.T:g} s: {limits.joints[j]} "
            f"{KINDS[k]} binds; the least-violating plan was written")
-    bound = shortest_duration(limits, states.q0, states.dq0, states.q1, states.dq1)
+    bound = None if states.q1 is None else shortest_duration(limits, states.q0, states.dq0, states.q1, states.dq1)
     if bound is not None and bound[0] >= result.mesh.T:
         msg += f" (T >= {bound[0]:.6g} s is needed for {bound[1]} {bound[2]})"
     return msg

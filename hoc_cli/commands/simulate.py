@@ -236,6 +236,16 @@ def _task_from_plan(plan, source: Path, scratch: Path) -> Task:
     if not isinstance(doc, dict):
         raise InputFileError("the task attached to this plan is not a mapping of task keys", file=source)
     doc = dict(doc, robot=str(urdf))
+    tr = plan.trajectory
+    if tr.mesh is not None and tr.coeffs is not None:
+        # replay on the plan's own mesh (its T may have been free, its N auto or overridden with -N), and
+        # where its goal was a link pose, check against the joint state the plan reached
+        doc.pop("accuracy", None)
+        doc.update(T=tr.mesh.T, N=tr.mesh.N, order=tr.mesh.order)
+        if isinstance(doc.get("x1"), dict) and "link" in doc["x1"]:
+            C = np.asarray(tr.coeffs)
+            doc["x1"] = {"q": [float(v) for v in tr.mesh.evaluate(C, np.array([tr.mesh.T]), 0)[0]],
+                         "dq": [float(v) for v in tr.mesh.evaluate(C, np.array([tr.mesh.T]), 1)[0]]}
     try:
         return parse_task(doc, path=source, text=plan.task_text, purpose="simulate")
     except TaskError as exc:

@@ -10,6 +10,7 @@ import yaml
 
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task.checks import Checker, Values
+from hoc_cli.io.task.goals import Via, parse_via
 from hoc_cli.io.task.limits import LimitsSpec, parse_limits
 from hoc_cli.io.task.sections import (
     BoundarySpec,
@@ -45,6 +46,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("robot_spec", ("robot", "joints", "locked", "gravity"), parse_robot),
     Section("boundary", ("x0", "x1"), parse_boundary),
     Section("time", ("T", "N", "order", "accuracy"), parse_time),
+    Section("via", ("via",), parse_via),
     Section("cost", ("cost",), parse_cost),
     Section("solver", ("solver",), parse_solver),
     Section("output", ("output",), parse_output),
@@ -71,6 +73,7 @@ class Task:
     output: OutputSpec = field(default_factory=OutputSpec)
     limits: LimitsSpec = field(default_factory=LimitsSpec)
     torque: str | Values | None = None
+    via: tuple[Via, ...] = ()
     text: str = field(default="", repr=False)
 
     @property

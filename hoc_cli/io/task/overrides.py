@@ -69,6 +69,8 @@ def apply_overrides(task: Task, **overrides: Any) -> Task:
     for name, fields in sections.items():
         changes[name] = replace(getattr(task, name), **fields)
     new = replace(task, **changes)
+    if overrides.get("T") is not None and new.time.free is not None:  # --duration fixes a free T
+        new = replace(new, time=replace(new.time, free=None))
     if overrides.get("T") is not None:
         check_samples(c, new.T, new.rate, OVERRIDES["T"].option)
     return new

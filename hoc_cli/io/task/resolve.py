@@ -9,6 +9,7 @@ import numpy as np
 
 from hoc_cli.io.task.checks import Checker, Values, join, show
 from hoc_cli.io.task.document import Task
+from hoc_cli.io.task.goals import LinkGoal
 from hoc_cli.io.task.limits import LimitOverrides, resolve_limits
 
 
@@ -58,7 +59,7 @@ def resolve(task: Task, joints: tuple[str, ...] | list[str]) -> ResolvedStates:
     q0 = _vector(c, task.x0.q, "x0.q", joints)
     dq0 = _vector(c, task.x0.dq, "x0.dq", joints)
     q1 = dq1 = None
-    if task.x1 is not None:
+    if task.x1 is not None and not isinstance(task.x1, LinkGoal):  # a link goal leaves the final state free
         q1 = _vector(c, task.x1.q, "x1.q", joints)
         dq1 = _vector(c, task.x1.dq, "x1.dq", joints)
         dq1 = zeros.copy() if dq1 is None else dq1

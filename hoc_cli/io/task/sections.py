@@ -18,6 +18,7 @@ from typing import Any
 
 from hoc_cli.costs import COSTS
 from hoc_cli.io.task.checks import Checker, Values, join, show
+from hoc_cli.io.task.goals import FreeTime, LinkGoal, parse_free_time, parse_link_goal
 
 ORDERS = ("quintic", "cubic")
 METHODS = ("pr-cg", "newton")
@@ -154,7 +155,7 @@ class BoundarySpec:
     """The start state x0 and the goal x1 (None: no goal, allowed for ``hoc simulate``)."""
 
     x0: State
-    x1: State | None = None
+    x1: State | LinkGoal | None = None
 
 
 def _state(c: Checker, value: Any, key: str) -> State:
@@ -166,8 +167,10 @@ def _state(c: Checker, value: Any, key: str) -> State:
     return State(q=q, dq=dq)
 
 
-def _goal(c: Checker, value: Any, key: str) -> State:
-    """The goal x1: a joint state (an end-effector goal ``{link: ...}`` would branch here)."""
+def _goal(c: Checker, value: Any, key: str) -> State | LinkGoal:
+    """The goal x1: a joint state, or a link's pose ``{link: ...}`` (``hoc_cli.io.task.goals``)."""
+    if isinstance(value, dict) and "link" in value:
+        return parse_link_goal(c, value, key)
     return _state(c, value, key)
 
 
@@ -188,12 +191,14 @@ class TimeSpec:
 
     N is None for ``N: auto`` (also when the task gives no N): the mesh is refined until the
     estimated relative error of J is at most ``accuracy`` (None with a fixed N).
+    With ``free`` (``T: {free: true, ...}``) T is the starting duration of the search.
     """
 
     T: float
     N: int | None
     order: str = "quintic"
     accuracy: float | None = None
+    free: FreeTime | None = None
 
 
 def check_accuracy(c: Checker, value: Any, key: str) -> float:
@@ -216,7 +221,16 @@ def _mesh(c: Checker, top: dict) -> tuple[int | None, float | None]:
 
 
 def parse_time(c: Checker, top: dict, parsed: dict) -> TimeSpec:
-    """``T`` (a fixed duration; a free T would be the mapping branch here), ``N`` and ``accuracy``, ``order``."""
+    """``T`` (a fixed duration, or ``{free: true, min, max, guess, weight}``), ``N`` (or ``auto``) with
+    ``accuracy``, ``order``.
+    """
+    if isinstance(top["T"], dict):
+        free = parse_free_time(c, top["T"], "T")
+        T = free.guess if free.guess is not None else (free.min * free.max) ** 0.5
+        if top.get("N", "auto") == "auto":
+            raise c.error("N", "a free T needs a fixed number of elements (expected an integer N >= 1, not auto)")
+        return TimeSpec(T=T, N=check_N(c, top["N"], "N"), order=check_order(c, top.get("order", "quintic"), "order"),
+                        free=free)
     T = check_T(c, top["T"], "T")
     N, accuracy = _mesh(c, top)
     order = check_order(c, top.get("order", "quintic"), "order")
@@ -265,7 +279,8 @@ def parse_output(c: Checker, top: dict, parsed: dict) -> OutputSpec:
         o = c.mapping(top["output"], "output", OUTPUT_KEYS)
         if "rate" in o:
             out = OutputSpec(rate=check_rate(c, o["rate"], "output.rate"))
-    check_samples(c, parsed["time"].T, out.rate, "output.rate")
+    time = parsed["time"]
+    check_samples(c, time.T if time.free is None else time.free.max, out.rate, "output.rate")
     return out
 
 

@@ -1,0 +1,141 @@
+"""``hoc plan``'s goals: the task's link goal, vias and free T as ``Goals``, the solve, the summary keys.
+
+The maths is in ``hoc_cli.goals`` and ``hoc_cli.free_time``; this module reads the task (link names
+against the model, joint values in model order), picks the solver and reports ``T``, ``dJ_dT``,
+``final_q``, ``reached`` (the link's pose, and velocity for a moving target) and ``vias`` (docs/goals.md).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.errors import TaskError
+from hoc_cli.free_time import goal_solver, joint_goal_solver, minimize_time
+from hoc_cli.goals import (
+    FrameResidual,
+    GoalPoint,
+    Goals,
+    JointResidual,
+    inverse_kinematics,
+    plan_goals,
+    quaternion_matrix,
+    rotation_angle,
+)
+from hoc_cli.io.task import Task
+from hoc_cli.io.task.checks import Checker
+from hoc_cli.io.task.goals import LinkGoal
+from hoc_cli.io.task.resolve import _vector
+from hoc_cli.system import RobotSystem
+
+
+def has_goals(task: Task) -> bool:
+    """Whether the task needs more than ``hoc_cli.planner.plan``: a link goal, vias or a free T."""
+    return isinstance(task.x1, LinkGoal) or bool(task.via) or task.time.free is not None
+
+
+def _frame(task: Task, model, link: str, key: str, position, orientation, target=None,
+           match: bool = False) -> FrameResidual:
+    if link not in model.link_names:
+        raise TaskError(f"unknown link {link[:60]!r} (links: {', '.join(model.link_names)})", file=task.path, key=key)
+    R = None if orientation is None else quaternion_matrix(orientation)
+    if target is not None:
+        return FrameResidual(model, link, np.array(target.position), R, np.array(target.velocity),
+                             np.array(target.acceleration), match_velocity=match)
+    return FrameResidual(model, link, np.array(position, float), R)
+
+
+def task_goals(task: Task, model, states) -> Goals | None:
+    """The task's goals in model joint order, or None for a joint goal in a fixed T (plain ``plan``).
+
+    A link goal's initial final state comes from inverse kinematics at T (from x0, within the
+    position limits); with ``match_velocity`` its q̇ is the least-squares joint rate of the target's velocity.
+    """
+    if not has_goals(task):
+        return None
+    c = Checker(task.path)
+    joints = tuple(model.joint_names)
+    T = task.T
+    vias = []
+    for i, v in enumerate(task.via):
+        s = v.s if v.s is not None else v.t / T
+        if v.q is not None:
+            dq = _vector(c, v.dq, f"via[{i}].dq", joints)
+            vias.append(GoalPoint(s, JointResidual(_vector(c, v.q, f"via[{i}].q", joints), dq), f"via[{i}]"))
+        else:
+            vias.append(GoalPoint(s, _frame(task, model, v.link, f"via[{i}].link", v.position, v.orientation),
+                                  f"via[{i}]"))
+    if not isinstance(task.x1, LinkGoal):
+        return Goals(q1=states.q1, dq1=states.dq1, vias=tuple(vias))
+    g = task.x1
+    final = _frame(task, model, g.link, "x1.link", g.position, g.orientation, g.target, g.match_velocity)
+    q1 = inverse_kinematics(final, states.q0, T, model.lower, model.upper)
+    dq1 = None
+    if g.match_velocity:
+        dq1 = np.linalg.pinv(frame_jacobian(model, q1, g.link)[:3]) @ final.target(T)[1]
+    return Goals(final=final, final_dq=g.dq, vias=tuple(vias), q1_guess=q1, dq1_guess=dq1)
+
+
+def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None):
+    """(PlanResult, summary keys) for a task with goals: ``plan_goals`` at T (from ``C_init`` when given,
+    ``--init``), or the free-T search (its first solve from the initial guess).
+    """
+    system = RobotSystem(model)
+    options = {"cost": task.cost, "method": task.method, "tol": task.tol, "max_iter": task.max_iter,
+               "callback": callback}
+    plain = goals.final is None and not goals.vias
+    free = task.time.free
+    if free is None:
+        result = plan_goals(system, HermiteMesh(task.order, task.T, task.N), states.q0, states.dq0, goals,
+                            limits=limits, C_init=C_init, **options)
+        return result, {}
+    if plain:
+        solver = joint_goal_solver(system, task.order, task.N, states.q0, states.dq0, states.q1, states.dq1,
+                                   limits=limits, **options)
+    else:
+        solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits, **options)
+    start = time.perf_counter()
+    ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
+    result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search
+    return result, {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
+                       "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged}
+
+
+def goal_summary(model, result, goals: Goals | None) -> dict:
+    """``final_q`` and, per link goal or via, the reached pose and its error (m, rad, m/s)."""
+    if goals is None:
+        return {}
+    mesh, C = result.mesh, result.coeffs
+    names = list(model.joint_names)
+    out: dict = {"final_q": dict(zip(names, (float(v) for v in C[-1, 0])))}
+
+    def reached(res: FrameResidual, q, dq) -> dict:
+        P = link_poses(model, q)[res.link]
+        p, v = res.target(mesh.T)
+        d = {"link": res.link, "position": [float(x) for x in P[:3, 3]],
+             "position_error": float(np.max(np.abs(P[:3, 3] - p)))}
+        if res.orientation is not None:
+            d["orientation_error"] = rotation_angle(P[:3, :3], res.orientation)
+        if res.match_velocity:
+            V = link_velocity(model, q, dq, res.link)[:3]
+            d["velocity"] = [float(x) for x in V]
+            d["velocity_error"] = float(np.max(np.abs(V - v)))
+        return d
+
+    if goals.final is not None:
+        out["reached"] = reached(goals.final, C[-1, 0], C[-1, 1])
+    vias = []
+    for gp in goals.vias:
+        t = gp.s * mesh.T
+        q, dq = (mesh.evaluate(C, np.array([t]), r)[0] for r in (0, 1))
+        if isinstance(gp.residual, JointResidual):
+            err = float(np.max(np.abs(gp.residual(q, dq, mesh.T)[0])))
+            vias.append({"t": float(t), "error": err})
+        else:
+            vias.append({"t": float(t), **reached(gp.residual, q, dq)})
+    if vias:
+        out["vias"] = vias
+    return out

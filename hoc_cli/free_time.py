@@ -1,0 +1,264 @@
+"""Free final time: minimise J*(T) + weight·T over T ∈ [T_min, T_max], with the exact dJ*/dT.
+
+J*(T) is the optimal cost of the fixed-T problem (``hoc_cli.planner.plan``, or the goal planner
+of ``hoc_cli.goals``), limits and goals included. The time axis is scaled: with s = t/T ∈ [0, 1]
+fixed, a Hermite coefficient of derivative order d (q, q̇, q̈ at a node) is (T₀/T)^d times its
+s-domain value, so a plan for T₀ becomes a plan for T by ``rescale``, the warm start of the next
+solve. Along this family (coefficients fixed by the task, such as x0's q̇, stay in the t domain)
+the envelope theorem gives the derivative of J* as the partial derivative of the Lagrangian:
+
+    dJ*/dT = (1/T) Σ_k w_k [L − ∂L/∂q̇·q̇ − 2 ∂L/∂q̈·q̈]                         (cost)
+           + Σ μ ∂g/∂T  over the limit rows (∂V_r/∂T = −r V_r/T for d^r q/dt^r rows,
+             ∂u/∂T = −(∂u/∂q̇·q̇ + 2 M q̈)/T for torque points)                 (limits)
+           + Σ μ_e ∂c_e/∂T  over the goal rows (``hoc_cli.goals``)                (goals)
+           + (1/T) Σ_{fixed, d ≥ 1} d·C[p, d]·∂ℒ/∂C[p, d]                       (fixed q̇, q̈)
+
+with the samples k at the Gauss points (weights w_k [s]), L the integrand, μ the multipliers.
+The outer problem is one-dimensional: its derivative F'(T) = dJ*/dT + weight is brought to
+zero by a bracketing root finder (Brent) or the bound decides. Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import brentq
+
+from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.penalty import EFFORT, effective_bounds
+
+STEP = 1.25  # the search for a bracket moves T by this factor, growing ×1.25 a step up to 2
+
+
+def rescale(C: np.ndarray, T_from: float, T_to: float) -> np.ndarray:
+    """Coefficients (N+1, m, n) of the same s-domain trajectory on [0, T_to]: C[:, d] · (T_from/T_to)^d."""
+    C = np.asarray(C, float)
+    factor = (T_from / T_to) ** np.arange(C.shape[1])
+    return C * factor[None, :, None]
+
+
+def cost_time_derivative(problem, C: np.ndarray) -> tuple[float, np.ndarray]:
+    """(∂J/∂T at fixed s-domain coefficients, ∂J/∂C (N+1, m, n) over every coefficient) for a ControlProblem."""
+    op = problem.op
+    q, dq, ddq = op.apply(C)
+    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+    w = op.w
+    dT = float(np.dot(w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq)))
+    W = w[:, None]
+    return dT / problem.mesh.T, op.transpose(W * s.gq, W * s.gdq, W * s.gddq)
+
+
+def limits_time_derivative(enforced, system, limits, C: np.ndarray) -> tuple[float, np.ndarray]:
+    """(Σ μ ∂g/∂T, Σ μ ∂g/∂C (N+1, m, n)) of the limit rows of an ``EnforceResult`` at coefficients C.
+
+    μ are the multipliers of the last outer iteration (``enforced.penalty``); zero without limits.
+    """
+    rows, pv = enforced.rows, enforced.penalty
+    mesh = rows.mesh
+    G = np.zeros_like(np.asarray(C, float))
+    if pv is None:
+        return 0.0, G
+    _, _, sig = effective_bounds(limits, MARGIN)
+    loc = mesh.local_coefficients(C)
+    gloc = np.zeros_like(loc)
+    dT = 0.0
+    for k in range(len(pv.mu_lo)):
+        lam = (pv.mu_hi[k] - pv.mu_lo[k]) / sig[k]  # ∂(Σ μ g)/∂V
+        if not np.any(lam):
+            continue
+        if k == EFFORT:
+            X = rows.points.apply(C)
+            _, gq, gdq, gddq = system.id_vjp(X[0], X[1], X[2], lam)
+            dT -= float(np.sum(gdq * X[1]) + 2 * np.sum(gddq * X[2])) / mesh.T
+            G += rows.points.transpose(np.stack([gq, gdq, gddq]))
+        else:
+            V = rows.apply(k, loc)
+            dT -= k * float(np.sum(lam * V)) / mesh.T
+            gloc += np.einsum("ra,ern->ean", rows.rows[k], lam)
+    return dT, G + rows.to_coefficients(gloc)
+
+
+def fixed_coefficient_correction(free: np.ndarray, C: np.ndarray, G: np.ndarray, T: float) -> float:
+    """(1/T) Σ d·C[p, d]·G[p, d] over the fixed coefficients of derivative order d ≥ 1 (they keep their
+    t-domain values while the scaled family would move them by −d·C/T). free (P,) bool, C, G (N+1, m, n).
+    """
+    d = np.arange(C.shape[1])[None, :, None] * np.ones_like(C)
+    fixed = ~free.reshape(C.shape)
+    return float(np.sum(np.where(fixed, d * C * G, 0.0))) / T
+
+
+def plan_time_derivative(result, system, limits=None, goals=None) -> float:
+    """dJ*/dT of a ``PlanResult`` (its problem, coefficients, limits outcome; ``goals`` the goal terms
+    with their multipliers, an object with ``time_derivative(C, T) -> (dT, G)``, or None).
+    """
+    problem, C = result.problem, result.coeffs
+    dT, G = cost_time_derivative(problem, C)
+    if result.limits is not None and limits is not None:
+        dl, Gl = limits_time_derivative(result.limits, system, limits, C)
+        dT, G = dT + dl, G + Gl
+    if goals is not None:
+        dg, Gg = goals.time_derivative(C, result.mesh.T)
+        dT, G = dT + dg, G + Gg
+    return dT + fixed_coefficient_correction(problem.layout.free, C, G, result.mesh.T)
+
+
+@dataclass(frozen=True, eq=False)
+class TimePoint:
+    """One solve of the fixed-T problem: T [s], J*(T), dJ*/dT, and the solver's result."""
+
+    T: float
+    J: float
+    dJ_dT: float
+    result: object
+
+
+@dataclass(frozen=True, eq=False)
+class FreeTimeResult:
+    """The optimal duration: T [s], J* at T, dJ*/dT there (≈ −weight at an interior optimum),
+    the objective J* + weight·T, which bound is active ("min", "max" or None), every solve made;
+    ``converged`` False when the search ended at a jump of dJ*/dT (|F'| > 1e-4 relative) instead of F' = 0.
+    """
+
+    T: float
+    J: float
+    dJ_dT: float
+    objective: float
+    weight: float
+    bound: str | None
+    point: TimePoint
+    history: list[TimePoint] = field(default_factory=list)
+    converged: bool = True
+
+    @property
+    def result(self):
+        return self.point.result
+
+
+class _Done(Exception):
+    """Raised inside the root finder when |F'(T)| is already small enough."""
+
+    def __init__(self, point: TimePoint) -> None:
+        self.point = point
+
+
+def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min: float, T_max: float,
+                  guess: float | None = None, weight: float = 0.0, rtol: float = 1e-7,
+                  max_solves: int = 40) -> FreeTimeResult:
+    """Minimise over T ∈ [T_min, T_max] F(T) = J*(T) + weight·T from the derivative F' = dJ*/dT + weight.
+
+    ``solve(T, nearest)`` solves the fixed-T problem (``nearest``: the solved point closest to T,
+    for a warm start, or None) and returns a ``TimePoint``. From ``guess`` (default √(T_min·T_max))
+    T grows or shrinks (by 1.25, then 1.56, … up to 2 a step; halfway back after a failed solve)
+    until F' changes sign or a bound is reached (an active bound: F' < 0 at
+    T_max or F' > 0 at T_min); Brent's method then finds the zero of F' in the bracket, stopping
+    when |F'| <= rtol·(|J*|/T + |weight|) or the bracket is narrower than rtol·T.
+    """
+    if not (0 < T_min <= T_max):
+        raise ValueError(f"need 0 < T_min <= T_max, got {T_min}, {T_max}")
+    history: list[TimePoint] = []
+
+    def at(T: float) -> TimePoint:
+        T = float(min(max(T, T_min), T_max))
+        for p in history:
+            if p.T == T:
+                return p
+        if len(history) >= max_solves:
+            raise RuntimeError(f"free final time: no optimum within {max_solves} solves")
+        nearest = min(history, key=lambda p: abs(math.log(p.T / T)), default=None)
+        p = solve(T, nearest)
+        history.append(p)
+        return p
+
+    def converged(p: TimePoint) -> bool:
+        return bool(getattr(p.result, "converged", True))
+
+    def slope(p: TimePoint) -> float:
+        return p.dJ_dT + weight
+
+    def small(p: TimePoint) -> bool:
+        return abs(slope(p)) <= rtol * (abs(p.J) / p.T + abs(weight))
+
+    def finish(p: TimePoint, bound: str | None) -> FreeTimeResult:
+        ok = bound is not None or small(p) or abs(slope(p)) <= 1e-4 * (abs(p.J) / p.T + abs(weight))
+        return FreeTimeResult(T=p.T, J=p.J, dJ_dT=p.dJ_dT, objective=p.J + weight * p.T, weight=weight,
+                              bound=bound, point=p, history=history, converged=ok)
+
+    T0 = math.sqrt(T_min * T_max) if guess is None else min(max(guess, T_min), T_max)
+    p = at(T0)
+    if small(p):
+        return finish(p, None)
+    up = slope(p) < 0
+    factor = STEP
+    while True:
+        if up and p.T >= T_max:
+            return finish(p, "max")
+        if not up and p.T <= T_min:
+            return finish(p, "min")
+        prev, p = p, at(p.T * factor if up else p.T / factor)
+        for _ in range(3):  # a solve that failed (a far warm start): step back halfway
+            if converged(p):
+                break
+            p = at(math.sqrt(prev.T * p.T))
+        if small(p):
+            return finish(p, None)
+        if (slope(p) > 0) == up:  # the sign changed: a bracket
+            lo, hi = (prev, p) if up else (p, prev)
+            break
+        factor = min(factor * STEP, 2.0)
+
+    def f(T: float) -> float:
+        q = at(T)
+        if small(q):
+            raise _Done(q)
+        return slope(q)
+
+    try:
+        root = brentq(f, lo.T, hi.T, xtol=rtol * lo.T, rtol=4 * np.finfo(float).eps, maxiter=max_solves)
+        best = at(root)
+    except _Done as done:
+        best = done.point
+    return finish(best, None)
+
+
+def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=None,
+                      **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
+    """``solve(T, nearest)`` for ``minimize_time`` on a joint goal: ``hoc_cli.planner.plan`` on N elements
+    of [0, T], warm-started from ``nearest`` rescaled to T, and ``plan_time_derivative``.
+    """
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.planner import plan
+
+    def solve(T: float, nearest: TimePoint | None) -> TimePoint:
+        C_init = None if nearest is None else rescale(nearest.result.coeffs, nearest.T, T)
+        result = plan(system, HermiteMesh(order, T, N), q0, dq0, q1, dq1, C_init=C_init, limits=limits,
+                      **plan_options)
+        return TimePoint(T=T, J=result.J, dJ_dT=plan_time_derivative(result, system, limits), result=result)
+
+    return solve
+
+
+def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None,
+                **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
+    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``).
+
+    Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
+    from the initial guess): solves from scratch at distant T may land in other local minima, and
+    J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
+    measured 2-3× slower on the lbr7 catch).
+    """
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals import plan_goals
+
+    def solve(T: float, nearest: TimePoint | None) -> TimePoint:
+        warm = {}
+        if nearest is not None:
+            warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
+                    "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
+        result = plan_goals(system, HermiteMesh(order, T, N), q0, dq0, goals, limits=limits, **warm, **plan_options)
+        d = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
+        return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)
+
+    return solve

@@ -1,0 +1,316 @@
+"""Plans with goals beyond a joint state: a link pose at T (free final q), via points, a moving target.
+
+``Goals`` says what is fixed and what is imposed: the final joint state (``q1``, ``dq1``) or a
+``FrameResidual`` at T with the final q (and q̇ when it is free) released from the ``Layout``;
+via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh node, which are
+pinned in the ``Layout`` (met exactly). Rows that are not pinned enter an augmented Lagrangian
+(``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
+are given (which then sees the goal rows as part of its base problem). Coarse to fine as
+``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
+Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from hoc_cli.constraints import enforce
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.errors import NumericalError
+from hoc_cli.goals.residuals import FrameResidual, JointResidual
+from hoc_cli.goals.terms import GoalPoint, GoalTerms
+from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
+from hoc_cli.planner import QUADRATURE_RTOL, PlanResult, continuation_levels, resample
+from hoc_cli.problem import ControlProblem, Layout, minimum_jerk_guess
+
+EQ_TOL = 1e-12  # the outer loop stops when every goal row is met to this (m, rad, m/s)
+EQ_COARSE = 1e-6  # … on the coarse levels of the continuation
+EQ_ACCEPT = 1e-9  # a plan whose rows are met to this counts as converged
+RHO_GROWTH = 10.0
+RHO0 = 10.0  # ρ = 10·|J| of the initial guess per unit c²: larger starts make curved rows stall the line search
+
+
+@dataclass(frozen=True, eq=False)
+class Goals:
+    """What the plan must meet besides x0.
+
+    q1, dq1 : (n,) a joint goal at T, or None with ``final`` a ``FrameResidual`` at T;
+    final_dq : "zero" (rest at T, the default) or "free" (implied by ``final.match_velocity``);
+    vias : ``GoalPoint`` rows at fractions s of T; q1_guess, dq1_guess : (n,) the final state of
+    the initial trajectory when the final q is free (e.g. ``inverse_kinematics``).
+    """
+
+    q1: np.ndarray | None = None
+    dq1: np.ndarray | None = None
+    final: FrameResidual | None = None
+    final_dq: str = "zero"
+    vias: tuple[GoalPoint, ...] = ()
+    q1_guess: np.ndarray | None = None
+    dq1_guess: np.ndarray | None = None
+
+    @property
+    def free_dq1(self) -> bool:
+        return self.final is not None and (self.final_dq == "free" or self.final.match_velocity)
+
+
+def node_of(s: float, N: int, tol: float = 1e-9) -> int | None:
+    """The interior node p (0 < p < N) at fraction s of the duration, or None when s·N is not an integer."""
+    p = round(s * N)
+    return p if abs(s * N - p) <= tol and 0 < p < N else None
+
+
+class GoalProblem(ControlProblem):
+    """A ``ControlProblem`` with the final q (and q̇) free for a link goal and joint vias on nodes pinned.
+
+    ``points`` lists the rows left to the augmented Lagrangian (the link goal at s = 1, the vias
+    off the nodes and every link via).
+    """
+
+    def __init__(self, system, mesh: HermiteMesh, q0, dq0, goals: Goals, cost: str = "covariant",
+                 G: int | None = None) -> None:
+        n = system.n
+        pinned, points, values = [], [], []
+        for gp in goals.vias:
+            p = node_of(gp.s, mesh.N) if isinstance(gp.residual, JointResidual) else None
+            if p is None:
+                points.append(gp)
+                continue
+            pinned.append((p, 0))
+            values.append((p, 0, gp.residual.q))
+            if gp.residual.dq is not None:
+                pinned.append((p, 1))
+                values.append((p, 1, gp.residual.dq))
+        if goals.final is not None:
+            points.append(GoalPoint(1.0, goals.final, "x1"))
+            q1 = goals.q1_guess if goals.q1_guess is not None else np.asarray(q0, float)
+            dq1 = np.zeros(n) if goals.dq1_guess is None or not goals.free_dq1 else goals.dq1_guess
+        else:
+            q1, dq1 = goals.q1, goals.dq1
+        layout = Layout.build(mesh, n, free_q1=goals.final is not None, free_dq1=goals.free_dq1,
+                              pinned=tuple(pinned))
+        super().__init__(system, mesh, q0, dq0, q1, dq1, cost=cost, G=G, layout=layout)
+        for p, d, v in values:
+            self.C_fixed[p, d] = v
+        self.goals, self.points = goals, points
+
+    def initial_guess(self) -> np.ndarray:
+        C = minimum_jerk_guess(self.mesh, *self.boundary)
+        return self.layout.pack(C)
+
+    def with_quadrature(self, G: int) -> "GoalProblem":
+        q0, dq0 = self.boundary[:2]
+        return GoalProblem(self.system, self.mesh, q0, dq0, self.goals, cost=self.cost, G=G)
+
+
+class GoalPenalized:
+    """A ``GoalProblem`` plus the goal rows' augmented Lagrangian, with its evaluate/newton interface."""
+
+    def __init__(self, base: GoalProblem, terms: GoalTerms) -> None:
+        self.base, self.terms = base, terms
+        self.mesh, self.layout = base.mesh, base.layout
+        self.last = None
+
+    def coefficients(self, x: np.ndarray) -> np.ndarray:
+        return self.base.coefficients(x)
+
+    def evaluate(self, x: np.ndarray, grad: bool = True):
+        ev = self.base.evaluate(x, grad=grad)
+        value, g = self.terms.evaluate(self.base.coefficients(x), grad=grad)
+        ev = dataclasses.replace(ev, J=ev.J + value, grad=None if ev.grad is None else ev.grad + self.layout.pack(g))
+        self.last = ev
+        return ev
+
+    def value(self, x: np.ndarray) -> float:
+        return self.evaluate(x, grad=False).J
+
+    def newton(self, ev, extra: np.ndarray | None = None):
+        """The base Newton matrix plus the rows' (positive semi-definite) blocks and ``extra``."""
+        blocks = self.terms.newton_blocks(self.coefficients(ev.x))
+        return self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+
+
+@dataclass(eq=False)
+class GoalResult(PlanResult):
+    """A ``PlanResult`` with the goal rows: ``terms`` (their final multipliers), ``violation`` max |c|."""
+
+    terms: GoalTerms | None = None
+    violation: float = 0.0
+    outer_iterations: int = 0
+    goals: Goals = field(default_factory=Goals)
+
+    @property
+    def converged(self) -> bool:
+        return PlanResult.converged.fget(self) and self.violation <= EQ_ACCEPT
+
+
+def _polish(problem, x: np.ndarray) -> np.ndarray:
+    """One full Newton step from an inner optimum (see ``hoc_cli.constraints.augmented_lagrangian``)."""
+    ev = problem.evaluate(x)
+    trial = x - problem.newton(ev).solve(ev.grad)
+    try:
+        if np.isfinite(problem.evaluate(trial, grad=False).J):
+            return trial
+    except NumericalError:
+        pass
+    return x
+
+
+def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = "covariant",
+               method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None,
+               G: int | None = None, limits=None, continuation: bool = True,
+               callback: Callable[[IterLog], None] | None = None, terms: GoalTerms | None = None,
+               eq_tol: float = EQ_TOL, max_outer: int = 30) -> GoalResult:
+    """Solve the optimal-control problem with ``goals`` on ``mesh`` (see the module docstring).
+
+    ``terms`` warm-starts the multipliers and ρ (e.g. from the plan of a nearby T; ρ <= 0: the
+    default ρ = 10·|J| of the starting trajectory). The outer
+    loop stops when every row is met to ``eq_tol`` after a converged inner solve; ρ grows ×10
+    whenever max |c| did not fall to a quarter.
+    """
+    start = time.perf_counter()
+    totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0, "outer": 0}
+    history: list[IterLog] = []
+    limited = limits is not None and limits.any
+    carry: dict = {"working": None}
+
+    def inner(problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
+        failures: list[NumericalError] = []
+
+        def evaluate(x):
+            try:
+                ev = problem.evaluate(x)
+            except NumericalError as exc:
+                failures.append(exc)
+                return math.inf, np.full(x.shape, np.nan), None
+            return ev.J, ev.grad, ev
+
+        def report(log: IterLog) -> None:
+            if callback is not None:
+                callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
+                                             n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
+
+        res = minimize(evaluate, x0, precondition=problem.newton, method=method, tol=tol_level,
+                       max_iter=max(max_iter - totals["it"], 0), callback=report, noise=lambda ev: ev.noise)
+        if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
+            raise failures[0]
+        for key, v in (("it", res.iterations), ("ev", res.n_evals), ("pre", res.n_precond), ("restarts", res.restarts)):
+            totals[key] += v
+        history.extend(dataclasses.replace(h, level=problem.mesh.N) for h in res.history)
+        return res
+
+    def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float):
+        """One mesh: the limits' outer loop (``enforce``) around the goal rows' loop around ``inner``.
+
+        The goal multipliers live in ``pen.terms`` and carry over between the limits' iterations.
+        """
+        pen = GoalPenalized(problem, terms.on(problem.mesh)) if problem.points else problem
+
+        def goal_inner(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
+            prev = math.inf
+            for _ in range(max_outer):
+                totals["outer"] += 1
+                res = inner(p, x, tol_inner)
+                x = res.x
+                if not problem.points:
+                    return res
+                if res.converged:
+                    x = _polish(p, x)
+                C = problem.coefficients(x)
+                violation = pen.terms.violation(C)
+                if (violation <= eq_level and res.converged) or res.status is Status.MAX_ITER:
+                    break
+                rho = pen.terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
+                prev = violation
+                pen.terms = dataclasses.replace(pen.terms, lam=pen.terms.multipliers(C), rho=rho)
+            return dataclasses.replace(res, x=x)
+
+        er = None
+        if limited:
+            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"])
+            carry["working"] = er.working
+            res = dataclasses.replace(er.inner, x=er.x)
+        else:
+            res = goal_inner(pen, x, tol_level)
+        return res.x, res, er, pen.terms if problem.points else terms
+
+    def build(level: HermiteMesh, G_level: int | None) -> GoalProblem:
+        return GoalProblem(system, level, q0, dq0, goals, cost=cost, G=G_level)
+
+    probe = build(mesh, G)
+    if terms is None or terms.rho <= 0:
+        J0 = probe.value(probe.initial_guess() if C_init is None else probe.layout.pack(C_init))
+        rho = RHO0 * max(abs(J0), 1e-6)
+        terms = GoalTerms.start(mesh, probe.points, rho) if terms is None else dataclasses.replace(terms, rho=rho)
+    if C_init is None and continuation:
+        coarse_mesh, C_coarse = None, None
+        for N in continuation_levels(mesh.N)[:-1]:
+            level = HermiteMesh(mesh.order, mesh.T, N)
+            problem = build(level, G)
+            x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
+            x, _, _, terms = solve_level(problem, x0, max(tol, 1e-6), terms, max(eq_tol, EQ_COARSE))
+            coarse_mesh, C_coarse = level, problem.coefficients(x)
+        if coarse_mesh is not None:
+            C_init = resample(coarse_mesh, C_coarse, mesh)
+    while True:
+        problem = build(mesh, G)
+        x0 = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+        x, res, er, terms = solve_level(problem, x0, tol, terms, eq_tol)
+        C = problem.coefficients(x)
+        J = problem.value(x)
+        J4 = problem.with_quadrature(problem.G + 4).value(x)
+        change = abs(J4 - J) / max(abs(J4), 1e-300)
+        noise = problem.last.noise if problem.last is not None else 0.0
+        if change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise or not res.converged or problem.G >= 32:
+            break
+        G, C_init = problem.G + 4, C
+    res = dataclasses.replace(res, iterations=totals["it"], n_evals=totals["ev"], n_precond=totals["pre"],
+                              restarts=totals["restarts"], history=tuple(history))
+    violation = terms.on(mesh).violation(C) if problem.points else 0.0
+    return GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
+                      wall_time_s=time.perf_counter() - start, problem=problem, limits=er, terms=terms,
+                      violation=violation, outer_iterations=totals["outer"], goals=goals)
+
+
+def _pose_rows(residual: FrameResidual, q: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """IK rows: (p − p̄(T), vec(R − R̄)) (3 or 12,) and their Jacobian; smooth, zero only at the pose,
+    and with a nonzero Jacobian even half a turn away (where any function of the angle is stationary).
+    """
+    from hoc_cli.dynamics import frame_jacobian
+    from hoc_cli.goals.residuals import _GENERATORS
+
+    p, R = residual.pose(q)
+    J = frame_jacobian(residual.model, q, residual.link)
+    rows, jac = [p - residual.target(T)[0]], [J[:3]]
+    if residual.orientation is not None:
+        rows.append((R - residual.orientation).ravel())
+        dR = np.einsum("kij,jl->kil", _GENERATORS, R).reshape(3, 9)  # vec([e_k]× R)
+        jac.append(dR.T @ J[3:])
+    return np.concatenate(rows), np.vstack(jac)
+
+
+def inverse_kinematics(residual: FrameResidual, q_seed, T: float, lower=None, upper=None,
+                       max_iter: int = 200, tol: float = 1e-12) -> np.ndarray:
+    """A joint position q (n,) with the link at the residual's pose at time T (position, orientation).
+
+    Damped least squares (Levenberg-Marquardt with a fixed damping 1e-6·‖J‖²) on ``_pose_rows`` from
+    ``q_seed``, at most 0.5 rad per step, clipped to [lower, upper]; returns the last iterate (check
+    its residual: the pose may be out of reach).
+    """
+    q = np.array(q_seed, float)
+    n = q.size
+    lo = np.full(n, -np.inf) if lower is None else np.asarray(lower, float)
+    hi = np.full(n, np.inf) if upper is None else np.asarray(upper, float)
+    for _ in range(max_iter):
+        c, J = _pose_rows(residual, q, T)
+        if np.max(np.abs(c)) <= tol:
+            break
+        damping = 1e-6 * float(np.sum(J * J)) + 1e-12
+        step = np.linalg.solve(J.T @ J + damping * np.eye(n), J.T @ c)
+        scale = min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))
+        q = np.clip(q - scale * step, lo, hi)
+    return q

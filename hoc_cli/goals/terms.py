@@ -1,0 +1,131 @@
+"""Equality rows of goals in the augmented Lagrangian: value, exact gradient, Newton blocks, ∂/∂T.
+
+A goal point is a residual c(q, q̇, T) (``hoc_cli.goals.residuals``) imposed at the time t = s·T
+(s ∈ [0, 1] a fraction of the duration, so it stays put in the s domain when T is free). On a
+mesh it lies in one element (``PointSet``), so q, q̇ there are linear in that element's
+coefficients and every row adds only to one element block of the banded Newton matrix. With
+multipliers λ and a penalty ρ (per unit c², the same for every row) the augmented Lagrangian adds
+
+    Ψ = Σ_rows λ c + ½ ρ c²,     ∂Ψ/∂C = Σ μ ∂c/∂C,   μ = λ + ρ c,
+
+and the first-order update is λ ← μ (Hestenes 1969, Powell 1969; Nocedal & Wright §17.3). The
+Newton blocks are ρ Dᵀ D with D = [∂c/∂q, ∂c/∂q̇, 0] (Gauss-Newton: the μ ∂²c terms of a
+nonlinear residual are left out; exact for joint residuals). At fixed s-domain coefficients,
+q(sT) is unchanged and q̇ scales as 1/T, so ∂c/∂T = ∂c/∂T|explicit − ∂c/∂q̇ · q̇ / T.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hoc_cli.constraints.points import PointSet
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.goals.residuals import JointResidual
+
+
+@dataclass(frozen=True, eq=False)
+class GoalPoint:
+    """A residual imposed at the fraction s ∈ [0, 1] of the duration; ``label`` names it in reports."""
+
+    s: float
+    residual: object
+    label: str = "goal"
+
+
+def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
+    """The mesh points (element, local coordinate) of the goal points' times s·T."""
+    x = np.array([p.s for p in points], float) * mesh.N
+    e = np.clip(np.floor(x).astype(int), 0, mesh.N - 1)
+    return PointSet.build(mesh, e, x - e, np.ones(len(points)))
+
+
+@dataclass(frozen=True, eq=False)
+class GoalTerms:
+    """The equality rows of ``points`` on ``mesh`` with multipliers ``lam`` (one array per point) and ρ."""
+
+    mesh: HermiteMesh
+    points: list[GoalPoint]
+    lam: list[np.ndarray]
+    rho: float
+
+    @classmethod
+    def start(cls, mesh: HermiteMesh, points: list[GoalPoint], rho: float = 1.0) -> "GoalTerms":
+        return cls(mesh, points, [np.zeros(p.residual.size) for p in points], rho)
+
+    def on(self, mesh: HermiteMesh) -> "GoalTerms":
+        """The same rows and multipliers on another mesh (the points are fractions of T)."""
+        return GoalTerms(mesh, self.points, self.lam, self.rho)
+
+    @property
+    def empty(self) -> bool:
+        return not self.points
+
+    def _where(self) -> PointSet:
+        return point_set(self.mesh, self.points)
+
+    def residuals(self, C: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        """(c, ∂c/∂q, ∂c/∂q̇, ∂c/∂T, q, q̇) of every point at coefficients C (N+1, m, n)."""
+        X = self._where().apply(C)
+        T = self.mesh.T
+        return [(*gp.residual(X[0, i], X[1, i], T), X[0, i], X[1, i]) for i, gp in enumerate(self.points)]
+
+    def violation(self, C: np.ndarray) -> float:
+        """The largest |c| over every row (0 without rows); units of the rows (m, rad, m/s)."""
+        return max([0.0] + [float(np.max(np.abs(r[0]), initial=0.0)) for r in self.residuals(C)])
+
+    def multipliers(self, C: np.ndarray) -> list[np.ndarray]:
+        """μ = λ + ρ c per point: the updated multipliers."""
+        return [lam + self.rho * r[0] for lam, r in zip(self.lam, self.residuals(C))]
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        """(Ψ, ∂Ψ/∂C (N+1, m, n) or None) at coefficients C."""
+        res = self.residuals(C)
+        value = sum(float(lam @ r[0]) + 0.5 * self.rho * float(r[0] @ r[0]) for lam, r in zip(self.lam, res))
+        if not grad:
+            return value, None
+        return value, self._gradient(C, res, [lam + self.rho * r[0] for lam, r in zip(self.lam, res)])
+
+    def _gradient(self, C, res, mu) -> np.ndarray:
+        where = self._where()
+        n = C.shape[-1]
+        S = np.zeros((3, len(self.points), n))
+        for i, (r, m) in enumerate(zip(res, mu)):
+            S[0, i] = r[1].T @ m
+            S[1, i] = r[2].T @ m
+        return where.transpose(S)
+
+    def newton_blocks(self, C: np.ndarray, curvature: bool = True) -> np.ndarray:
+        """Element blocks (N, 2mn, 2mn) of ρ Dᵀ D, plus with ``curvature`` the positive part of Σ μ ∇²c.
+
+        The second-order part in (q, q̇) is the forward difference (step 1e-7·(1 + |x|)) of the vector
+        Dᵀ μ at fixed μ, symmetrised, its negative eigenvalues dropped (measured on the lbr7 catch:
+        half the inner iterations of the blocks without it, and fewer than with the indefinite part).
+        """
+        n = C.shape[-1]
+        T = self.mesh.T
+        Hs = np.zeros((len(self.points), 3 * n, 3 * n))
+        for i, r in enumerate(self.residuals(C)):
+            D = np.hstack([r[1], r[2], np.zeros_like(r[1])])
+            Hs[i] = self.rho * D.T @ D
+            if curvature and not isinstance(self.points[i].residual, JointResidual):
+                mu = self.lam[i] + self.rho * r[0]
+                x = np.concatenate([r[4], r[5]])
+                base = D[:, :2 * n].T @ mu
+                H = np.zeros((2 * n, 2 * n))
+                for j in range(2 * n):
+                    xj = x.copy()
+                    step = 1e-7 * (1.0 + abs(x[j]))
+                    xj[j] += step
+                    _, cq, cv, _ = self.points[i].residual(xj[:n], xj[n:], T)
+                    H[:, j] = (np.hstack([cq, cv]).T @ mu - base) / step
+                ev, V = np.linalg.eigh(0.5 * (H + H.T))
+                Hs[i, :2 * n, :2 * n] += (V * np.maximum(ev, 0.0)) @ V.T
+        return self._where().sample_blocks(Hs)
+
+    def time_derivative(self, C: np.ndarray, T: float) -> tuple[float, np.ndarray]:
+        """(Σ μ·∂c/∂T at fixed s-domain coefficients, Σ μ ∂c/∂C (N+1, m, n)), μ = λ + ρ c."""
+        res = self.residuals(C)
+        mu = [lam + self.rho * r[0] for lam, r in zip(self.lam, res)]
+        dT = sum(float(m @ (r[3] - r[2] @ r[5] / T)) for m, r in zip(mu, res))
+        return dT, self._gradient(C, res, mu)
