@@ -32,6 +32,7 @@ from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.commands.plan_goals import goal_summary, task_goals
 from hoc_cli.commands.plan_goals import solve as solve_goals
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
+from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
@@ -93,23 +94,27 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                           key="--starts")
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
+    check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
 
     start = time.perf_counter()
+    beat = Heartbeat(console, show, start=start)  # a progress line at least every 3 s with --progress
 
     def report(log) -> None:
+        beat.tick(f"solving (after iteration {log.iteration} on N = {log.level})")
         if show:
             console.print(f"iter {log.iteration:4d}  N {log.level:4d}  J {log.J:<18.12g} |g| {log.grad_norm:.1e}  "
                           f"dec {log.decrement:.1e}  evals {log.n_evals:4d} {time.perf_counter() - start:6.2f}s",
                           highlight=False, soft_wrap=True)
 
     def report_start(o) -> None:
+        beat.tick(f"solving (after start {o.index})")
         if show:
             console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
     system, enforced = RobotSystem(model), limits if mode == "enforce" else None
     multi = None
-    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+    with np.errstate(all="ignore"), beat:  # NaN and inf are detected and reported (exit 1), not warned about
         extra: dict = {}
         error = None
         if goals is not None:
@@ -125,18 +130,21 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             # the estimate's solves may take as many iterations as the plan did (each costs about twice
             # as much on 2N elements), so it at most about doubles the time; else it reports null
             budget = min(task.max_iter, max(ESTIMATE_MIN_ITER, result.optimizer.iterations))
+            beat.say(f"estimating the error of J (solves on {2 * result.mesh.N} elements)")
             error = estimate(system, result, cost=task.cost, method=task.method, tol=task.tol,
                              max_iter=budget, limits=enforced)
-    traj = sample_plan(system, result, model.joint_names, task.rate)
-    summary = summarise(task, model, result, states)
-    if error is not None:  # goals: no estimate yet (docs/goals.md)
-        summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
-    summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
-    summary.update(starts_summary(multi, seed))
-    summary.update(extra | goal_summary(model, result, goals))
-    summary = json_ready(summary)  # an absent limit (inf) is null
-    validate_json(summary)  # before any output is written
-    with output_transaction():  # every output is replaced, or none
+    with beat.phase("sampling the plan and checking its limits"):
+        traj = sample_plan(system, result, model.joint_names, task.rate)
+        summary = summarise(task, model, result, states)
+        if error is not None:  # goals: no estimate yet (docs/goals.md)
+            summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
+        summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
+        summary.update(starts_summary(multi, seed))
+        summary.update(extra | goal_summary(model, result, goals))
+        summary = json_ready(summary)  # an absent limit (inf) is null
+        validate_json(summary)  # before any output is written
+    writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
+    with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
                                            summary=_reproducible(summary))
     warn_limit_violations(summary["limit_violations"])

@@ -1,0 +1,198 @@
+"""How heavy a ``hoc plan`` run is, before it starts; progress lines while a long step runs.
+
+``estimate_workload`` predicts the wall time and peak memory of a run from the number of
+elements N, the Gauss points per element G, the joints n, the multi-start count and the output
+samples (T·rate per output file). The formula and the measurements it was fitted to are in
+docs/design.md ("Work estimate"); ``benchmarks/bench_workload.py`` repeats them. It is an
+order-of-magnitude estimate: the iteration count depends on the task (the shipped 7-DOF tasks
+differ by 8× at equal N and n), the per-iteration cost does not.
+
+``check_workload`` warns (one ``hoc: warning:`` line on standard error, silenced by ``-q``) when
+a run is expected to take more than ``WARN_SECONDS`` or ``WARN_BYTES``. ``Heartbeat`` prints a
+progress line whenever nothing else was reported for ``interval`` seconds (``--progress``).
+"""
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from hoc_cli.commands.common import warn
+
+WARN_SECONDS = 10.0  # warn when a run is expected to take longer [s]
+WARN_BYTES = 2 * 2**30  # or to need more memory [B]
+
+# Calibration (docs/design.md, "Work estimate"; measured with BLAS on one thread, as hoc runs).
+STARTUP_S = 0.6  # interpreter, imports, URDF and task [s]
+NEWTON_S = (14e-6, 8e-8)  # one Newton matrix, per element at G_h = 6 points: a·n² + b·n³ [s]
+EVAL_S = (8e-6, 0.5e-6)  # one cost + gradient, per element at G = 8 points: a·n + b·n² [s]
+EVALS_PER_ITERATION = 3.5  # line-search evaluations per iteration (measured 2.3 to 3.7)
+CALL_S = 1.5e-3  # per iteration and joint: the per-link Python loops of the batched dynamics [s]
+WORK_ITERATIONS = (16.0, 0.03)  # iteration-equivalents on the finest mesh, solve and error estimate: a + b·n³
+BASE_BYTES = 90e6  # resident memory of a small run [B]
+ELEMENT_BYTES = (5.8e3, 5.0e3)  # peak per element of the error estimate's 2N-element solve: a·n + b·n² [B]
+SAMPLE_S = {"csv": (6e-6, 6e-6), "mcap": (140e-6, 10e-6)}  # per output sample: a + b·n [s]
+SAMPLE_BYTES = {"csv": 120.0, "mcap": 370.0}  # per output sample and value (1 + 4n values) [B]
+
+
+@dataclass(frozen=True)
+class Workload:
+    """The expected cost of one run.
+
+    seconds : wall time [s]; bytes : peak resident memory [B]; N, G, n : elements, Gauss points per
+    element, joints; samples : output samples per file (T·rate + 1).
+    """
+
+    seconds: float
+    bytes: float
+    N: int
+    G: int
+    n: int
+    samples: int
+
+    @property
+    def heavy(self) -> bool:
+        """Whether the run is expected to take more than ``WARN_SECONDS`` or ``WARN_BYTES``."""
+        return self.seconds > WARN_SECONDS or self.bytes > WARN_BYTES
+
+    def describe(self) -> str:
+        """One line: what is expected and what makes it heavy."""
+        return (f"this plan is expected to take about {duration(self.seconds)} and {size(self.bytes)} of memory "
+                f"(N = {self.N} elements × G = {self.G} Gauss points, n = {self.n} joints, {self.samples} output "
+                "samples; a rough estimate, see docs/design.md); fewer elements (-N), joints (locked:) or a lower "
+                "output.rate make it lighter")
+
+
+def gauss_points(order: str) -> tuple[int, int]:
+    """(G, G_h): Gauss points per element of the cost and of the Newton matrix (``hoc_cli.problem``)."""
+    from hoc_cli.problem import default_gauss_points
+
+    m = 3 if order == "quintic" else 2
+    G = default_gauss_points(order)
+    return G, min(G, m + 3)
+
+
+def estimate_workload(*, n: int, N: int, order: str, T: float, rate: float, csv: int = 0, mcap: int = 0,
+                      max_iter: int = 5000, starts: int = 1) -> Workload:
+    """The expected wall time and peak memory of ``hoc plan`` (docs/design.md, "Work estimate").
+
+    Parameters
+    ----------
+    n : joints; N : elements (the finest mesh); order : "quintic" or "cubic"
+    T : duration [s]; rate : output sample rate [Hz]
+    csv, mcap : how many CSV and MCAP outputs are written
+    max_iter : the iteration limit (caps the iteration count); starts : multi-start solves
+
+    Returns
+    -------
+    Workload
+    """
+    G, G_h = gauss_points(order)
+    newton = (NEWTON_S[0] * n**2 + NEWTON_S[1] * n**3) * G_h / 6
+    evaluation = (EVAL_S[0] * n + EVAL_S[1] * n**2) * G / 8
+    per_iteration = N * (newton + EVALS_PER_ITERATION * evaluation) + CALL_S * n
+    iterations = min(WORK_ITERATIONS[0] + WORK_ITERATIONS[1] * n**3, 3.0 * max_iter + 4.0)
+    samples = int(T * rate) + 1
+    writing = {kind: count * samples for kind, count in (("csv", csv), ("mcap", mcap))}
+    seconds = (STARTUP_S + max(starts, 1) * iterations * per_iteration
+               + sum(k * (SAMPLE_S[kind][0] + SAMPLE_S[kind][1] * n) for kind, k in writing.items()))
+    solve_bytes = 2 * N * (ELEMENT_BYTES[0] * n + ELEMENT_BYTES[1] * n**2) * G_h / 6
+    output_bytes = sum(k * SAMPLE_BYTES[kind] * (1 + 4 * n) for kind, k in writing.items())
+    return Workload(seconds=seconds, bytes=BASE_BYTES + max(solve_bytes, output_bytes), N=N, G=G, n=n,
+                    samples=samples)
+
+
+def check_workload(task, n: int, targets, *, N: int, starts: int = 1) -> Workload:
+    """Estimate a task's run before the solve; warn (``hoc: warning:``, silenced by ``-q``) when it is heavy.
+
+    ``task`` a loaded Task, ``n`` its joints, ``targets`` the OutputTargets, ``N`` the elements (for
+    ``N: auto`` the first mesh, so the estimate is a lower bound).
+    """
+    kinds = [t.kind for t in targets]
+    work = estimate_workload(n=n, N=N, order=task.order, T=task.T, rate=task.rate, csv=kinds.count("csv"),
+                             mcap=kinds.count("mcap"), max_iter=task.max_iter, starts=starts)
+    if work.heavy:
+        warn(work.describe())
+    return work
+
+
+def duration(seconds: float) -> str:
+    """'8 s', '4 min', '2.5 h', '3 days'."""
+    if seconds < 100:
+        return f"{seconds:.0f} s"
+    if seconds < 6000:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 2 * 86400:
+        return f"{seconds / 3600:.2g} h"
+    return f"{seconds / 86400:.2g} days"
+
+
+def size(nbytes: float) -> str:
+    """'120 MB', '2.4 GB' (powers of 1000)."""
+    return f"{nbytes / 1e6:.0f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:.2g} GB"
+
+
+class Heartbeat:
+    """Progress lines on ``console`` while a long step runs: after ``interval`` seconds without any
+    (``tick`` or ``say``), one line saying what is still running, then one every ``interval`` seconds.
+
+    Disabled (no thread, no output) unless ``enabled``. ``with beat:`` or ``with beat.phase(text):``
+    runs the watcher thread for the block; ``tick(status)`` records other progress (an iteration line).
+    """
+
+    def __init__(self, console, enabled: bool, *, start: float | None = None, interval: float = 3.0) -> None:
+        self.console, self.enabled, self.interval = console, enabled, interval
+        self.start = time.perf_counter() if start is None else start
+        self.status = "solving"
+        self.last = time.perf_counter()
+        self._stop: threading.Event | None = None
+        self._thread: threading.Thread | None = None
+
+    def tick(self, status: str | None = None) -> None:
+        """Other progress was reported now; ``status`` says what runs (shown by the next heartbeat)."""
+        self.last = time.perf_counter()
+        if status is not None:
+            self.status = status
+
+    def say(self, status: str) -> None:
+        """A progress line now (when enabled): ``status`` and the time since ``start``."""
+        self.tick(status)
+        if self.enabled:
+            self._print(status)
+
+    @contextlib.contextmanager
+    def phase(self, status: str | None) -> Iterator[None]:
+        """Announce ``status`` (unless None) and watch the block."""
+        if status is not None:
+            self.say(status)
+        with self:
+            yield
+
+    def __enter__(self) -> Heartbeat:
+        if self.enabled and self._thread is None:
+            self._stop = threading.Event()
+            self._thread = threading.Thread(target=self._watch, args=(self._stop,), name="hoc-heartbeat",
+                                            daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = self._stop = None
+
+    def _watch(self, stop: threading.Event) -> None:
+        while not stop.wait(min(0.5, self.interval / 2)):
+            if time.perf_counter() - self.last >= self.interval:
+                self.last = time.perf_counter()
+                self._print(f"still {self.status}")
+
+    def _print(self, text: str) -> None:
+        try:
+            self.console.print(f"{text} {time.perf_counter() - self.start:6.2f}s", highlight=False, markup=False,
+                               soft_wrap=True)
+        except (OSError, ValueError):  # a closed terminal or pipe is not a failure of the plan
+            pass
