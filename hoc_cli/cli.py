@@ -81,9 +81,10 @@ def plan(
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,
-    starts: Annotated[int, typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded perturbations of it; "
-                                        "keep the lowest-J converged plan.")] = 1,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts).")] = 0,
+    starts: Annotated[Optional[int], typer.Option("--starts", min=1, help="Multi-start: solve from the minimum-jerk guess and K-1 seeded "
+                                                  "perturbations of it; keep the lowest-J converged plan. Overrides solver.starts.")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of the multi-start perturbations (same seed, same starts). "
+                                                "Overrides solver.seed.")] = None,
     debug: DebugOpt = False,
 ) -> None:
     """Solve the optimal-control task and write q(t), u(t).

@@ -193,11 +193,17 @@ def test_every_row_equals_a_single_hoc_plan_and_invalid_plans_are_error_rows(swe
     assert [r["cost"] for r in pq.read_table(out / "results.parquet").to_pylist()] == [r["cost"] for r in rows]
 
 
-def test_chunks_are_single_plans_for_small_batches_and_at_most_8_plans_keeping_8_tasks_per_thread():
-    from hoc_cli.batch import chunk_size
+def test_chunks_shrink_to_single_plans_at_the_end_and_never_exceed_8_plans():
+    from hoc_cli.batch import chunk_sizes
 
-    assert chunk_size(6, 2) == 1 and chunk_size(30, 1) == 3 and chunk_size(200, 2) == 8 and chunk_size(10**6, 64) == 8
-    assert all(n // chunk_size(n, t) >= min(n, 8 * t) for n in (1, 15, 16, 17, 100, 1000) for t in (1, 2, 8))
+    assert chunk_sizes(6, 2) == [1] * 6 and chunk_sizes(31, 2) == [1] * 31
+    assert chunk_sizes(30, 1)[:3] == [3, 3, 3] and chunk_sizes(200, 2)[:9] == [8] * 9
+    for n in (0, 1, 15, 16, 17, 100, 1000, 10**5):
+        for t in (1, 2, 8):
+            sizes = chunk_sizes(n, t)
+            assert sum(sizes) == n and all(1 <= s <= 8 for s in sizes)
+            assert sizes == sorted(sizes, reverse=True)  # largest first
+            assert sizes[-min(n, 8 * t):] == [1] * min(n, 8 * t)  # the last 8 per thread go one by one
 
 
 def test_resume_recomputes_nothing_and_keeps_every_row_and_file(sweep2, client2):
@@ -292,7 +298,7 @@ def test_ctrl_c_cancels_keeps_the_completed_rows_exits_130_and_resume_finishes(t
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
-        # 30 plans on 1 worker go as Dask tasks of 3 (chunk_size): after 7 files, 2 tasks have surely returned
+        # 30 plans on 1 worker go as Dask tasks of 3, 3, 3, 2... (chunk_sizes): after 7 files, 2 tasks have surely returned
         while time.monotonic() < deadline and len(list((out / "plans").glob("*.csv")) if out.exists() else []) < 7:
             time.sleep(0.05)
         os.killpg(proc.pid, signal.SIGINT)
@@ -419,3 +425,34 @@ def test_a_batch_with_starts_stores_every_start_cost(client2, tmp_path):
     s = json.loads(r.stdout)
     assert rows[0]["start_costs"] == [o["cost"] for o in s["starts"]] and rows[0]["cost"] == s["cost"]
     assert rows[0]["best_start"] == s["best_start"]
+
+
+def test_solver_starts_in_the_task_is_the_same_as_the_option_which_overrides_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    base = write_base(tmp_path, N=8)
+    option = json.loads(invoke("plan", base, "--starts", "3", "--seed", "4", "-o", "none", "--json").stdout)
+    keyed = tmp_path / "keyed.yaml"
+    keyed.write_text(base.read_text() + "solver: {starts: 3, seed: 4}\n")
+    s = json.loads(invoke("plan", keyed, "-o", "none", "--json").stdout)
+    assert s["starts"] == option["starts"] and s["cost"] == option["cost"] and s["seed"] == 4
+    one = json.loads(invoke("plan", keyed, "--starts", "1", "-o", "none", "--json").stdout)
+    assert "starts" not in one and one["cost"] == option["starts"][0]["cost"]
+    for bad, key in (("{starts: 0}", "solver.starts"), ("{seed: -1}", "solver.seed"), ("{starts: 2.5}", "solver.starts")):
+        keyed.write_text(base.read_text() + f"solver: {bad}\n")
+        r = invoke("plan", keyed, "-o", "none")
+        assert r.exit_code == 2 and key in r.output and "Traceback" not in r.output
+    keyed.write_text(base.read_text() + "solver: {starts: 2}\n")
+    r = invoke("plan", keyed, "--init", "x.csv", "-o", "none")
+    assert r.exit_code == 2 and "solver.starts" in r.output
+
+
+def test_a_batch_uses_each_task_s_solver_starts_unless_the_spec_sets_starts(client2, tmp_path):
+    import hoc_cli.batch
+
+    base = write_base(tmp_path, N=8)
+    base.write_text(base.read_text() + "solver: {starts: 3, seed: 4}\n")
+    rows = hoc_cli.batch.run({"base": str(base), "sweep": {"T": [1.5]}}, client2).to_pylist()
+    s = json.loads(invoke("plan", base, "-o", "none", "--json").stdout)
+    assert rows[0]["start_costs"] == [o["cost"] for o in s["starts"]] and len(s["starts"]) == 3
+    single = hoc_cli.batch.run({"base": str(base), "sweep": {"T": [1.5]}, "starts": 1}, client2).to_pylist()
+    assert single[0]["id"] != rows[0]["id"] and single[0]["cost"] == s["starts"][0]["cost"]

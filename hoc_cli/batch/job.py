@@ -76,10 +76,12 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     if task.limits.mode == "enforce":
         check_boundary_states(task, limits, states)
     mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
-    result, multi = solve(task, model, states, mesh, limits, starts=job.starts, seed=job.seed)
+    starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
+    seed = task.solver.seed if job.seed is None else job.seed
+    result, multi = solve(task, model, states, mesh, limits, starts=starts, seed=seed)
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
-    summary.update(starts_summary(multi, job.seed))
+    summary.update(starts_summary(multi, seed))
     summary = json_ready(summary)
     if targets:
         (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)

@@ -56,8 +56,8 @@ class Job:
     doc: dict | None
     text: str
     swept: dict = field(default_factory=dict)
-    starts: int = 1
-    seed: int = 0
+    starts: int | None = None
+    seed: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,8 +107,9 @@ def expand(doc: Any, *, path: Path | None, where: Path) -> Batch:
     if ("base" in doc) == ("tasks" in doc):
         raise TaskError("expected exactly one of 'base' (with 'sweep') or 'tasks'", file=label)
     outputs = _outputs(doc.get("outputs"), fail)
-    starts = _integer(doc.get("starts", 1), "starts", 1, fail)
-    seed = _integer(doc.get("seed", 0), "seed", 0, fail)
+    # absent: each task's own solver.starts / solver.seed (default 1 and 0)
+    starts = _integer(doc["starts"], "starts", 1, fail) if "starts" in doc else None
+    seed = _integer(doc["seed"], "seed", 0, fail) if "seed" in doc else None
     if "tasks" in doc:
         if "sweep" in doc:
             raise TaskError("'sweep' needs 'base' (a sweep varies one base task)", file=label, key="sweep")
@@ -160,7 +161,7 @@ def _task_files(entries: Any, where: Path, fail) -> list[Path]:
     return files
 
 
-def _file_job(path: Path, starts: int, seed: int) -> Job:
+def _file_job(path: Path, starts: int | None, seed: int | None) -> Job:
     text = path.read_text(encoding="utf-8", errors="replace")
     try:
         doc = load_yaml(text)
@@ -171,7 +172,7 @@ def _file_job(path: Path, starts: int, seed: int) -> Job:
     return Job(id=task_id(doc, path, starts, seed), source=str(path), doc=doc, text=text, starts=starts, seed=seed)
 
 
-def _sweep_jobs(doc: dict, where: Path, starts: int, seed: int, label, fail) -> tuple[list[Job], list[str]]:
+def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, label, fail) -> tuple[list[Job], list[str]]:
     base = doc["base"]
     if not isinstance(base, str):
         raise fail("base", "a task file path", base)
@@ -343,7 +344,7 @@ def _grid(spec: dict, where_key: str, fail) -> list:
     return pts.tolist()
 
 
-def task_id(doc: dict, path: Path, starts: int = 1, seed: int = 0) -> str:
+def task_id(doc: dict, path: Path, starts: int | None = None, seed: int | None = None) -> str:
     """Content hash of a resolved task: its keys and values, with the robot as the SHA-256 of the URDF.
 
     Two jobs with the same id solve the same problem (the task file's name and comments do not count).
@@ -354,8 +355,10 @@ def task_id(doc: dict, path: Path, starts: int = 1, seed: int = 0) -> str:
         urdf = Path(robot) if Path(robot).is_absolute() else path.parent / robot
         digest = _file_sha256(str(urdf))
         body["robot"] = {"urdf_sha256": digest} if digest else {"missing": str(urdf)}
-    if starts > 1:
-        body = {"task": body, "starts": starts, "seed": seed}
+    solver = body.get("solver") if isinstance(body.get("solver"), dict) else {}
+    if starts is not None and (starts > 1 or solver.get("starts", 1) != starts):
+        # the spec's starts when they change what is solved (a task's own solver.starts is in its keys)
+        body = {"task": body, "starts": starts, "seed": seed or 0}
     return _digest(body)
 
 

@@ -50,12 +50,15 @@ ESTIMATE_MIN_ITER = 50  # the error estimate's iteration budget: the plan's own 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None,
-        gradient_check: bool = False, starts: int = 1, seed: int = 0) -> int:
+        gradient_check: bool = False, starts: int | None = None, seed: int | None = None) -> int:
     from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
 
     refuse_urdf_task(task_path)
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
-    check_starts(starts, seed, init)
+    starts_key = "--starts" if starts is not None else "solver.starts"  # the option wins over the task's key
+    starts = task.solver.starts if starts is None else starts
+    seed = task.solver.seed if seed is None else seed
+    check_starts(starts, seed, init, key=starts_key)
     if gradient_check and outputs:
         raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
@@ -85,13 +88,13 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     if auto and init is not None:
         raise OutputError("--init needs a fixed N (the task has N: auto; give -N)", key="--init")
     if auto and starts > 1:
-        raise OutputError("--starts needs a fixed N (the task has N: auto; give -N)", key="--starts")
+        raise OutputError("multi-start needs a fixed N (the task has N: auto; give -N)", key=starts_key)
     if goals is not None and auto:
         raise TaskError("goals (a link goal, vias or a free T) need a fixed number of elements "
                         "(expected an integer N >= 1, not auto)", file=task.path, key="N")
     if goals is not None and starts > 1:
-        raise OutputError("--starts applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
-                          key="--starts")
+        raise OutputError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
+                          key=starts_key)
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
     check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run

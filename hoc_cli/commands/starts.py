@@ -22,13 +22,14 @@ def starts_summary(multi, seed: int) -> dict:
     return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
 
 
-def check_starts(starts: int, seed: int, init: Path | None) -> None:
+def check_starts(starts: int, seed: int, init: Path | None, key: str = "--starts") -> None:
+    """Refuse a starts count < 1, a seed < 0, and multi-start with --init; ``key`` names where ``starts`` came from."""
     if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise TaskError(f"expected an integer >= 1, got {starts!r}", key="--starts")
+        raise TaskError(f"expected an integer >= 1, got {starts!r}", key=key)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
     if starts > 1 and init is not None:
-        raise TaskError("--starts cannot be combined with --init (a warm start is a single start)", key="--starts")
+        raise TaskError("multi-start cannot be combined with --init (a warm start is a single start)", key=key)
 
 
 #: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would

@@ -23,7 +23,7 @@ from hoc_cli.io.task.goals import FreeTime, LinkGoal, parse_free_time, parse_lin
 ORDERS = ("quintic", "cubic")
 METHODS = ("pr-cg", "newton")
 STATE_KEYS = ("q", "dq")
-SOLVER_KEYS = ("method", "tol", "max_iter")
+SOLVER_KEYS = ("method", "tol", "max_iter", "starts", "seed")
 OUTPUT_KEYS = ("rate",)
 
 MAX_SAMPLES = 1_000_000  # output samples T·rate + 1: beyond this CSV and MCAP reach hundreds of MB
@@ -245,15 +245,17 @@ def parse_cost(c: Checker, top: dict, parsed: dict) -> str:
 # ------------------------------------------------------------------ solver, output
 @dataclass(frozen=True)
 class SolverSpec:
-    """The optimiser, its tolerance and iteration limit."""
+    """The optimiser, its tolerance and iteration limit; multi-start: ``starts`` solves, perturbations seeded by ``seed``."""
 
     method: str = "pr-cg"
     tol: float = DEFAULT_TOL
     max_iter: int = DEFAULT_MAX_ITER
+    starts: int = 1
+    seed: int = 0
 
 
 def parse_solver(c: Checker, top: dict, parsed: dict) -> SolverSpec:
-    """``solver: {method, tol, max_iter}`` (every key optional)."""
+    """``solver: {method, tol, max_iter, starts, seed}`` (every key optional)."""
     if top.get("solver") is None:
         return SolverSpec()
     s = c.mapping(top["solver"], "solver", SOLVER_KEYS)
@@ -262,6 +264,8 @@ def parse_solver(c: Checker, top: dict, parsed: dict) -> SolverSpec:
         method=check_method(c, s.get("method", defaults.method), "solver.method"),
         tol=check_tol(c, s["tol"], "solver.tol") if "tol" in s else defaults.tol,
         max_iter=check_max_iter(c, s["max_iter"], "solver.max_iter") if "max_iter" in s else defaults.max_iter,
+        starts=c.integer(s["starts"], "solver.starts", 1) if "starts" in s else defaults.starts,
+        seed=c.integer(s["seed"], "solver.seed", 0) if "seed" in s else defaults.seed,
     )
 
 
