@@ -2,6 +2,9 @@
 
 Run:  python benchmarks/bench_accuracy.py          (about a minute on 2 cores; needs '.[bench]')
       python benchmarks/bench_accuracy.py --task configs/two_link.yaml   (one task)
+      python benchmarks/bench_accuracy.py --drift [--drift-N 16 32 64 128] [--drift-limits report]
+          (issue 16 item 4, minutes: J(N) of the torque cost on light-wristed arms, DRIFT_TASKS,
+          solved as ``hoc plan TASK -N N`` would, limits enforced; converged, max joint speed)
 
 Tasks: configs/two_link.yaml and configs/lbr7_reach.yaml, each with its own cost (covariant), T and
 boundary states, solved WITHOUT joint limits on both sides (hoc ``limits=None``, i.e. ``--limits
@@ -37,6 +40,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -65,6 +69,7 @@ SAME = 1e-2              # rad: farther apart is another local optimum
 IPOPT_FINEST = (16, 7)   # (K, d)
 IPOPT_SWEEP = {3: (8, 16, 32, 64, 128), 5: (4, 8, 16, 32), 7: (4, 8, 16)}
 RUNS = 3
+DRIFT_TASKS = (ROOT / "benchmarks" / "tasks" / "panda_torque.yaml", ROOT / "benchmarks" / "tasks" / "kinova_torque.yaml")
 
 
 def say(*args) -> None:
@@ -203,11 +208,45 @@ def run_task(path: Path) -> dict:
                        t_ip + t_ver, colloc(K, d).setup + c2.setup)])
 
 
+def drift(paths, Ns, mode: str) -> None:
+    """J(N) for each task and N, each N solved on its own from the minimum-jerk guess (``hoc plan -N N``)."""
+    from hoc_cli.commands.plan import solve
+    from hoc_cli.commands.plan_limits import task_limits
+
+    say(f"torque-cost drift: each N solved on its own (as `hoc plan TASK -N N`), limits: {mode}")
+    for path in paths:
+        task, model, st = load(path)
+        task = dataclasses.replace(task, limits=dataclasses.replace(task.limits, mode=mode))
+        limits = task_limits(model, st.limits)
+        say(f"\n=== {path.relative_to(ROOT)}: {model.n} joints, T = {task.T:g} s, {task.cost} cost, "
+            f"tol {task.tol:g}, max_iter {task.max_iter}; velocity limits "
+            + ", ".join(f"{v:.3g}" for v in model.velocity_limit) + " rad/s ===")
+        say(f"{'N':>4s} {'J':>16s} {'converged':>9s} {'status':>20s} {'iter':>5s} {'time [s]':>8s} "
+            f"{'max |dq| [rad/s] (joint)':>26s} {'|dq|/limit':>10s} {'violations':>10s}")
+        for N in Ns:
+            started = time.perf_counter()
+            r, _ = solve(task, model, st, HermiteMesh(task.order, task.T, N), limits)
+            wall = time.perf_counter() - started
+            t = dense_times(task.T, N)
+            dq = np.abs(r.mesh.evaluate(r.coeffs, t, 1)).max(axis=0)
+            j = int(np.argmax(dq))
+            ratio = float(np.max(dq / model.velocity_limit))
+            say(f"{N:4d} {r.J:16.9f} {str(r.converged):>9s} {r.optimizer.status.value:>20s} "
+                f"{r.optimizer.iterations:5d} {wall:8.1f} {dq[j]:14.4f} ({model.joint_names[j]}) {ratio:10.4f} "
+                f"{len(within_limits(model, r)):10d}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--task", action="append", type=Path,
                     help="a task file (repeatable; default: configs/two_link.yaml and configs/lbr7_reach.yaml)")
+    ap.add_argument("--drift", action="store_true", help="the torque-cost drift table instead (issue 16 item 4)")
+    ap.add_argument("--drift-N", type=int, nargs="+", default=[16, 32, 64, 128])
+    ap.add_argument("--drift-limits", choices=("enforce", "report"), default="enforce")
     args = ap.parse_args()
+    if args.drift:
+        drift([Path(p).resolve() for p in (args.task or DRIFT_TASKS)], args.drift_N, args.drift_limits)
+        return
     total = time.perf_counter()
     say(f"casadi {ca.__version__} (IPOPT + MUMPS); OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}; "
         f"target |J - J*|/J* <= {TARGET:g}; times best of {RUNS}")

@@ -53,6 +53,10 @@ AUTO_MAX_ELEMENTS = 1024
 #: N: auto stops when the estimate is below accuracy / AUTO_SAFETY: the estimate is within a factor 2
 #: of the true error on the problems tested (docs/accuracy.md), so the true error is then below accuracy
 AUTO_SAFETY = 2.0
+#: h-refinement: split the fewest elements holding this share of the correction indicators' sum ...
+AUTO_SPLIT_SHARE = 0.8
+#: ... and every element (reusing the estimate's solve on the bisected mesh) when that is this share of them
+AUTO_SPLIT_ALL = 0.75
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,10 +77,13 @@ class ErrorEstimate:
     iterations: int = 0
 
 
-def richardson(J_coarse: float | None, J: float, J_fine: float, *, order: str, tol: float) -> tuple[float, dict]:
+def richardson(J_coarse: float | None, J: float, J_fine: float, *, order: str, tol: float,
+               order_hint: float | None = None) -> tuple[float, dict]:
     """(relative estimate of |J − J*|, basis) from J on N/2 (or None), N and 2N elements.
 
     See the module docstring. ``tol`` is the solver's relative tolerance: the floor of the estimate.
+    ``order_hint``: the order measured on an earlier mesh of the same run, used when J_coarse is None
+    (a non-uniform mesh has no mesh of half its elements' lengths to measure it on).
     """
     scale = max(abs(J), 1e-300)
     floor = tol * scale
@@ -91,6 +98,10 @@ def richardson(J_coarse: float | None, J: float, J_fine: float, *, order: str, t
         p_used = min(p, SMOOTH_ORDER[order])
         factor = 2.0**p_used / (2.0**p_used - 1.0)
         info.update(order_measured=p, order_used=p_used, factor=factor)
+    elif d1 is None and order_hint is not None and d2 > 0:
+        p_used = min(order_hint, SMOOTH_ORDER[order])
+        factor = 2.0**p_used / (2.0**p_used - 1.0)
+        info.update(order_used=p_used, factor=factor, note="order measured on an earlier (coarser) mesh of N: auto")
     else:
         factor = UNMEASURED_FACTOR
         info.update(factor=factor, note="order not measured (no J on N/2 elements, or J(N/2), J(N), J(2N) "
@@ -106,7 +117,7 @@ def element_indicators(system: System, result: PlanResult, cost: str) -> np.ndar
     positive semi-definite part where the block is not positive definite).
     """
     mesh = result.mesh
-    fine = HermiteMesh(mesh.order, mesh.T, 2 * mesh.N)
+    fine = bisected(mesh)
     problem = ControlProblem(system, fine, *result.problem.boundary, cost=cost, G=result.G)
     C = resample(mesh, result.coeffs, fine)
     ev = problem.evaluate(problem.layout.pack(C))
@@ -136,38 +147,51 @@ def element_indicators(system: System, result: PlanResult, cost: str) -> np.ndar
     return eta
 
 
-def _refine(system: System, result: PlanResult, N: int, *, cost: str, method: str, tol: float, max_iter: int,
-            limits: JointLimits | None) -> PlanResult:
-    """The problem on N elements solved from ``result``'s trajectory at its nodes (exact when N is a multiple)."""
-    mesh = HermiteMesh(result.mesh.order, result.mesh.T, N)
+def bisected(mesh: HermiteMesh) -> HermiteMesh:
+    """The mesh with every element cut in two (2N elements; uniform when ``mesh`` is)."""
+    return HermiteMesh(mesh.order, mesh.T, 2 * mesh.N) if mesh.uniform else mesh.split(np.arange(mesh.N))
+
+
+def _refine(system: System, result: PlanResult, N: int | HermiteMesh, *, cost: str, method: str, tol: float,
+            max_iter: int, limits: JointLimits | None) -> PlanResult:
+    """The problem on N uniform elements (or on a given mesh) solved from ``result``'s trajectory at its
+    nodes (exact when the new mesh holds the old one's nodes)."""
+    mesh = N if isinstance(N, HermiteMesh) else HermiteMesh(result.mesh.order, result.mesh.T, N)
     working = result.limits.working if result.limits is not None else None
     return plan(system, mesh, *result.problem.boundary, cost=cost, method=method, tol=tol, max_iter=max_iter,
                 C_init=resample(result.mesh, result.coeffs, mesh), G=result.G, limits=limits, working=working)
 
 
 def estimate(system: System, result: PlanResult, *, cost: str, method: str = "pr-cg", tol: float = 1e-10,
-             max_iter: int = 5000, limits: JointLimits | None = None) -> ErrorEstimate:
+             max_iter: int = 5000, limits: JointLimits | None = None, order_hint: float | None = None) -> ErrorEstimate:
     """The error estimate of a converged plan (see the module docstring): one warm-started solve on
     2N elements, and one on N/2 unless the plan already holds it. Same cost, tol and limits as the plan.
+
+    On a non-uniform mesh the 2N elements are its elements bisected and there is no N/2 solve: the
+    order is ``order_hint`` (measured on an earlier mesh), else the factor 2.
     """
     start = time.perf_counter()
     N = result.mesh.N
     if not result.converged:
         return ErrorEstimate(None, {"method": "none", "note": "the plan did not converge"})
     kw = dict(cost=cost, method=method, tol=tol, max_iter=max_iter, limits=limits)
-    fine = _refine(system, result, 2 * N, **kw)
+    fine = _refine(system, result, bisected(result.mesh), **kw)
     iterations = fine.optimizer.iterations
     if not fine.converged:
         return ErrorEstimate(None, {"method": "none", "note": f"the solve on {2 * N} elements did not converge"},
                              wall_time_s=time.perf_counter() - start, iterations=iterations)
-    coarse = result.coarser if result.coarser is not None and result.coarser.mesh.N * 2 == N else None
+    coarse = None
+    if result.mesh.uniform and result.coarser is not None and result.coarser.mesh.uniform \
+            and result.coarser.mesh.N * 2 == N:
+        coarse = result.coarser
     coarse_source = "the plan's own continuation level"
-    if coarse is None and N % 2 == 0:
+    if coarse is None and N % 2 == 0 and result.mesh.uniform:
         coarse = _refine(system, result, N // 2, **kw)
         iterations += coarse.optimizer.iterations
         coarse_source = "solved from the plan's values at its nodes"
     J_coarse = coarse.J if coarse is not None and coarse.converged else None
-    relative, info = richardson(J_coarse, result.J, fine.J, order=result.mesh.order, tol=tol)
+    relative, info = richardson(J_coarse, result.J, fine.J, order=result.mesh.order, tol=tol,
+                                order_hint=None if result.mesh.uniform else order_hint)
     eta = element_indicators(system, result, cost) / max(abs(result.J), 1e-300)
     basis = {"method": "richardson", "description": "J on N/2 (when available), N and 2N elements, the others solved "
              "from this plan; |J(N) - J*| ~ factor * (J(N) - J(2N)), factor = 2^p / (2^p - 1)", "N": [N // 2, N, 2 * N] if J_coarse is not None else [N, 2 * N],
@@ -178,12 +202,42 @@ def estimate(system: System, result: PlanResult, *, cost: str, method: str = "pr
     return ErrorEstimate(relative, basis, eta, fine, time.perf_counter() - start, iterations)
 
 
+def correction_indicators(system: System, result: PlanResult, refined: PlanResult, cost: str) -> np.ndarray:
+    """ζ_e (N,): the energy of the correction that refining brings, element by element (absolute, as J).
+
+    δ = C(2N) − C(N) on the bisected mesh (the plan prolonged exactly); ζ_e = ½ Σ δ_fᵀ H_f δ_f over the
+    two halves f of element e, with H_f the Gauss-Newton blocks of the cost at the refined plan, so that
+    Σ ζ_e = ½ δᵀ H δ ≈ J(N) − J(2N). Unlike η_e it sees limits: where a limit holds the plan on both
+    meshes alike, δ and ζ_e vanish. ``N: auto`` splits the elements with the largest ζ_e.
+    """
+    fine = refined.mesh
+    problem = ControlProblem(system, fine, *result.problem.boundary, cost=cost, G=refined.G)
+    delta = refined.coeffs - resample(result.mesh, result.coeffs, fine)
+    ev = problem.evaluate(problem.layout.pack(refined.coeffs))
+    _, GNs = problem.hessian_samples(ev)
+    B = element_blocks(problem.op_h, GNs)  # (2N, 2mn, 2mn), local order a·n + j
+    loc = fine.local_coefficients(delta).reshape(fine.N, -1)
+    zeta = 0.5 * np.einsum("ei,eij,ej->e", loc, B, loc)
+    return zeta[0::2] + zeta[1::2]
+
+
+def marked(indicators: np.ndarray, share: float) -> np.ndarray:
+    """The fewest elements (indices, sorted) whose indicators hold ``share`` of their sum (Dörfler marking)."""
+    order = np.argsort(indicators)[::-1]
+    total = float(np.sum(indicators))
+    if not total > 0:
+        return np.arange(indicators.size)
+    k = int(np.searchsorted(np.cumsum(indicators[order]), share * total)) + 1
+    return np.sort(order[: min(k, indicators.size)])
+
+
 @dataclass(frozen=True, eq=False)
 class AutoResult:
-    """``N: auto``: the plan on the coarsest mesh N = 16·2ᵏ whose estimate is below accuracy / ``AUTO_SAFETY``.
+    """``N: auto``: the first plan of the refinement whose estimate is below accuracy / ``AUTO_SAFETY``.
 
-    plan, error : that plan and its estimate; steps : per mesh tried, {N, J, J_error_estimate};
-    reached : whether the estimate met the accuracy (else the finest plan tried, at ``AUTO_MAX_ELEMENTS``).
+    plan, error : that plan and its estimate; steps : per mesh tried, {N, J, J_error_estimate, mesh,
+    split}; reached : whether the estimate met the accuracy (else the finest plan tried, at
+    ``AUTO_MAX_ELEMENTS``).
     """
 
     plan: PlanResult
@@ -195,21 +249,44 @@ class AutoResult:
 def plan_auto(system: System, order: str, T: float, q0, dq0, q1, dq1, *, accuracy: float = DEFAULT_ACCURACY,
               cost: str = "covariant", method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000,
               limits: JointLimits | None = None, start: int = AUTO_START, max_elements: int = AUTO_MAX_ELEMENTS,
-              callback=None) -> AutoResult:
-    """Plan on ``start`` elements, then double N (each mesh warm-started from the last) until the
+              refine: str = "h", callback=None) -> AutoResult:
+    """Plan on ``start`` equal elements, then refine (each mesh warm-started from the last) until the
     estimate <= accuracy / ``AUTO_SAFETY``.
 
-    Every plan's estimate solves the next mesh; that solve is the next plan, so one optimum is
-    followed and J does not rise from mesh to mesh. The solver tolerance is min(tol, accuracy/100).
+    ``refine="h"``: split the fewest elements whose correction indicators (``correction_indicators``)
+    hold ``AUTO_SPLIT_SHARE`` of their sum; the new mesh's plan starts from the last plan prolonged
+    exactly (the same function), so J does not rise. When that is ``AUTO_SPLIT_ALL`` of the elements
+    or more, every element is split, and the estimate's own solve on the bisected mesh is the next plan.
+    ``refine="uniform"``: always that (N doubles; the meshes stay uniform). The solver tolerance is
+    min(tol, accuracy/100).
     """
+    if refine not in ("h", "uniform"):
+        raise ValueError(f"refine must be 'h' or 'uniform', got {refine!r}")
     tol = min(tol, accuracy / 100)
     kw = dict(cost=cost, method=method, tol=tol, max_iter=max_iter, limits=limits)
     result = plan(system, HermiteMesh(order, T, start), q0, dq0, q1, dq1, callback=callback, **kw)
-    steps = []
+    steps: list[dict] = []
+    hint = None  # the order measured on the last uniform mesh, for the estimates on non-uniform ones
+    split = None  # how many elements were split to reach the mesh
     while True:
-        err = estimate(system, result, **kw)
-        steps.append({"N": result.mesh.N, "J": result.J, "J_error_estimate": err.relative})
+        err = estimate(system, result, order_hint=hint, **kw)
+        if err.basis.get("order_measured") is not None:
+            hint = err.basis["order_used"]
+        steps.append({"N": result.mesh.N, "J": result.J, "J_error_estimate": err.relative,
+                      "mesh": "uniform" if result.mesh.uniform else "nonuniform", "split": split})
         reached = err.relative is not None and err.relative <= accuracy / AUTO_SAFETY
-        if reached or err.refined is None or 2 * result.mesh.N > max_elements:
+        if reached or err.refined is None:
             return AutoResult(result, err, tuple(steps), reached)
-        result = err.refined
+        cut = np.arange(result.mesh.N)
+        if refine == "h":
+            cut = marked(correction_indicators(system, result, err.refined, cost), AUTO_SPLIT_SHARE)
+        if result.mesh.N + cut.size > max_elements:
+            return AutoResult(result, err, tuple(steps), reached)
+        split = int(cut.size)
+        if cut.size >= AUTO_SPLIT_ALL * result.mesh.N:
+            result = err.refined
+            continue
+        mesh = result.mesh.split(cut)
+        working = result.limits.working if result.limits is not None else None
+        result = plan(system, mesh, q0, dq0, q1, dq1, C_init=resample(result.mesh, result.coeffs, mesh),
+                      G=result.G, working=working, callback=callback, **kw)

@@ -44,7 +44,13 @@ def element_blocks(op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
     N, G = op.mesh.N, op.G
     A, AT = expanded_rows(op, n)  # (G, 3n, 2mn), (G, 2mn, 3n): the same in every element
     Hw = (Hs * op.w[:, None, None]).reshape(N, G, 3 * n, 3 * n)
-    return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1)
+    if op.row_scale is None:
+        return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1)
+    # non-uniform mesh: Ã_e = diag(h_e^(−r)) Ã diag(h_e^(d_a)) (``elements.element_scales``)
+    rows = np.repeat(op.row_scale.T, n, axis=1)  # (N, 3n)
+    cols = np.repeat(op.col_scale, n, axis=1)  # (N, 2mn)
+    Hw = Hw * (rows[:, None, :, None] * rows[:, None, None, :])
+    return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1) * (cols[:, :, None] * cols[:, None, :])
 
 
 @dataclass(frozen=True, eq=False)

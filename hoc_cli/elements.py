@@ -1,4 +1,4 @@
-"""Cubic and quintic Hermite finite elements on N equal elements of [0, T].
+"""Cubic and quintic Hermite finite elements on N elements of [0, T] (equal, or with given node times).
 
 Symbols
 -------
@@ -22,7 +22,9 @@ so that a_p, b_p, c_p are q, q̇, q̈ at t_p. Cubic q_h is C¹, quintic q_h is C
 
 Inside element e (t ∈ [t_e, t_{e+1}], local coordinate s = t/h − e ∈ [0, 1]) only the
 2m functions of nodes e and e+1 are non-zero; ``local_basis`` gives them as
-polynomials in s. Everything here is pure numpy: no I/O.
+polynomials in s. On a non-uniform mesh (``HermiteMesh.breaks``: node times t_p, element lengths
+h_e = t_{e+1} − t_e) the same formulas hold element by element with h replaced by h_e and
+s = (t − t_e)/h_e; the nodal values a_p, b_p, c_p keep their meaning. Everything here is pure numpy: no I/O.
 """
 from __future__ import annotations
 
@@ -147,11 +149,17 @@ def gauss_legendre(G: int) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class HermiteMesh:
-    """N equal Hermite elements of a given order on [0, T] (T in seconds)."""
+    """N Hermite elements of a given order on [0, T] (T in seconds): equal, or with given node times.
+
+    ``breaks`` (N + 1 increasing node times from 0 to T [s]) makes the mesh non-uniform (element e has
+    length h_e = t_{e+1} − t_e, see ``hs``); None (the default) gives N equal elements of length h.
+    Build a non-uniform mesh with ``from_nodes`` (and refine one with ``split``).
+    """
 
     order: Order
     T: float
     N: int
+    breaks: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         _check_order(self.order)
@@ -162,6 +170,36 @@ class HermiteMesh:
         # plain Python numbers (a 0-d array T would make the mesh unhashable: operators are cached by mesh)
         object.__setattr__(self, "T", float(self.T))
         object.__setattr__(self, "N", int(self.N))
+        if self.breaks is not None:
+            b = tuple(float(v) for v in self.breaks)
+            if len(b) != self.N + 1 or b[0] != 0.0 or b[-1] != self.T or not all(np.diff(b) > 0):
+                raise ValueError(f"breaks must be N + 1 = {self.N + 1} increasing times from 0 to T = {self.T} s")
+            object.__setattr__(self, "breaks", b)
+
+    @classmethod
+    def from_nodes(cls, order: Order, nodes) -> "HermiteMesh":
+        """The mesh with node times ``nodes`` (N + 1,) [s], increasing from 0 to T (non-uniform)."""
+        nodes = np.asarray(nodes, dtype=float)
+        if nodes.ndim != 1 or nodes.size < 2 or nodes[0] != 0.0:
+            raise ValueError("nodes must be at least two increasing times starting at 0")
+        return cls(order, float(nodes[-1]), nodes.size - 1, tuple(nodes))
+
+    def split(self, elements) -> "HermiteMesh":
+        """The mesh with each element of ``elements`` (indices) cut in two at its middle (non-uniform).
+
+        Its space holds this mesh's: a Hermite function of this mesh is one of the split mesh too.
+        """
+        elements = np.unique(np.asarray(elements, dtype=int))
+        if elements.size and (elements[0] < 0 or elements[-1] >= self.N):
+            raise ValueError(f"element indices must be in [0, {self.N - 1}]")
+        t = self.nodes
+        mid = 0.5 * (t[elements] + t[elements + 1])
+        return HermiteMesh.from_nodes(self.order, np.sort(np.concatenate([t, mid])))
+
+    @property
+    def uniform(self) -> bool:
+        """True for N equal elements (no ``breaks``)."""
+        return self.breaks is None
 
     @property
     def m(self) -> int:
@@ -170,32 +208,63 @@ class HermiteMesh:
 
     @property
     def h(self) -> float:
-        """Element length [s]."""
+        """Element length [s] of a uniform mesh (a non-uniform one has ``hs``)."""
+        if self.breaks is not None:
+            raise ValueError("a non-uniform mesh has no single element length h (use hs)")
         return self.T / self.N
 
     @property
+    def hs(self) -> np.ndarray:
+        """Element lengths h_e [s], shape (N,)."""
+        return np.full(self.N, self.T / self.N) if self.breaks is None else np.diff(self.breaks)
+
+    @property
     def nodes(self) -> np.ndarray:
-        """Node times t_p = p h [s], shape (N + 1,)."""
-        return np.linspace(0.0, self.T, self.N + 1)
+        """Node times t_p [s], shape (N + 1,) (p h on a uniform mesh)."""
+        return np.linspace(0.0, self.T, self.N + 1) if self.breaks is None else np.array(self.breaks)
 
     def scale(self, deriv: int) -> np.ndarray:
-        """Factors h^(d_k − r) that turn s-basis values into t-derivatives of order r; shape (2m,)."""
+        """Factors h^(d_k − r) that turn s-basis values into t-derivatives of order r; shape (2m,) (uniform mesh)."""
         d = np.tile(np.arange(self.m), 2)
         return self.h ** (d - deriv).astype(float)
+
+    def scales(self, deriv: int, e: np.ndarray | None = None) -> np.ndarray:
+        """Factors h_e^(d_k − r) of elements e (default all), shape (len(e), 2m); any mesh."""
+        d = np.tile(np.arange(self.m), 2)
+        hs = self.hs if e is None else self.hs[np.asarray(e, dtype=int)]
+        return hs[:, None] ** (d - deriv).astype(float)[None, :]
+
+    def time_of(self, e: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Times [s] of local coordinates s in elements e (same shapes)."""
+        e = np.asarray(e, dtype=int)
+        if self.breaks is None:
+            return (e + np.asarray(s, dtype=float)) * self.h
+        return self.nodes[e] + np.asarray(s, dtype=float) * self.hs[e]
 
     def element_of(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Element index e (K,) and local coordinate s ∈ [0, 1] (K,) of times t [s] in [0, T]."""
         t = np.asarray(t, dtype=float)
-        x = t / self.h
-        e = np.clip(np.floor(x).astype(int), 0, self.N - 1)
-        return e, x - e
+        if self.breaks is None:
+            x = t / self.h
+            e = np.clip(np.floor(x).astype(int), 0, self.N - 1)
+            return e, x - e
+        nodes = self.nodes
+        e = np.clip(np.searchsorted(nodes, t, side="right") - 1, 0, self.N - 1)
+        return e, (t - nodes[e]) / (nodes[e + 1] - nodes[e])
 
-    def shape_values(self, s: np.ndarray, deriv: int) -> np.ndarray:
-        """The 2m shape functions' t-derivative of order ``deriv`` at local coordinates s; (K, 2m)."""
+    def shape_values(self, s: np.ndarray, deriv: int, e: np.ndarray | None = None) -> np.ndarray:
+        """The 2m shape functions' t-derivative of order ``deriv`` at local coordinates s; (K, 2m).
+
+        On a non-uniform mesh the elements e (K,) of the points are needed (their lengths scale the values).
+        """
         coeffs = local_basis(self.order)[deriv]  # (2m, 6)
         s = np.asarray(s, dtype=float)
         powers = s[:, None] ** np.arange(6)[None, :]  # (K, 6)
-        return (powers @ coeffs.T) * self.scale(deriv)
+        if self.breaks is None:
+            return (powers @ coeffs.T) * self.scale(deriv)
+        if e is None:
+            raise ValueError("shape values on a non-uniform mesh need the elements of the points")
+        return (powers @ coeffs.T) * self.scales(deriv, e)
 
     def local_coefficients(self, C: np.ndarray) -> np.ndarray:
         """Gather C (N + 1, m, n) into per-element blocks (N, 2m, n): left node then right node."""
@@ -205,7 +274,7 @@ class HermiteMesh:
         """q_h (deriv 0), q̇_h (1) or q̈_h (2) at times t [s] (K,) for coefficients C (N+1, m, n); (K, n)."""
         C = self.check_coefficients(C)
         e, s = self.element_of(np.atleast_1d(t))
-        B = self.shape_values(s, deriv)  # (K, 2m)
+        B = self.shape_values(s, deriv, e)  # (K, 2m)
         loc = self.local_coefficients(C)[e]  # (K, 2m, n)
         return np.einsum("kj,kjn->kn", B, loc)
 
@@ -256,7 +325,10 @@ class QuadratureOperator:
     G : Gauss points per element
     t : (K,) sample times [s], K = N G, element-major
     w : (K,) quadrature weights [s] (∫₀ᵀ f dt ≈ Σ w f(t))
-    B : (3, G, 2m) t-derivative r of the 2m local shape functions at the Gauss points (h-scaled)
+    B : (3, G, 2m) t-derivative r of the 2m local shape functions at the Gauss points: h-scaled on a
+        uniform mesh; on a non-uniform mesh for h = 1, with element e's values
+        ``row_scale[r, e] * B[r] @ (col_scale[e] * C_e)`` (h_e^(−r) and h_e^(d_a), see ``element_scales``)
+    col_scale, row_scale : None (uniform mesh), or (N, 2m) and (3, N)
     """
 
     mesh: HermiteMesh
@@ -264,15 +336,24 @@ class QuadratureOperator:
     t: np.ndarray
     w: np.ndarray
     B: np.ndarray = field(repr=False)
+    col_scale: np.ndarray | None = field(default=None, repr=False)
+    row_scale: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
     def build(cls, mesh: HermiteMesh, G: int) -> "QuadratureOperator":
         s, ws = gauss_legendre(G)
-        B = np.stack([mesh.shape_values(s, r) for r in range(3)])
         e = np.arange(mesh.N)
-        t = ((e[:, None] + s[None, :]) * mesh.h).ravel()
-        w = np.tile(ws * mesh.h, mesh.N)
-        return cls(mesh=mesh, G=G, t=t, w=w, B=B)
+        if mesh.uniform:
+            B = np.stack([mesh.shape_values(s, r) for r in range(3)])
+            t = ((e[:, None] + s[None, :]) * mesh.h).ravel()
+            w = np.tile(ws * mesh.h, mesh.N)
+            return cls(mesh=mesh, G=G, t=t, w=w, B=B)
+        unit = HermiteMesh(mesh.order, 1.0, 1)
+        B = np.stack([unit.shape_values(s, r) for r in range(3)])
+        t = mesh.time_of(np.repeat(e, G), np.tile(s, mesh.N))
+        w = (ws[None, :] * mesh.hs[:, None]).ravel()
+        col, row = element_scales(mesh)
+        return cls(mesh=mesh, G=G, t=t, w=w, B=B, col_scale=col, row_scale=row)
 
     @property
     def K(self) -> int:
@@ -282,7 +363,11 @@ class QuadratureOperator:
         """q, q̇, q̈ at the Gauss points, each (K, n), for C of shape (N+1, m, n)."""
         loc = self.mesh.local_coefficients(self.mesh.check_coefficients(C))  # (N, 2m, n)
         n = loc.shape[-1]
-        return tuple((self.B[r] @ loc).reshape(self.K, n) for r in range(3))  # type: ignore[return-value]
+        if self.col_scale is None:
+            return tuple((self.B[r] @ loc).reshape(self.K, n) for r in range(3))  # type: ignore[return-value]
+        loc = loc * self.col_scale[:, :, None]
+        return tuple(((self.B[r] @ loc) * self.row_scale[r][:, None, None]).reshape(self.K, n)  # type: ignore
+                     for r in range(3))
 
     def transpose(self, gq: np.ndarray, gdq: np.ndarray, gddq: np.ndarray) -> np.ndarray:
         """Adjoint of ``apply``: maps sample-wise gradients (K, n) ×3 to a coefficient gradient (N+1, m, n).
@@ -294,7 +379,12 @@ class QuadratureOperator:
         gloc = np.zeros((N, 2 * m, n))
         for r, g in enumerate((gq, gdq, gddq)):
             if g is not None:
-                gloc += np.swapaxes(self.B[r], 0, 1) @ np.asarray(g).reshape(N, G, n)
+                g = np.asarray(g).reshape(N, G, n)
+                if self.row_scale is not None:
+                    g = g * self.row_scale[r][:, None, None]
+                gloc += np.swapaxes(self.B[r], 0, 1) @ g
+        if self.col_scale is not None:
+            gloc *= self.col_scale[:, :, None]
         out = np.zeros((N + 1, m, n))
         out[:-1] += gloc[:, :m]
         out[1:] += gloc[:, m:]
@@ -305,11 +395,23 @@ class QuadratureOperator:
         return np.tensordot(self.w, f, axes=(0, 0))
 
 
+def element_scales(mesh: HermiteMesh) -> tuple[np.ndarray, np.ndarray]:
+    """(col, row): col (N, 2m) = h_e^(d_a) (d_a = 0, 1, 2 for a, b, c of either node), row (3, N) = h_e^(−r).
+
+    On element e the t-derivative r of q_h at local coordinate s is
+    row[r, e] · Σ_a (d^r φ_a / ds^r)(s) · col[e, a] · C_e[a]: the h = 1 basis, scaled per element.
+    """
+    hs = mesh.hs
+    d = np.tile(np.arange(mesh.m), 2)
+    return hs[:, None] ** d[None, :].astype(float), hs[None, :] ** -np.arange(3.0)[:, None]
+
+
 @lru_cache(maxsize=256)
 def _quadrature(mesh: HermiteMesh, G: int) -> QuadratureOperator:
     op = QuadratureOperator.build(mesh, G)
-    for arr in (op.t, op.w, op.B):
-        arr.flags.writeable = False
+    for arr in (op.t, op.w, op.B, op.col_scale, op.row_scale):
+        if arr is not None:
+            arr.flags.writeable = False
     return op
 
 
@@ -320,11 +422,11 @@ def error_norm(mesh: HermiteMesh, C: np.ndarray, exact: tuple[Callable, Callable
     """
     op = mesh.quadrature(G)
     approx = op.apply(C)
-    h = mesh.h
+    h = np.repeat(mesh.hs, G)  # (K,): the element length at each sample (h on a uniform mesh)
     terms = 2 if mesh.order == "cubic" else 3
     total = 0.0
     for r in range(terms):
         ex = np.asarray(exact[r](op.t), dtype=float).reshape(op.K, -1)
         e2 = np.sum((approx[r] - ex) ** 2, axis=1)
-        total += h ** (2 * r) * float(op.integrate(e2))
+        total += float(op.integrate(h ** (2 * r) * e2))
     return float(np.sqrt(total))

@@ -97,7 +97,7 @@ def test_cubic_elements_plateau_under_a_velocity_limit_where_no_estimate_from_ne
 
 def test_n_auto_reaches_the_accuracy_on_the_two_link_arm_and_j_never_rises(arm, two_link_reference):
     J_star = two_link_reference["quintic", "torque"]
-    found = plan_auto(arm, "quintic", 1.5, *TWO_LINK, cost="torque", accuracy=1e-8)
+    found = plan_auto(arm, "quintic", 1.5, *TWO_LINK, cost="torque", accuracy=1e-8, refine="uniform")
     assert found.reached and found.error.relative <= 1e-8 / AUTO_SAFETY
     assert abs(found.plan.J - J_star) / J_star <= 1e-8
     Js = [s["J"] for s in found.steps]

@@ -98,13 +98,13 @@ class EnforceResult:
                     on = mu[:, j] > 0
                     t = self.rows.points.t[on]
                     spans = np.stack([t, t], axis=1)
-                    gap = 1.5 * mesh.h / 32
+                    gap = 1.5 * float(mesh.hs.max()) / 32
                 else:
                     on = mu[:, :, j] > 0  # (N, R)
                     e, r = np.nonzero(on)
                     part = self.rows.part[k][r]
-                    t0 = (e + part / self.rows.pieces) * mesh.h
-                    spans = np.unique(np.stack([t0, t0 + mesh.h / self.rows.pieces], axis=1), axis=0)
+                    t0 = mesh.time_of(e, part / self.rows.pieces)
+                    spans = np.unique(np.stack([t0, t0 + mesh.hs[e] / self.rows.pieces], axis=1), axis=0)
                     gap = 1e-12 * mesh.T
                 if spans.size == 0:
                     continue

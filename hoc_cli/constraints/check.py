@@ -61,16 +61,15 @@ class LimitCheck:
         """Limits exceeded beyond tolerance: joint, kind, worst value, time [s] and limit, worst first per kind."""
         tol_lo, tol_hi = self.tolerance()
         out = []
-        h = self.mesh.h
         for k, kind in enumerate(KINDS):
             for j, name in enumerate(self.limits.joints):
                 cands = []
                 e = int(np.argmax(self.hi_excess[k, :, j]))
                 if self.hi_excess[k, e, j] > tol_hi[k, j]:
-                    cands.append((self.hi_excess[k, e, j], self.hi_value[k, e, j], (e + self.hi_s[k, e, j]) * h))
+                    cands.append((self.hi_excess[k, e, j], self.hi_value[k, e, j], self.mesh.time_of(e, self.hi_s[k, e, j])))
                 e = int(np.argmax(self.lo_excess[k, :, j]))
                 if self.lo_excess[k, e, j] > tol_lo[k, j]:
-                    cands.append((self.lo_excess[k, e, j], self.lo_value[k, e, j], (e + self.lo_s[k, e, j]) * h))
+                    cands.append((self.lo_excess[k, e, j], self.lo_value[k, e, j], self.mesh.time_of(e, self.lo_s[k, e, j])))
                 if cands:
                     _, worst, t = max(cands)
                     lo, hi = self.limits.bounds(kind)

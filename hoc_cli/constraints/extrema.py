@@ -20,6 +20,8 @@ from hoc_cli.elements import HermiteMesh, local_basis
 def element_polynomials(mesh: HermiteMesh, C: np.ndarray, deriv: int) -> np.ndarray:
     """Power-series coefficients in s of d^r q_h / dt^r on every element, shape (N, n, 6) (lowest first)."""
     loc = mesh.local_coefficients(mesh.check_coefficients(C))  # (N, 2m, n)
+    if not mesh.uniform:  # h_e-scaled coefficients on the h = 1 basis
+        return np.einsum("eai,ak->eik", loc * mesh.scales(deriv)[:, :, None], local_basis(mesh.order)[deriv])
     basis = local_basis(mesh.order)[deriv] * mesh.scale(deriv)[:, None]  # (2m, 6), t-derivative
     return np.einsum("eai,ak->eik", loc, basis)
 

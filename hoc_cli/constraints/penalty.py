@@ -52,6 +52,8 @@ class LimitRows:
 
     rows[r] : (R_r, 2m) for r = 0, 1, 2; part[r] : (R_r,) the element part of each row;
     data[r] : (N, R_r) bool, rows fixed by x0/x1 alone (not imposed); points : effort PointSet.
+    scale : None (uniform mesh), or per r the factors h_e^(d_a − r) (N, 2m) of a non-uniform mesh,
+    whose rows are those of h = 1 applied to the scaled element coefficients.
     """
 
     mesh: HermiteMesh
@@ -60,6 +62,7 @@ class LimitRows:
     data: tuple[np.ndarray, ...]
     points: PointSet
     pieces: int
+    scale: tuple[np.ndarray, ...] | None = None
 
     @classmethod
     def build(cls, mesh: HermiteMesh, free: np.ndarray, n: int) -> "LimitRows":
@@ -70,16 +73,20 @@ class LimitRows:
         free_nodes = free.reshape(mesh.N + 1, m, n)[:, :, 0]  # (N+1, m): same for every joint
         free_local = np.concatenate([free_nodes[:-1], free_nodes[1:]], axis=1)  # (N, 2m)
         rows, parts, data = [], [], []
+        unit = mesh if mesh.uniform else HermiteMesh(mesh.order, 1.0, 1)  # non-uniform: h = 1 rows, scaled
         for r in range(3):
-            R, part = bernstein_rows(mesh, r, PIECES)
+            R, part = bernstein_rows(unit, r, PIECES)
             rows.append(R)
             parts.append(part)
             data.append(~((np.abs(R)[None, :, :] > 1e-14 * np.abs(R).max()) & free_local[:, None, :]).any(axis=2))
+        scale = None if mesh.uniform else tuple(mesh.scales(r) for r in range(3))
         return cls(mesh, tuple(rows), tuple(parts), tuple(data),
-                   PointSet.uniform(mesh, EFFORT_POINTS_PER_ELEMENT), PIECES)
+                   PointSet.uniform(mesh, EFFORT_POINTS_PER_ELEMENT), PIECES, scale)
 
-    def weight(self, k: int) -> float:
-        """Time [s] each row of kind k stands for."""
+    def weight(self, k: int) -> float | np.ndarray:
+        """Time [s] each row of kind k stands for (non-uniform mesh: per row, broadcastable to its shape)."""
+        if not self.mesh.uniform:
+            return self.points.weight[:, None] if k == EFFORT else (self.mesh.hs / self.rows[k].shape[0])[:, None, None]
         if k == EFFORT:
             return self.mesh.h / EFFORT_POINTS_PER_ELEMENT
         return self.mesh.h / self.rows[k].shape[0]
@@ -89,7 +96,14 @@ class LimitRows:
 
     def apply(self, k: int, loc: np.ndarray) -> np.ndarray:
         """Kinematic values (N, R_k, n) of kind k from element coefficients loc (N, 2m, n)."""
+        if self.scale is not None:
+            loc = loc * self.scale[k][:, :, None]
         return np.einsum("ra,ean->ern", self.rows[k], loc)
+
+    def transpose(self, k: int, dV: np.ndarray) -> np.ndarray:
+        """Adjoint of ``apply``: sensitivities dV (N, R_k, n) to element-local gradients (N, 2m, n)."""
+        gloc = np.einsum("ra,ern->ean", self.rows[k], dV)
+        return gloc if self.scale is None else gloc * self.scale[k][:, :, None]
 
     def to_coefficients(self, gloc: np.ndarray) -> np.ndarray:
         """Element-local gradients (N, 2m, n) summed onto the nodes: (N+1, m, n)."""
@@ -198,12 +212,15 @@ class LimitTerms:
             rw = self.rho * self.rows.weight(k)
             ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
             mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
-            value += float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+            if np.ndim(rw):  # non-uniform mesh: a weight per row
+                value += float(np.sum((ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2) / (2 * rw)))
+            else:
+                value += float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
             g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
             if grad and V[k] is not None:
                 dV = (mh - ml) / sig[k]
                 if k < 3:
-                    gloc += np.einsum("ra,ern->ean", self.rows.rows[k], dV)
+                    gloc += self.rows.transpose(k, dV)
                 elif np.any(dV):
                     _, gq, gdq, gddq = self.system.id_vjp(X[0], X[1], X[2], dV)
                     G = self.rows.points.transpose(np.stack([gq, gdq, gddq]))
@@ -229,6 +246,9 @@ class LimitTerms:
             if k < 3:
                 R = self.rows.rows[k]
                 W = np.einsum("erj,ra,rb->ejab", c, R, R)  # (N, n, 2m, 2m)
+                if self.rows.scale is not None:
+                    S = self.rows.scale[k]
+                    W = W * (S[:, None, :, None] * S[:, None, None, :])
                 for j in range(n):
                     blocks[:, :, j, :, j] += W[:, j]
             else:

@@ -35,7 +35,7 @@ class PointSet:
     def build(cls, mesh: HermiteMesh, e: np.ndarray, s: np.ndarray, weight: np.ndarray) -> "PointSet":
         e = np.asarray(e, dtype=int)
         s = np.asarray(s, dtype=float)
-        B = np.stack([mesh.shape_values(s, r) for r in range(3)])
+        B = np.stack([mesh.shape_values(s, r, e) for r in range(3)])
         return cls(mesh=mesh, e=e, s=s, B=B, weight=np.asarray(weight, dtype=float))
 
     @classmethod
@@ -44,7 +44,7 @@ class PointSet:
         j = np.arange(per_element)
         e = np.concatenate([np.repeat(np.arange(mesh.N), per_element), [mesh.N - 1]])
         s = np.concatenate([np.tile(j / per_element, mesh.N), [1.0]])
-        return cls.build(mesh, e, s, np.full(e.size, mesh.h / per_element))
+        return cls.build(mesh, e, s, mesh.hs[e] / per_element)
 
     @property
     def size(self) -> int:
@@ -53,7 +53,7 @@ class PointSet:
     @property
     def t(self) -> np.ndarray:
         """Point times [s], (P,)."""
-        return (self.e + self.s) * self.mesh.h
+        return self.mesh.time_of(self.e, self.s)
 
     def apply(self, C: np.ndarray) -> np.ndarray:
         """q, q̇, q̈ at the points, (3, P, n), for coefficients C (N+1, m, n)."""
