@@ -155,7 +155,8 @@ def bisected(mesh: HermiteMesh) -> HermiteMesh:
 def _refine(system: System, result: PlanResult, N: int | HermiteMesh, *, cost: str, method: str, tol: float,
             max_iter: int, limits: JointLimits | None) -> PlanResult:
     """The problem on N uniform elements (or on a given mesh) solved from ``result``'s trajectory at its
-    nodes (exact when the new mesh holds the old one's nodes)."""
+    nodes (exact when the new mesh holds the old one's nodes).
+    """
     mesh = N if isinstance(N, HermiteMesh) else HermiteMesh(result.mesh.order, result.mesh.T, N)
     working = result.limits.working if result.limits is not None else None
     return plan(system, mesh, *result.problem.boundary, cost=cost, method=method, tol=tol, max_iter=max_iter,

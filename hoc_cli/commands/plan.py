@@ -255,6 +255,7 @@ def summarise(task: Task, model, result: PlanResult, states) -> dict:
         "tol": task.tol,
         "joints": list(model.joint_names),
         "N": mesh.N,
+        **mesh_summary(mesh),
         "order": mesh.order,
         "T": mesh.T,
         "gauss_points": result.G,
@@ -264,6 +265,13 @@ def summarise(task: Task, model, result: PlanResult, states) -> dict:
         "limit_violations": limit_violations(model.joint_names, model.lower, model.upper, model.velocity_limit,
                                              model.effort_limit, td, q, dq, u),
     }
+
+
+def mesh_summary(mesh: HermiteMesh) -> dict:
+    """``mesh``: "uniform" (N equal elements) or "nonuniform" (``N: auto`` split some), with ``nodes`` [s] then."""
+    if mesh.uniform:
+        return {"mesh": "uniform"}
+    return {"mesh": "nonuniform", "nodes": [float(v) for v in mesh.nodes]}
 
 
 def accuracy_summary(error: ErrorEstimate, accuracy: float | None, steps) -> dict:
@@ -290,7 +298,7 @@ def summary_table(summary: dict) -> Table:
     table.add_column("key")
     table.add_column("value")
     for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
-                "N", "order", "T", "boundary_error", "J_error_estimate"):
+                "N", "mesh", "order", "T", "boundary_error", "J_error_estimate"):
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
     # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
@@ -336,7 +344,7 @@ def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
     if not math.isclose(tr.mesh.T, mesh.T, rel_tol=1e-12):
         raise InputFileError(f"plan duration T = {tr.mesh.T:g} s differs from the task's T = {mesh.T:g} s",
                              file=path, key="--init")
-    if (tr.mesh.order, tr.mesh.N) == (mesh.order, mesh.N):
+    if tr.mesh == mesh:  # the same order and node times
         return np.array(tr.coeffs)
     t = mesh.nodes
     cols = [tr.mesh.evaluate(tr.coeffs, t, r) for r in range(mesh.m)]

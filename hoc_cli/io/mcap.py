@@ -31,7 +31,7 @@ Attachments (create and log time 0): ``robot.urdf`` (``application/xml``), ``tas
 (``application/yaml``) and, when the trajectory has a Hermite representation, ``hermite.json``
 (``application/json``): ``{"format": "hoc-hermite/1", "order", "T", "N", "joints", "coeffs"}``
 with ``coeffs`` nested lists of shape (N+1, m, n) written with ``repr`` floats, so every double
-round-trips exactly. :func:`read_plan` rebuilds the trajectory and the mesh from these.
+round-trips exactly; a non-uniform mesh (``N: auto``) adds ``nodes``, its N+1 node times [s]. :func:`read_plan` rebuilds the trajectory and the mesh from these.
 """
 from __future__ import annotations
 
@@ -190,6 +190,8 @@ def hermite_json(traj: Trajectory) -> bytes:
         raise ValueError("Hermite coefficients contain NaN or infinity")
     doc = {"format": HERMITE_FORMAT, "order": mesh.order, "T": float(mesh.T), "N": int(mesh.N),
            "joints": list(traj.joints), "coeffs": C.tolist()}
+    if not mesh.uniform:
+        doc["nodes"] = mesh.nodes.tolist()
     return (json.dumps(doc, allow_nan=False) + "\n").encode()
 
 
@@ -400,7 +402,8 @@ def _hermite(path: Path, data: bytes, joints: tuple[str, ...]) -> tuple[HermiteM
         doc = json.loads(data)
         if doc.get("format") != HERMITE_FORMAT:
             raise ValueError(f"format is {doc.get('format')!r}, expected {HERMITE_FORMAT!r}")
-        mesh = HermiteMesh(doc["order"], float(doc["T"]), int(doc["N"]))
+        mesh = HermiteMesh(doc["order"], float(doc["T"]), int(doc["N"]),
+                           None if doc.get("nodes") is None else tuple(float(v) for v in doc["nodes"]))
         C = np.array(doc["coeffs"], dtype=float)
         mesh.check_coefficients(C)
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
