@@ -2,6 +2,7 @@
 
 Run:  python benchmarks/bench_accuracy.py          (about a minute on 2 cores; needs '.[bench]')
       python benchmarks/bench_accuracy.py --task configs/two_link.yaml   (one task)
+      python benchmarks/bench_accuracy.py --refine   (N: auto splitting elements vs doubling N, a minute)
       python benchmarks/bench_accuracy.py --drift [--drift-N 16 32 64 128] [--drift-limits report]
           (issue 16 item 4, minutes: J(N) of the torque cost on light-wristed arms, DRIFT_TASKS,
           solved as ``hoc plan TASK -N N`` would, limits enforced; converged, max joint speed)
@@ -236,14 +237,49 @@ def drift(paths, Ns, mode: str) -> None:
                 f"{len(within_limits(model, r)):10d}")
 
 
+def refine_table() -> None:
+    """``N: auto`` with h-refinement beside uniform doubling: elements, J, estimate, true error (when known)."""
+    from hoc_cli.commands.plan_limits import task_limits
+    from hoc_cli.constraints import JointLimits
+    from hoc_cli.system import LinearOscillator
+
+    osc = LinearOscillator(1, omega=0.0)
+    t1 = 1.5 * (1.0 - 1.0 / 1.3)
+    cases = [("1-DOF, |q̇| <= 1.3 (analytic J*)", osc, ("quintic", 1.0, [0.0], [0.0], [1.0], [0.0]), "covariant",
+              JointLimits.from_arrays(osc.joint_names, velocity=[1.3]), 4 * 1.3**2 / (3 * t1), 1e-6)]
+    for path, cost, accuracy, enforce in ((ROOT / "benchmarks" / "tasks" / "ur5_limits.yaml", None, 1e-6, True),
+                                          (ROOT / "configs" / "two_link.yaml", "torque", 1e-9, False)):
+        task, model, st = load(path)
+        cost = cost or task.cost
+        cases.append((f"{path.stem} {cost} ({'limits enforced' if enforce else 'no limits'})", RobotSystem(model),
+                      (task.order, task.T, st.q0, st.dq0, st.q1, st.dq1), cost,
+                      task_limits(model, st.limits) if enforce else None, None, accuracy))
+    say(f"{'task':34s} {'accuracy':8s} {'refine':8s} {'N':>4s} {'meshes (N)':28s} {'J':>18s} {'estimate':>9s} {'true':>9s} "
+        f"{'time [s]':>8s}")
+    for name, system, args, cost, limits, J_star, accuracy in cases:
+        for refine in ("h", "uniform"):
+            started = time.perf_counter()
+            f = plan_auto(system, *args, cost=cost, limits=limits, accuracy=accuracy, refine=refine)
+            wall = time.perf_counter() - started
+            true = "-" if J_star is None else f"{(f.plan.J - J_star) / J_star:9.1e}"
+            est = "-" if f.error.relative is None else f"{f.error.relative:9.1e}"
+            meshes = ", ".join(str(s["N"]) for s in f.steps)
+            say(f"{name:34s} {accuracy:8.0e} {refine:8s} {f.plan.mesh.N:4d} {meshes:28s} {f.plan.J:18.10f} {est:>9s} {true:>9s} "
+                f"{wall:8.1f}{'' if f.reached else '  (accuracy not reached)'}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--task", action="append", type=Path,
                     help="a task file (repeatable; default: configs/two_link.yaml and configs/lbr7_reach.yaml)")
+    ap.add_argument("--refine", action="store_true", help="N: auto splitting elements beside doubling N instead")
     ap.add_argument("--drift", action="store_true", help="the torque-cost drift table instead (issue 16 item 4)")
     ap.add_argument("--drift-N", type=int, nargs="+", default=[16, 32, 64, 128])
     ap.add_argument("--drift-limits", choices=("enforce", "report"), default="enforce")
     args = ap.parse_args()
+    if args.refine:
+        refine_table()
+        return
     if args.drift:
         drift([Path(p).resolve() for p in (args.task or DRIFT_TASKS)], args.drift_N, args.drift_limits)
         return

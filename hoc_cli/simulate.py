@@ -238,7 +238,7 @@ def simulate_hermite(
     s = collocation_points(mesh.order, points) if points is None or isinstance(points, str) else np.asarray(points, float)
     if s.shape != (m,) or np.any(s <= 0) or np.any(s > 1):
         raise ValueError(f"{mesh.order} elements need {m} collocation points in (0, 1], got {s}")
-    el = _Element.build(mesh, s)
+    el = _Element.build(mesh if mesh.uniform else HermiteMesh(mesh.order, float(mesh.hs[0]), 1), s)
 
     with np.errstate(all="ignore"):  # overflow and NaN are detected and reported below, with the element
         return _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started)
@@ -250,8 +250,10 @@ class _NewtonFailure(Exception):
 
 def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, started) -> HermiteSimulation:
     """The element-by-element loop of ``simulate_hermite`` (arguments checked there)."""
-    m, N, h, n = mesh.m, mesh.N, mesh.h, q0.size
-    t_col = ((np.arange(N)[:, None] + s[None, :]) * h).ravel()
+    m, N, n = mesh.m, mesh.N, q0.size
+    hs, t_nodes = mesh.hs, mesh.nodes  # element lengths and node times [s] (non-uniform meshes: N: auto plans)
+    h = hs[0]
+    t_col = mesh.time_of(np.repeat(np.arange(N), m), np.tile(s, N))
     U = np.asarray(torque(t_col), dtype=float).reshape(N, m, n)  # all collocation torques at once
     u0 = np.asarray(torque(np.array([0.0])), dtype=float).reshape(1, n)
     ddq0 = system.forward_dynamics(q0[None], dq0[None], u0)[0]
@@ -259,7 +261,8 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
         raise NumericalError("non-finite torque or acceleration at t = 0 s (check x0 and the torque history)")
     bad = np.flatnonzero(~np.all(np.isfinite(U), axis=(1, 2)))
     if bad.size:
-        raise NumericalError(_where(int(bad[0]), h, "the torque history is not finite there"))
+        raise NumericalError(_where(int(bad[0]), hs[bad[0]], "the torque history is not finite there",
+                                    t_nodes[bad[0]]))
 
     C = np.zeros((N + 1, m, n))
     C[0, 0], C[0, 1] = q0, dq0
@@ -271,14 +274,24 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
     subdivided: list[tuple[int, int]] = []
     for e in range(N):
         left = C[e]
-        if e == 0:  # Taylor predictor from the initial state
-            guess = np.stack([q0 + h * dq0 + 0.5 * h * h * ddq0, dq0 + h * ddq0, ddq0][:m])
-        else:  # extrapolate the previous element's polynomial to s = 2
+        if not mesh.uniform and hs[e] != h:  # the element's own length: its shape functions and scales
+            h, el = hs[e], _Element.build(HermiteMesh(mesh.order, float(hs[e]), 1), s)
+            scale = (h ** np.arange(m))[:, None]
+        if e == 0 or (not mesh.uniform and hs[e] > 2 * hs[e - 1]):  # Taylor predictor from the left node
+            q, dq = left[0], left[1]
+            ddq = ddq0 if e == 0 else left[2] if m == 3 else system.forward_dynamics(
+                q[None], dq[None], np.asarray(torque(t_nodes[e:e + 1]), dtype=float).reshape(1, n))[0]
+            guess = np.stack([q + h * dq + 0.5 * h * h * ddq, dq + h * ddq, ddq][:m])
+        elif mesh.uniform:  # extrapolate the previous element's polynomial to s = 2
             guess = el.BX[:m] @ np.concatenate([C[e - 1], C[e]])
+        else:  # the previous element's polynomial at t_{e+1}
+            prev = HermiteMesh(mesh.order, float(hs[e - 1]), 1)
+            x = np.array([1.0 + hs[e] / hs[e - 1]])
+            guess = np.stack([prev.shape_values(x, r)[0] for r in range(m)]) @ np.concatenate([C[e - 1], C[e]])
         try:
             right, iterations, calls = _newton(system, el, left, guess, U[e], scale, xtol, max_iter)
         except _NewtonFailure as first:  # solve the element as 2, 4, … sub-elements
-            right, iterations, calls, pieces = split.solve(left, e * h, h, e, str(first))
+            right, iterations, calls, pieces = split.solve(left, t_nodes[e], h, e, str(first))
             subdivided.append((e, pieces))
         C[e + 1] = right
         total += iterations
@@ -291,7 +304,8 @@ def _march(system, q0, dq0, torque, mesh, el, s, xtol, max_iter, callback, start
                f"{evaluations} dynamics evaluations")
     if subdivided:
         message += "; Newton failed in " + ", ".join(
-            f"element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s), solved as {k} sub-elements" for e, k in subdivided)
+            f"element {e} (t = {t_nodes[e]:.6g} … {t_nodes[e + 1]:.6g} s), solved as {k} sub-elements"
+            for e, k in subdivided)
     return HermiteSimulation(
         mesh=mesh, coeffs=C, points=s, status=SimulationStatus.SUCCESS, newton_iterations=total,
         max_newton_iterations=worst, evaluations=evaluations, wall_time_s=wall, message=message,
@@ -332,7 +346,7 @@ class _Splitter:
                 return node, total, calls, pieces
             except _NewtonFailure as exc:
                 why = str(exc)
-        raise NumericalError(_where(e, h, f"{why}, even as {pieces} sub-elements"))
+        raise NumericalError(_where(e, h, f"{why}, even as {pieces} sub-elements", t0))
 
     def _piece(self, left: np.ndarray, t0: float, H: float, depth: int) -> tuple[np.ndarray, int, int]:
         el, m = self._element(depth, H), self.m
@@ -408,8 +422,9 @@ def _newton(
     raise _NewtonFailure(f"Newton did not converge in {max_iter} iterations (last step {step:.3g})")
 
 
-def _where(e: int, h: float, what: str) -> str:
-    return (f"Hermite simulation failed in element {e} (t = {e * h:.6g} … {(e + 1) * h:.6g} s): {what}; "
+def _where(e: int, h: float, what: str, t0: float | None = None) -> str:
+    t0 = e * h if t0 is None else t0
+    return (f"Hermite simulation failed in element {e} (t = {t0:.6g} … {t0 + h:.6g} s): {what}; "
             f"more elements (-N) or --integrator rk may get through")
 
 

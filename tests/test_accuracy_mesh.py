@@ -209,3 +209,22 @@ def test_hoc_plan_n_auto_writes_a_non_uniform_plan_that_init_and_read_plan_accep
     assert again.exit_code == 0, again.output
     a = json.loads(again.stdout)
     assert a["mesh"] == "uniform" and abs(a["cost"] - s["cost"]) <= 1e-5 * s["cost"]
+    sim = CliRunner().invoke(app, ["simulate", "arm.mcap", "-o", "sim.csv", "--json", "-q"])
+    assert sim.exit_code == 0, sim.output
+    replay = json.loads(sim.stdout)  # on the plan's own non-uniform mesh
+    assert replay["N"] == s["N"] and replay["final_error"] < 1e-6
+
+
+@pytest.mark.parametrize("order", ["quintic", "cubic"])
+def test_simulating_the_plans_torque_on_its_non_uniform_mesh_returns_the_plan(arm, order):
+    """The collocation replay (its own Newton solves) finds the plan's nodes; NODES ends with an element
+    9 times longer than the one before it (the predictor is then the left node's Taylor polynomial)."""
+    from hoc_cli.simulate import simulate_hermite
+    from hoc_cli.torque import PlannedTorque
+
+    mesh = HermiteMesh.from_nodes(order, NODES)
+    result = plan(arm, mesh, *TWO_LINK, cost="torque", tol=1e-12)
+    sim = simulate_hermite(arm, np.array(TWO_LINK[0]), np.array(TWO_LINK[1]), PlannedTorque(arm, mesh, result.coeffs),
+                           mesh)
+    assert sim.mesh == mesh
+    assert np.allclose(sim.coeffs[:, :2], result.coeffs[:, :2], rtol=0, atol=1e-9)

@@ -148,13 +148,18 @@ def run(
         console = stderr_console(quiet=quiet, progress=progress)
         if method == "hermite":
             mesh = HermiteMesh(task.order, task.T, task.N)
+            planned = plan.trajectory.mesh if plan is not None else None
+            if planned is not None and not planned.uniform and (planned.order, planned.T, planned.N) == (
+                    mesh.order, mesh.T, mesh.N):
+                mesh = planned  # replay an N: auto plan on its own non-uniform mesh
             with _progress(console, task.N, progress) as tick:
                 result = sim.simulate_hermite(system, states.q0, states.dq0, history, mesh, callback=tick,
                                               xtol=sim.NEWTON_XTOL if tol is None else tol,
                                               max_iter=sim.NEWTON_MAX_ITER if max_iter is None else max_iter)
             iterations, evaluations = result.newton_iterations, result.evaluations
-            h = mesh.h
-            subdivided = [{"element": e, "t": [e * h, (e + 1) * h], "sub_elements": k} for e, k in result.subdivided]
+            tn = mesh.nodes
+            subdivided = [{"element": e, "t": [float(tn[e]), float(tn[e + 1])], "sub_elements": k}
+                          for e, k in result.subdivided]
         else:
             rtol = 1e-12 if tol is None else tol
             result = sim.simulate_reference(system, states.q0, states.dq0, history, task.T, rtol=rtol, atol=rtol)
