@@ -22,8 +22,11 @@ element; at the plan, the cost's gradient with respect to the middle node's coef
 and the Hessian's block there H_e give η_e = ½ g_eᵀ H_e⁻¹ g_e, the decrease of J one Newton step
 on that node alone would bring. The middle nodes of different elements do not share an element,
 so Σ η_e is the decrease of the quadratic model when only the new nodes move (a lower estimate of
-J(N) − J(2N)). η_e is largest where splitting element e would help most (the input of an
-h-refinement, not done yet: meshes stay uniform). Limit terms are not included.
+J(N) − J(2N)). Limit terms are not included, so ``N: auto`` splits elements by another indicator,
+``correction_indicators`` (the energy of the correction C(2N) − C(N) per element, which limits
+shape), with Dörfler marking (``marked``): its meshes become non-uniform (``HermiteMesh.split``).
+On a non-uniform mesh the 2N elements are its elements bisected, and the order is the one measured
+on the last uniform mesh of the run.
 
 Pure maths: no I/O.
 """

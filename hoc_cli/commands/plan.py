@@ -299,6 +299,8 @@ def summary_table(summary: dict) -> Table:
     table.add_column("value")
     for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
                 "N", "mesh", "order", "T", "boundary_error", "J_error_estimate"):
+        if key == "mesh" and summary[key] == "uniform":
+            continue  # shown for the non-uniform meshes of N: auto only
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
     # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
