@@ -228,3 +228,29 @@ def test_simulating_the_plans_torque_on_its_non_uniform_mesh_returns_the_plan(ar
                            mesh)
     assert sim.mesh == mesh
     assert np.allclose(sim.coeffs[:, :2], result.coeffs[:, :2], rtol=0, atol=1e-9)
+
+
+def test_equal_node_times_given_explicitly_give_the_uniform_meshs_operators_to_rounding(arm):
+    """The non-uniform code path (per-element scaling) against the uniform one on the same geometry."""
+    uniform = HermiteMesh("quintic", 1.5, 6)
+    given = HermiteMesh.from_nodes("quintic", uniform.nodes)
+    assert not given.uniform
+    rng = np.random.default_rng(7)
+    C = rng.normal(size=(7, 3, 2))
+    for a, b in zip(uniform.quadrature(7).apply(C), given.quadrature(7).apply(C)):
+        assert np.allclose(a, b, rtol=1e-13, atol=1e-12)
+    limits = JointLimits.from_arrays(arm.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], velocity=[1.0, 0.5],
+                                     acceleration=[3.0, 2.0], effort=[20.0, 5.0])
+    out = []
+    for mesh in (uniform, given):
+        problem = ControlProblem(arm, mesh, *TWO_LINK, cost="covariant")
+        x = problem.layout.pack(C)
+        ev = problem.evaluate(x)
+        rows = LimitRows.build(mesh, problem.layout.free, 2)
+        lam = tuple(np.full(rows.shape(k, 2), 0.1) for k in range(4))
+        terms = LimitTerms(arm, limits, rows, np.ones((4, 2), bool), lam, lam, rho=50.0, margin=MARGIN)
+        pv = terms.evaluate(C)
+        out.append((ev.J, ev.grad, element_blocks(problem.op_h, problem.hessian_samples(ev)[1]), pv.value, pv.grad,
+                    terms.newton_blocks(C)))
+    for a, b in zip(*out):
+        assert np.allclose(a, b, rtol=1e-11, atol=1e-9 * np.max(np.abs(a)))
