@@ -5,7 +5,8 @@ Run from the repository root, in the environment where hoc is installed:
     python docs/figures.py                 # the fast sections (about a minute): quickstart, verify, examples, timing
     python docs/figures.py verify examples # only these sections
     python docs/figures.py --bench         # also the benchmark scripts (several minutes; needs '.[bench]')
-    python docs/figures.py batch           # a hoc batch sweep: docs/batch.md's table and docs/batch_cost_vs_T.png
+    python docs/figures.py batch readme-batch   # a hoc batch sweep: docs/batch.md's table, the README's, the plot
+    python docs/figures.py starts          # multi-start over 10 seeds on a Panda move (README; needs example-robot-data)
     python docs/figures.py --print quickstart   # print a section instead of writing it
     python docs/figures.py --list          # the sections and the file each one writes into
 
@@ -237,12 +238,13 @@ sweep:
 BATCH_PLOT = ROOT / "docs" / "batch_cost_vs_T.png"
 
 
-def batch() -> str:
-    """A real ``hoc batch`` sweep (lbr7 reach, T × limits mode): its table, and cost vs T in docs/batch_cost_vs_T.png."""
-    import matplotlib
+_BATCH_RUN: list = []  # the sweep runs once per invocation, for docs/batch.md and the README
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def _batch_sweep() -> tuple[dict, dict, list[float], float]:
+    """Run the sweep once: (summary, rows by (T, limits mode), the durations, wall time of the command in s)."""
+    if _BATCH_RUN:
+        return _BATCH_RUN[0]
     import pyarrow.parquet as pq
 
     tmp = scratch()
@@ -256,23 +258,25 @@ def batch() -> str:
     Ts = sorted({T for T, _ in by})
     if summary["errors"] or len(by) != 2 * len(Ts):
         raise RuntimeError(f"hoc batch: {summary['errors']} error rows, {len(rows)} rows for {len(Ts)} durations")
+    _BATCH_RUN.append((summary, by, Ts, wall))
+    _batch_plot(by, Ts)
+    return _BATCH_RUN[0]
 
-    def broken(r: dict) -> str:
-        kinds: dict[str, list[str]] = {}
-        for v in json.loads(r["limit_violations"] or "[]"):
-            kinds.setdefault(v["kind"], []).append(v["joint"].removeprefix("lbr_"))
-        return "; ".join(f"{k}: {', '.join(j)}" for k, j in kinds.items()) or "none"
 
-    lines = ["```yaml", "# sweep.yaml", BATCH_SPEC.rstrip(), "```", "",
-             f"`hoc batch sweep.yaml -o sweep --workers 2`: {summary['plans']} plans, {summary['errors']} errors, "
-             f"{wall:.0f} s for the whole command (a local cluster of 2 workers).", "",
-             "| T [s] | J, limits enforced | iterations | solve [s] | J, limits reported | iterations | solve [s] "
-             "| limits the reported plan breaks | J enforced / J reported |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for T in Ts:
-        e, r = by[T, "enforce"], by[T, "report"]
-        lines.append(f"| {T:g} | {e['cost']:.6f} | {e['iterations']} | {e['solve_time_s']:.2f} | {r['cost']:.6f} | "
-                     f"{r['iterations']} | {r['solve_time_s']:.2f} | {broken(r)} | {e['cost'] / r['cost']:.4f} |")
+def _broken(r: dict) -> str:
+    """The limits a plan breaks, by kind: "velocity: joint_4, joint_6", or "none"."""
+    kinds: dict[str, list[str]] = {}
+    for v in json.loads(r["limit_violations"] or "[]"):
+        kinds.setdefault(v["kind"], []).append(v["joint"].removeprefix("lbr_"))
+    return "; ".join(f"{k}: {', '.join(j)}" for k, j in kinds.items()) or "none"
+
+
+def _batch_plot(by: dict, Ts: list[float]) -> None:
+    """docs/batch_cost_vs_T.png: J against T, limits enforced and reported."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
     enforced = [by[T, "enforce"]["cost"] for T in Ts]
@@ -284,18 +288,63 @@ def batch() -> str:
     if bad:
         ax.plot(*zip(*bad), "x", color="C3", markersize=11, markeredgewidth=2,
                 label="the unconstrained optimum breaks a velocity limit" if all(
-                    "velocity" in broken(by[T, "report"]) for T, _ in bad) else "the unconstrained optimum breaks a limit")
+                    "velocity" in _broken(by[T, "report"]) for T, _ in bad) else "the unconstrained optimum breaks a limit")
     ax.set_xlabel("duration T [s]")
     ax.set_ylabel("J = ∫ ½ uᵀ M(q)⁻¹ u dt")
     ax.set_title("configs/lbr7_reach.yaml: optimal cost against the duration (hoc batch, "
-                 f"{len(rows)} plans)", fontsize=10)
+                 f"{2 * len(Ts)} plans)", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     fig.savefig(BATCH_PLOT, metadata={"Software": None})
     plt.close(fig)
+
+
+def batch() -> str:
+    """A real ``hoc batch`` sweep (lbr7 reach, T × limits mode): its table, and cost vs T in docs/batch_cost_vs_T.png."""
+    summary, by, Ts, wall = _batch_sweep()
+    lines = ["```yaml", "# sweep.yaml", BATCH_SPEC.rstrip(), "```", "",
+             f"`hoc batch sweep.yaml -o sweep --workers 2`: {summary['plans']} plans, {summary['errors']} errors, "
+             f"{wall:.0f} s for the whole command (a local cluster of 2 workers).", "",
+             "| T [s] | J, limits enforced | iterations | solve [s] | J, limits reported | iterations | solve [s] "
+             "| limits the reported plan breaks | J enforced / J reported |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for T in Ts:
+        e, r = by[T, "enforce"], by[T, "report"]
+        lines.append(f"| {T:g} | {e['cost']:.6f} | {e['iterations']} | {e['solve_time_s']:.2f} | {r['cost']:.6f} | "
+                     f"{r['iterations']} | {r['solve_time_s']:.2f} | {_broken(r)} | {e['cost'] / r['cost']:.4f} |")
     lines += ["", f"![cost against T, limits enforced and reported]({BATCH_PLOT.name})"]
     return "\n".join(lines)
+
+
+def readme_batch() -> str:
+    """The README's short version of the sweep: spec, command, J against T in both modes, the plot."""
+    summary, by, Ts, wall = _batch_sweep()
+    lines = ["```yaml", "# sweep.yaml", BATCH_SPEC.rstrip(), "```", "",
+             f"`hoc batch sweep.yaml -o sweep --workers 2` solved its {summary['plans']} plans in {wall:.0f} s "
+             "(2 workers) and wrote `sweep/results.parquet` and `sweep/results.csv`:", "",
+             "| T [s] | " + " | ".join(f"{T:g}" for T in Ts) + " |",
+             "| --- | " + " | ".join("---" for _ in Ts) + " |",
+             "| J, enforced | " + " | ".join(f"{by[T, 'enforce']['cost']:.2f}" for T in Ts) + " |",
+             "| J, reported | " + " | ".join(f"{by[T, 'report']['cost']:.2f}" for T in Ts) + " |",
+             "| limits broken when reported | " + " | ".join(
+                 _broken(by[T, "report"]).replace("velocity: ", "v: ") for T in Ts) + " |",
+             "", f"![cost against T, limits enforced and reported](docs/{BATCH_PLOT.name})"]
+    return "\n".join(lines)
+
+
+def starts() -> str:
+    """Multi-start on issue 15's Panda move: the kept J over seeds 0-9 (benchmarks/bench_batch.py --panda-seeds 10)."""
+    out = run([sys.executable, str(ROOT / "benchmarks" / "bench_batch.py"), "--panda-seeds", "10", "--json"], ROOT)
+    results = json.loads(out.stdout)
+    kept = sorted(r["kept"] for r in results)
+    every = [j for r in results for j, c in zip(r["J"], r["converged"]) if c]
+    return (f"Over seeds 0–{len(results) - 1}, `--starts {len(results[0]['J'])}` kept J = "
+            + ", ".join(f"{r['kept']:.2f}" for r in results)
+            + f" (median {kept[len(kept) // 2]:.2f}; {sum(k <= 361.52 for k in kept)} of {len(kept)} seeds at or below "
+            f"CasADi + IPOPT's 361.52); one start alone reaches {results[0]['J'][0]:.2f}. Of all "
+            f"{sum(len(r['J']) for r in results)} starts, {len(every)} converged, to J between {min(every):.2f} "
+            f"and {max(every):.2f} (median {sorted(every)[len(every) // 2]:.2f}).")
 
 
 @dataclass(frozen=True)
@@ -323,6 +372,8 @@ SECTIONS: dict[str, Section] = {
     "bench-simulate": Section("docs/benchmarks.md", bench("bench_simulate.py"),
                               "python benchmarks/bench_simulate.py", True),
     "batch": Section("docs/batch.md", batch, "python docs/figures.py batch", True),
+    "readme-batch": Section("README.md", readme_batch, "python docs/figures.py batch readme-batch", True),
+    "starts": Section("README.md", starts, "python docs/figures.py starts", True),
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
 }

@@ -1,4 +1,7 @@
-"""Forward simulation: the paper's Hermite collocation time integrator and a reference integrator.
+"""Forward simulation: the paper's Hermite collocation time integrator, and sampling a simulated motion.
+
+The result types are in ``hoc_cli.simulation_results``, the reference (Runge-Kutta) integrator in
+``hoc_cli.reference_integrator``; both are re-exported here.
 
 Symbols
 -------
@@ -34,15 +37,16 @@ motion equation), and Radau IIA points give order 4 as well.
 """
 from __future__ import annotations
 
-import enum
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
+from hoc_cli.reference_integrator import simulate_reference
+from hoc_cli.simulation_results import HermiteSimulation, ReferenceSimulation, SimulationStatus
 from hoc_cli.system import System
 from hoc_cli.torque import TorqueSource
 from hoc_cli.trajectory import Trajectory
@@ -53,6 +57,9 @@ NEWTON_XTOL = 1e-13
 NEWTON_MAX_ITER = 25
 #: an element whose Newton iteration fails is solved as 2, 4, … up to 2**MAX_SPLIT_DEPTH sub-elements
 MAX_SPLIT_DEPTH = 5
+
+__all__ = ["HermiteSimulation", "ReferenceSimulation", "SimulationStatus", "collocation_points", "collocation_residual",
+           "sample", "simulate_hermite", "simulate_reference"]
 
 
 # --------------------------------------------------------------------------- collocation points
@@ -80,74 +87,6 @@ def collocation_points(order: str, kind: str | None = None) -> np.ndarray:
         inner = np.sort(np.real(np.polynomial.legendre.legroots(np.polynomial.legendre.legder(c))))
         return np.concatenate([(inner + 1.0) / 2.0, [1.0]])
     raise ValueError(f"collocation point kind must be one of {POINT_KINDS}, got {kind!r}")
-
-
-# --------------------------------------------------------------------------- results
-class SimulationStatus(enum.Enum):
-    """How a simulation ended. Failures raise ``NumericalError`` instead of returning."""
-
-    SUCCESS = "success"
-
-
-@dataclass(eq=False)
-class HermiteSimulation:
-    """Result of ``simulate_hermite``: the Hermite trajectory and Newton's work.
-
-    coeffs (N+1, m, n): a, b(, c) at every node. ``points`` (m,) the collocation coordinates.
-    ``newton_iterations`` is the total number of Newton steps (Jacobian factorisations) over all
-    elements, ``max_newton_iterations`` the worst element, ``evaluations`` the number of batched
-    ``id_derivatives`` calls (m samples each), ``wall_time_s`` the march alone.
-    ``subdivided`` lists (element, sub-elements) for each element whose Newton iteration failed and
-    that was solved as 2, 4, … equal sub-elements instead (the node values at its ends then come
-    from the sub-elements; between them the trajectory is the element's Hermite interpolant).
-    """
-
-    mesh: HermiteMesh
-    coeffs: np.ndarray
-    points: np.ndarray
-    status: SimulationStatus
-    newton_iterations: int
-    max_newton_iterations: int
-    evaluations: int
-    wall_time_s: float
-    message: str
-    subdivided: tuple[tuple[int, int], ...] = ()
-
-    def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """q_h(t), q̇_h(t) at times t (K,) [s]; each (K, n)."""
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        return self.mesh.evaluate(self.coeffs, t, 0), self.mesh.evaluate(self.coeffs, t, 1)
-
-    def final_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """(q(T), q̇(T)), each (n,): the last node's a and b."""
-        return self.coeffs[-1, 0].copy(), self.coeffs[-1, 1].copy()
-
-
-@dataclass(eq=False)
-class ReferenceSimulation:
-    """Result of ``simulate_reference``: a dense ODE solution of the forward dynamics.
-
-    ``solution(t)`` gives x = (q, q̇) stacked, shape (2n, K). ``nfev`` forward-dynamics calls,
-    ``steps`` accepted steps.
-    """
-
-    T: float
-    n: int
-    solution: Callable[[np.ndarray], np.ndarray] = field(repr=False)
-    status: SimulationStatus
-    nfev: int
-    steps: int
-    wall_time_s: float
-    message: str
-
-    def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """q(t), q̇(t) at times t (K,) in [0, T]; each (K, n)."""
-        x = self.solution(np.atleast_1d(np.asarray(t, dtype=float)))
-        return x[: self.n].T.copy(), x[self.n :].T.copy()
-
-    def final_state(self) -> tuple[np.ndarray, np.ndarray]:
-        q, dq = self.state(np.array([self.T]))
-        return q[0], dq[0]
 
 
 # --------------------------------------------------------------------------- Hermite integrator
@@ -426,46 +365,6 @@ def _where(e: int, h: float, what: str, t0: float | None = None) -> str:
     t0 = e * h if t0 is None else t0
     return (f"Hermite simulation failed in element {e} (t = {t0:.6g} … {t0 + h:.6g} s): {what}; "
             f"more elements (-N) or --integrator rk may get through")
-
-
-# --------------------------------------------------------------------------- reference integrator
-def simulate_reference(
-    system: System,
-    q0: np.ndarray,
-    dq0: np.ndarray,
-    torque: TorqueSource,
-    T: float,
-    *,
-    rtol: float = 1e-12,
-    atol: float = 1e-12,
-    method: str = "DOP853",
-) -> ReferenceSimulation:
-    """Integrate ẋ = (q̇, FD(q, q̇, u(t))) on [0, T] with scipy's ``solve_ivp`` (dense output).
-
-    q0, dq0 (n,); T [s]. Raises NumericalError when the integrator fails.
-    """
-    from scipy.integrate import solve_ivp
-
-    started = time.perf_counter()
-    q0 = np.asarray(q0, dtype=float).reshape(-1)
-    dq0 = np.asarray(dq0, dtype=float).reshape(-1)
-    n = q0.size
-
-    def rhs(t: float, x: np.ndarray) -> np.ndarray:
-        u = torque(np.array([t]))
-        ddq = system.forward_dynamics(x[None, :n], x[None, n:], u)[0]
-        return np.concatenate([x[n:], ddq])
-
-    with np.errstate(all="ignore"):  # a blow-up is reported below
-        sol = solve_ivp(rhs, (0.0, float(T)), np.concatenate([q0, dq0]), method=method, rtol=rtol, atol=atol,
-                        dense_output=True)
-    if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
-        raise NumericalError(f"reference integrator ({method}) failed at t = {sol.t[-1]:.6g} s: {sol.message}")
-    return ReferenceSimulation(
-        T=float(T), n=n, solution=sol.sol, status=SimulationStatus.SUCCESS, nfev=int(sol.nfev),
-        steps=int(sol.t.size - 1),
-        wall_time_s=time.perf_counter() - started, message=f"{method}: {sol.t.size - 1} steps, {sol.nfev} evaluations",
-    )
 
 
 # --------------------------------------------------------------------------- sampling, period
