@@ -182,6 +182,8 @@ def test_h_refinement_reaches_the_velocity_limited_optimum_with_fewer_elements_t
         assert all(b <= a * (1 + 1e-10) for a, b in zip(Js, Js[1:])), (refine, Js)
     h, uniform = found["h"], found["uniform"]
     assert not h.plan.mesh.uniform and h.steps[-1]["mesh"] == "nonuniform"
+    true = (h.plan.J - J_star) / h.plan.J  # the estimate on the non-uniform mesh (order from the uniform one)
+    assert true / 2 <= h.error.relative <= 2 * true, (h.error.relative, true, h.error.basis)
     assert 2 * h.plan.mesh.N <= uniform.plan.mesh.N, (h.plan.mesh.N, uniform.plan.mesh.N)
     hs = h.plan.mesh.hs  # the small elements are where the limit becomes active or inactive, not in the cruise
     t_small = h.plan.mesh.nodes[:-1][hs < hs.max()]
