@@ -139,6 +139,7 @@ class _Session:
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
+        self.current_N = 0
 
     def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         """The unconstrained minimiser on ``problem`` from x0 (the inner solve of ``enforce`` too)."""
@@ -176,13 +177,27 @@ class _Session:
                                                 level=problem.mesh.N) for h in res.history)
         return res
 
+    def record(self, res: OptimizeResult) -> None:
+        """Add a solve made outside ``solve`` (the limits' SQP) to the totals and history."""
+        totals = self.totals
+        for h in res.history:
+            log = dataclasses.replace(h, iteration=h.iteration + totals["it"], n_evals=h.n_evals + totals["ev"],
+                                      level=self.current_N)
+            self.history.append(log)
+            if self.callback is not None:
+                self.callback(log)
+        totals["it"] += res.iterations
+        totals["ev"] += res.n_evals
+        totals["pre"] += res.n_precond
+
     def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int = 40):
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
+        self.current_N = problem.mesh.N
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
-                     max_outer=max_outer)
+                     max_outer=max_outer, use_sqp=self.precondition, record=self.record)
         self.working = er.working
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
