@@ -32,6 +32,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import cho_solve_banded
 
 from hoc_cli.banded import element_blocks
 from hoc_cli.constraints.bounds import KINDS, JointLimits
@@ -41,9 +42,10 @@ from hoc_cli.optimize import IterLog, OptimizeResult, Status
 from hoc_cli.optimize.result import StopTest
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
-RHO_QP = float(os.environ.get("HOC_RHO_QP", 1e3))  # the QP's penalty per unit time, × |J|/T
+RHO_QP = 1e4  # the QP's penalty per unit time, × |J|/T
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
 QP_STALL = 1e-10  # ... or at least this, when the rounding of the banded solves stops progress
+QP_LOOSE = 1e-5  # ... the loosest, far from the solution (the tolerance is 1e-2 × the last relative decrement)
 QP_MAX_OUTER = 40
 SSN_MAX = 30
 LS_MAX = 40
@@ -149,12 +151,70 @@ class _Model:
             q, r, pv = self.value(d, terms)
         return d, pv
 
-    def solve(self, lam: tuple, rho: float, d0: np.ndarray) -> tuple[np.ndarray, tuple, float, bool]:
-        """The QP's step d, its multipliers (lo, hi) and penalty; ok False when its rows cannot be met."""
+    def dual_step(self, d: np.ndarray, pv: PenaltyValue, terms: LimitTerms):
+        """The multipliers that put the active rows W exactly on their bounds, for the active piece at d.
+
+        With K = H + Σ_W ρ_i a_i a_iᵀ, changing λ_W by δ moves d by −K⁻¹A_Wᵀδ and the rows by
+        −Sδ, S = A_W K⁻¹ A_Wᵀ; δ = S⁺ g_W (pseudo-inverse: rows active along a whole element are
+        linearly dependent, and their targets consistent) zeroes them. Returns (d, rows, terms) at
+        the new point, or None when a multiplier would turn negative (the row must leave W).
+        """
+        n, m = self.base.n, self.base.mesh.m
+        _, _, sig = terms._bounds
+        cols, vals, gW, muW, where = [], [], [], [], []
+        count = 0
+        for k in range(EFFORT):
+            R = terms.rows.rows[k]
+            for side, mu, g in ((-1.0, pv.mu_lo[k], pv.g_lo[k]), (1.0, pv.mu_hi[k], pv.g_hi[k])):
+                e, r, j = np.nonzero(mu > 0)
+                if e.size == 0:
+                    continue
+                a = np.arange(2 * m)
+                cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
+                vals.append(side * R[r] / sig[k, j][:, None])
+                gW.append(g[e, r, j])
+                muW.append(mu[e, r, j])
+                where.append((k, side, e, r, j))
+                count += e.size
+        if count == 0:
+            return d, pv, terms
+        cols, vals, gW, muW = np.concatenate(cols), np.concatenate(vals), np.concatenate(gW), np.concatenate(muW)
+        AT = np.zeros((self.free.size, count))
+        np.add.at(AT, (cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)), vals)
+        AT = AT[self.free]
+        K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
+        full = np.zeros((self.free.size, count))
+        full[self.free] = AT
+        KA = cho_solve_banded((K.factor, False), full, check_finite=False)[self.free]
+        S = AT.T @ KA
+        w, V = np.linalg.eigh(0.5 * (S + S.T))
+        keep = w > 1e-12 * max(float(w.max()), 1e-300)
+        delta = V[:, keep] @ ((V[:, keep].T @ gW) / w[keep])
+        if np.any(muW + delta < 0):
+            return None  # a multiplier would turn negative: that row leaves W, this step does not apply
+        d = d - KA @ delta
+        lam_lo = [np.array(x) for x in pv.mu_lo]
+        lam_hi = [np.array(x) for x in pv.mu_hi]
+        start = 0
+        for k, side, e, r, j in where:
+            target = lam_hi if side > 0 else lam_lo
+            target[k][e, r, j] += delta[start:start + e.size]
+            start += e.size
+        terms = LimitTerms(terms.system, terms.limits, terms.rows, terms.working, tuple(lam_lo), tuple(lam_hi),
+                           terms.rho, terms.margin)
+        return d, terms.evaluate(self.base.coefficients(self.x + d), grad=False), terms
+
+    def solve(self, lam: tuple, rho: float, d0: np.ndarray, feas: float = QP_FEAS) -> tuple[np.ndarray, tuple, float, bool]:
+        """The QP's step d, its multipliers (lo, hi) and penalty; ok False when its rows cannot be met.
+
+        ``feas``: the violation and active-row gap to reach (``QP_FEAS`` near the solution; looser
+        while the SQP is far from it: an inexact SQP).
+        """
         terms = self.terms
         d = d0
         lam_lo, lam_hi = lam
         prev, prev_crit, rho0 = math.inf, math.inf, rho
+        settled = None
         for _ in range(QP_MAX_OUTER):
             t = LimitTerms(terms.system, terms.limits, terms.rows, terms.working, lam_lo, lam_hi, rho, terms.margin)
             try:
@@ -163,18 +223,25 @@ class _Model:
                 if self.modified:
                     raise
                 self.modify()
-                return self.solve(lam, rho0, d0)
-            viol = pv.max_violation()
-            gap = max(float(np.max(np.abs(g[m > 0]), initial=0.0)) for g, m in
-                      zip(pv.g_lo + pv.g_hi, pv.mu_lo + pv.mu_hi))  # active rows off their bound
+                return self.solve(lam, rho0, d0, feas)
+            viol, gap = _residuals(pv)
+            pattern = _pattern(pv)
+            if max(viol, gap) > feas and np.array_equal(pattern, settled):
+                # the active piece repeats: its exact multipliers, kept when they do better
+                step = self.dual_step(d, pv, t)
+                if step is not None:
+                    viol2, gap2 = _residuals(step[1])
+                    if max(viol2, gap2) < max(viol, gap):
+                        d, pv, viol, gap = step[0], step[1], viol2, gap2
+            settled = pattern
             lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
             if _DEBUG:
-                print(f"    qp: viol {viol:.2e} gap {gap:.2e} rho {rho:.3g}")
+                print(f"    qp: viol {viol:.2e} gap {gap:.2e} rho {rho:.3g} active {_pattern(pv).sum()}")
             crit = max(viol, gap)
-            if crit <= QP_FEAS or (crit <= QP_STALL and crit > 0.5 * prev_crit):
+            if crit <= feas or (crit <= max(QP_STALL, feas) and crit > 0.5 * prev_crit):
                 return d, (lam_lo, lam_hi), rho, True
             prev_crit = crit
-            if viol > 0.25 * prev and viol > QP_FEAS:
+            if viol > 0.25 * prev and viol > feas:
                 rho *= 10.0
                 if rho > 1e8 * rho0:  # the rows cannot be met (an infeasible task)
                     return d, (lam_lo, lam_hi), rho, False
@@ -206,7 +273,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     dec = math.inf
     for it in range(max_iter + 1):
         model = _Model(base, ev, rows, probe)
-        d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x))
+        feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * dec / max(abs(J), 1e-300)))
+        d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
         if not qp_ok:
             ok, status = False, Status.LINE_SEARCH_FAILED
             break
@@ -216,6 +284,14 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         v0 = _violation_sum(at_x)
         pv = at_x
         feasible = at_x.max_violation() <= 1e-10
+        if feasible and (dec <= tol * abs(J) or dec <= ev.noise) and feas > QP_FEAS:
+            # the stopping test is taken only on an accurately solved QP
+            feas = QP_FEAS
+            d, lam, _, qp_ok = model.solve(lam, rho, d, feas)
+            if not qp_ok:
+                ok, status = False, Status.LINE_SEARCH_FAILED
+                break
+            dec = -float(ev.grad @ d + 0.5 * d @ model.Hd(d))
         if feasible and (dec <= tol * abs(J) or dec <= ev.noise):
             stop, status = ("decrement" if dec <= tol * abs(J) else "rounding"), Status.CONVERGED
             break
@@ -225,7 +301,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         slope = float(ev.grad @ d) - nu * v0
         if not slope < 0 and not model.modified:  # not a descent direction: H's curvature is modified
             model.modify()
-            d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x))
+            d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
             if not qp_ok:
                 ok, status = False, Status.LINE_SEARCH_FAILED
                 break
@@ -302,6 +378,12 @@ def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: Penalt
     k = int(np.argmax(vals >= 0)) if (vals >= 0).any() else len(vals)
     k = max(k, 1)
     return float(knots[k - 1] - vals[k - 1] / S[k - 1])
+
+
+def _residuals(pv: PenaltyValue) -> tuple[float, float]:
+    """(largest violation, largest distance of an active row (μ > 0) from its bound), dimensionless."""
+    gap = max(float(np.max(np.abs(g[m > 0]), initial=0.0)) for g, m in zip(pv.g_lo + pv.g_hi, pv.mu_lo + pv.mu_hi))
+    return pv.max_violation(), gap
 
 
 def _pattern(pv: PenaltyValue) -> np.ndarray:
