@@ -255,8 +255,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     J), G grows by 4 and the solve continues. A full level's plan is kept in ``coarser`` of the next.
 
     With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
-    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
-    minimiser); the working set of limits found binding carries over from level to level, and
+    the limits by ``hoc_cli.constraints.enforce`` (the unconstrained solve, then an SQP on the
+    kinematic rows, an augmented Lagrangian for effort); the working set of limits found binding carries over from level to level, and
     starts from ``working`` (4, n) bool when given (e.g. a coarser plan's).
     """
     start = time.perf_counter()

@@ -1,4 +1,9 @@
-"""Limits enforced by an augmented-Lagrangian outer loop around the unchanged inner minimiser.
+"""Limits enforced: the unconstrained solve, an SQP on the kinematic rows, an augmented Lagrangian.
+
+``enforce`` with ``use_sqp`` (the planner's default) first runs the unconstrained solve (when no
+limit is known to bind), then ``sqp.sqp`` on the linear position/velocity/acceleration rows; the
+augmented-Lagrangian loop below takes over only when an effort limit binds or the SQP fails (an
+infeasible task). Without ``use_sqp`` (goal problems) the loop below does everything.
 
 The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
 exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
