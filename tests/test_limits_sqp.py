@@ -1,5 +1,5 @@
 """The SQP that imposes the kinematic limits: its pieces against dense references, and the whole
-against the augmented Lagrangian (an independent method) on a robot whose velocity and position
+against the augmented Lagrangian (an independent method) on a robot whose velocity and acceleration
 limits bind."""
 from __future__ import annotations
 
@@ -68,14 +68,15 @@ def test_line_minimum_is_the_minimiser_of_the_piecewise_quadratic_model_along_th
     assert float(qp.value(d + (a - eps) * s, terms)[1] @ s) < 0 < float(qp.value(d + (a + eps) * s, terms)[1] @ s)
 
 
-def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_position_limits_bind():
+def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limits_bind():
     model, system, problem = _problem(N=12)
     free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
-    dq = np.abs(free.mesh.evaluate(free.coeffs, np.linspace(0, 1.5, 301), 1)).max(axis=0)
-    q = free.mesh.evaluate(free.coeffs, np.linspace(0, 1.5, 301), 0)
-    # joint 0's velocity 10 % below its free peak; joint 1 may not go below its free minimum + 0.05
-    limits = JointLimits.from_arrays(model.joint_names, lower=[-np.inf, q[:, 1].min() + 0.05], upper=[np.inf, np.inf],
-                                     velocity=[0.9 * dq[0], np.inf])
+    t = np.linspace(0, 1.5, 301)
+    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
+    ddq = np.abs(free.mesh.evaluate(free.coeffs, t, 2)).max(axis=0)
+    # joint 0's velocity 10 % below its free peak, joint 1's acceleration 20 % below
+    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf],
+                                     acceleration=[np.inf, 0.8 * ddq[1]])
 
     def inner(p, x0, tol):
         return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
@@ -87,7 +88,7 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_position_limits_b
         assert r.status == "converged"
         assert check_limits(system, limits, problem.mesh, problem.coefficients(r.x)).violations() == []
         kinds = {(a["joint"], a["kind"]) for a in r.active_limits()}
-        assert kinds == {(model.joint_names[0], "velocity"), (model.joint_names[1], "position")}
+        assert kinds == {(model.joint_names[0], "velocity"), (model.joint_names[1], "acceleration")}
     assert "SQP" in results[True].message and "SQP" not in results[False].message
     J_sqp, J_al = results[True].J, results[False].J
     assert J_sqp > free.J * (1 + 1e-4)  # the limits cost something
