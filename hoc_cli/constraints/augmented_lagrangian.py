@@ -42,6 +42,7 @@ _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
 RHO_GROWTH = 10.0
+SQP_ROUNDS = 4  # SQP runs, each with the pairs found broken by the previous one added
 RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
 
 
@@ -203,17 +204,20 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         working = working | violated
     if working[EFFORT].any() or not kinematic_working(limits).any():
         return None, x, working
-    s = sqp(base, system, limits, x, tol, margin=MARGIN)
-    if record is not None:
-        record(s.result)
-    if not s.ok:
-        return None, x, working
-    x = s.result.x
-    C = base.coefficients(x)
-    check = check_limits(system, limits, mesh, C)
-    violated = _violated(check)
-    active = np.stack([((lo + hi) > 0).reshape(-1, n).any(axis=0) for lo, hi in zip(s.penalty.mu_lo, s.penalty.mu_hi)])
-    working = working | violated | active
+    for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
+        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=working)
+        if record is not None:
+            record(s.result)
+        if not s.ok:
+            return None, x, working
+        x = s.result.x
+        C = base.coefficients(x)
+        check = check_limits(system, limits, mesh, C)
+        violated = _violated(check)
+        active = np.stack([((lo + hi) > 0).reshape(-1, n).any(axis=0) for lo, hi in zip(s.penalty.mu_lo, s.penalty.mu_hi)])
+        working = working | violated | active
+        if not violated.any() or violated[EFFORT].any():
+            break
     if violated.any():
         return None, x, working
     ok = s.result.converged

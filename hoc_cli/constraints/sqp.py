@@ -156,8 +156,10 @@ class _Model:
 
         With K = H + Σ_W ρ_i a_i a_iᵀ, changing λ_W by δ moves d by −K⁻¹A_Wᵀδ and the rows by
         −Sδ, S = A_W K⁻¹ A_Wᵀ; δ = S⁺ g_W (pseudo-inverse: rows active along a whole element are
-        linearly dependent, and their targets consistent) zeroes them. Returns (d, rows, terms) at
-        the new point, or None when a multiplier would turn negative (the row must leave W).
+        linearly dependent, and their targets consistent) zeroes them. Stationarity
+        H d + g + A_Wᵀν = 0 then holds with ν = λ_W + δ (the ρ g_W part of μ = λ + ρ g is spent).
+        Returns (d, rows, terms) at the new point, or None when a multiplier would turn negative
+        (the row must leave W).
         """
         n, m = self.base.n, self.base.mesh.m
         _, _, sig = terms._bounds
@@ -173,7 +175,7 @@ class _Model:
                 cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
                 vals.append(side * R[r] / sig[k, j][:, None])
                 gW.append(g[e, r, j])
-                muW.append(mu[e, r, j])
+                muW.append(mu[e, r, j] - terms.rho * terms.rows.weight(k) * g[e, r, j])
                 where.append((k, side, e, r, j))
                 count += e.size
         if count == 0:
@@ -198,7 +200,7 @@ class _Model:
         start = 0
         for k, side, e, r, j in where:
             target = lam_hi if side > 0 else lam_lo
-            target[k][e, r, j] += delta[start:start + e.size]
+            target[k][e, r, j] = muW[start:start + e.size] + delta[start:start + e.size]
             start += e.size
         terms = LimitTerms(terms.system, terms.limits, terms.rows, terms.working, tuple(lam_lo), tuple(lam_hi),
                            terms.rho, terms.margin)
@@ -231,7 +233,7 @@ class _Model:
                 step = self.dual_step(d, pv, t)
                 if step is not None:
                     viol2, gap2 = _residuals(step[1])
-                    if max(viol2, gap2) < max(viol, gap):
+                    if max(viol2, gap2) < max(viol, gap) and np.array_equal(_pattern(step[1]), pattern):
                         d, pv, viol, gap = step[0], step[1], viol2, gap2
             settled = pattern
             lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
@@ -250,15 +252,17 @@ class _Model:
 
 
 def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_iter: int = 50,
-        margin: float = 1e-9) -> SQPResult:
+        margin: float = 1e-9, working: np.ndarray | None = None) -> SQPResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within the kinematic limits.
 
     Returns an ``SQPResult``; ``result.x`` is the last iterate (feasible for the kinematic rows after
     the first full step), ``result.converged`` when the stopping test held (module docstring).
+    ``working`` (4, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
+    kinematic pair with a finite bound); the caller checks the others.
     """
     mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
-    working = kinematic_working(limits)
+    working = kinematic_working(limits) if working is None else working & kinematic_working(limits)
     zeros = tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
     lam = (zeros, zeros)
     x = np.asarray(x0, float)
@@ -294,6 +298,15 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             dec = -float(ev.grad @ d + 0.5 * d @ model.Hd(d))
         if feasible and (dec <= tol * abs(J) or dec <= ev.noise):
             stop, status = ("decrement" if dec <= tol * abs(J) else "rounding"), Status.CONVERGED
+            # The last (small) step too: the QP's multipliers are exact for x + d (gradient + H d +
+            # Aᵀμ = 0), to O(|d|²) at the optimum rather than O(|d|) at x; ``free_time`` uses them.
+            final = _final_step(base, x, d, J, ev.noise, probe)
+            if final is not None:
+                x, ev = final
+                n_evals += 1
+                J = ev.J
+                pv = LimitTerms(system, limits, rows, working, lam[0], lam[1], rho, margin).evaluate(
+                    base.coefficients(x), grad=False)
             break
         if it == max_iter:
             break
@@ -340,6 +353,18 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                             n_precond=len(history) + 1, decrement=dec, history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
     return SQPResult(ok=ok, result=result, penalty=pv)
+
+
+def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms):
+    """(x + d, its evaluation) when x + d is within the imposed rows (to 1e-10) and J does not rise
+    beyond its rounding level; else None.
+    """
+    try:
+        ev = base.evaluate(x + d)
+    except NumericalError:
+        return None
+    feasible = probe.evaluate(base.coefficients(x + d), grad=False).max_violation() <= 1e-10
+    return (x + d, ev) if feasible and ev.J <= J + 4 * noise else None
 
 
 def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: PenaltyValue, at1: PenaltyValue) -> float:
