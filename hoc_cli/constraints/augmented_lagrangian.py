@@ -204,12 +204,13 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         working = working | violated
     if working[EFFORT].any() or not kinematic_working(limits).any():
         return None, x, working
+    x_start = x
     for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
         s = sqp(base, system, limits, x, tol, margin=MARGIN, working=working)
         if record is not None:
             record(s.result)
-        if not s.ok:
-            return None, x, working
+        if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
+            return None, x_start, working
         x = s.result.x
         C = base.coefficients(x)
         check = check_limits(system, limits, mesh, C)

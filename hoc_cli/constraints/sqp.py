@@ -48,6 +48,9 @@ QP_STALL = 1e-10  # ... or at least this, when the rounding of the banded solves
 QP_LOOSE = 1e-5  # ... the loosest, far from the solution (the tolerance is 1e-2 × the last relative decrement)
 QP_MAX_OUTER = 40
 SSN_MAX = 30
+QP_BUDGET = 150  # semismooth Newton steps one QP may take
+STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over after
+STIFF_ITERATIONS = 3  # this many such iterations in a row
 LS_MAX = 40
 C1 = 1e-4
 
@@ -92,7 +95,8 @@ class _Model:
         self.free = base.layout.free
         Hs, self._GNs = base.hessian_samples(ev)
         self.H = element_blocks(base.op_h, Hs)
-        self.modified = False
+        self.modified, self.mu = False, 0.0
+        self.steps = 0  # semismooth Newton steps taken
 
     def modify(self) -> None:
         """H + μ·GN with μ growing until H is positive definite (as ``ControlProblem.positive_definite``).
@@ -112,7 +116,7 @@ class _Model:
                 mu *= 10
         if _DEBUG:
             print(f"    model: indefinite, mu {mu:.2e}")
-        self.H, self.modified = H + mu * GN, True
+        self.H, self.modified, self.mu = H + mu * GN, True, mu
 
     def Hd(self, d: np.ndarray) -> np.ndarray:
         full = np.zeros(self.free.size)
@@ -135,6 +139,7 @@ class _Model:
         """
         q, r, pv = self.value(d, terms)
         for _ in range(SSN_MAX):
+            self.steps += 1
             pattern = _pattern(pv)
             K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
             step = -K.solve(r)
@@ -226,6 +231,8 @@ class _Model:
                     raise
                 self.modify()
                 return self.solve(lam, rho0, d0, feas)
+            if self.steps > QP_BUDGET:  # degenerate active rows swapping in and out: give up (the caller falls back)
+                return d, (lam_lo, lam_hi), rho, False
             viol, gap = _residuals(pv)
             pattern = _pattern(pv)
             if max(viol, gap) > feas and np.array_equal(pattern, settled):
@@ -275,6 +282,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     d = np.zeros_like(x)
     pv = None
     dec = math.inf
+    stiff = 0
     for it in range(max_iter + 1):
         model = _Model(base, ev, rows, probe)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * dec / max(abs(J), 1e-300)))
@@ -309,6 +317,10 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                     base.coefficients(x), grad=False)
             break
         if it == max_iter:
+            break
+        stiff = stiff + 1 if model.mu >= STIFF_MU else 0
+        if stiff >= STIFF_ITERATIONS:  # Newton steps on a Newton matrix dominated by its modification
+            ok, status = False, Status.LINE_SEARCH_FAILED  # crawl: the caller's augmented Lagrangian (PR+ CG) takes over
             break
         nu = 2.0 * max(float(np.max(m, initial=0.0)) for m in lam[0] + lam[1]) + 1e-12 * abs(J)
         slope = float(ev.grad @ d) - nu * v0
