@@ -139,6 +139,7 @@ class _Session:
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
+        self.current_N = 0
 
     def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         """The unconstrained minimiser on ``problem`` from x0 (the inner solve of ``enforce`` too)."""
@@ -176,13 +177,27 @@ class _Session:
                                                 level=problem.mesh.N) for h in res.history)
         return res
 
+    def record(self, res: OptimizeResult) -> None:
+        """Add a solve made outside ``solve`` (the limits' SQP) to the totals and history."""
+        totals = self.totals
+        for h in res.history:
+            log = dataclasses.replace(h, iteration=h.iteration + totals["it"], n_evals=h.n_evals + totals["ev"],
+                                      level=self.current_N)
+            self.history.append(log)
+            if self.callback is not None:
+                self.callback(log)
+        totals["it"] += res.iterations
+        totals["ev"] += res.n_evals
+        totals["pre"] += res.n_precond
+
     def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int = 40):
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
+        self.current_N = problem.mesh.N
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
-                     max_outer=max_outer)
+                     max_outer=max_outer, use_sqp=self.precondition, record=self.record)
         self.working = er.working
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
@@ -240,8 +255,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     J), G grows by 4 and the solve continues. A full level's plan is kept in ``coarser`` of the next.
 
     With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
-    the limits by ``hoc_cli.constraints.enforce`` (an augmented Lagrangian around the same inner
-    minimiser); the working set of limits found binding carries over from level to level, and
+    the limits by ``hoc_cli.constraints.enforce`` (the unconstrained solve, then an SQP on the
+    kinematic rows, an augmented Lagrangian for effort); the working set of limits found binding carries over from level to level, and
     starts from ``working`` (4, n) bool when given (e.g. a coarser plan's).
     """
     start = time.perf_counter()

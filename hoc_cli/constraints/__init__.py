@@ -1,8 +1,9 @@
 """Constraints on the plan: joint limits as data, their check on a plan, and their enforcement.
 
 ``JointLimits`` (bounds.py) holds the limits; ``check_limits`` (check.py) checks a plan exactly;
-``enforce`` (augmented_lagrangian.py) solves the limited problem around the unconstrained
-minimiser, with ``LimitTerms`` (penalty.py) at a ``PointSet`` (points.py).
+``enforce`` (augmented_lagrangian.py) solves the limited problem: the unconstrained solve first,
+then an SQP on the linear kinematic rows (sqp.py), and an augmented Lagrangian with ``LimitTerms``
+(penalty.py, effort at a ``PointSet``, points.py) where effort binds or the SQP fails.
 """
 from hoc_cli.constraints.augmented_lagrangian import EnforceResult, enforce, shortest_duration
 from hoc_cli.constraints.bounds import KINDS, JointLimits

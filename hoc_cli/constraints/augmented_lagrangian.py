@@ -1,4 +1,9 @@
-"""Limits enforced by an augmented-Lagrangian outer loop around the unchanged inner minimiser.
+"""Limits enforced: the unconstrained solve, an SQP on the kinematic rows, an augmented Lagrangian.
+
+``enforce`` with ``use_sqp`` (the planner's default) first runs the unconstrained solve (when no
+limit is known to bind), then ``sqp.sqp`` on the linear position/velocity/acceleration rows; the
+augmented-Lagrangian loop below takes over only when an effort limit binds or the SQP fails (an
+infeasible task). Without ``use_sqp`` (goal problems) the loop below does everything.
 
 The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
 exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
@@ -30,12 +35,14 @@ import numpy as np
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.constraints.sqp import kinematic_working, sqp
 from hoc_cli.errors import NumericalError
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
 RHO_GROWTH = 10.0
+SQP_ROUNDS = 4  # SQP runs, each with the pairs found broken by the previous one added
 RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
 
 
@@ -160,19 +167,90 @@ def _zeros(rows: LimitRows, n: int) -> tuple[np.ndarray, ...]:
     return tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
 
 
+def _violated(check: LimitCheck) -> np.ndarray:
+    """(4, n) bool: the (kind, joint) pairs the check finds beyond their bounds."""
+    return ((check.hi_excess > 0) | (check.lo_excess > 0)).any(axis=1)
+
+
+def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
+               inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray,
+               record: Callable[[object], None] | None):
+    """The unconstrained solve (when nothing is known to bind), then the SQP on the kinematic rows.
+
+    Returns (EnforceResult or None, x, working): a result when the plan is decided here; else the
+    point and working set the augmented-Lagrangian loop continues from (an effort limit broken, or
+    the SQP failed, e.g. an infeasible task).
+    """
+    mesh, n = base.mesh, limits.n
+    if not working.any():  # exactly the unconstrained solve: no price when nothing binds
+        res = inner_solve(base, x, tol)
+        x = res.x
+        C = base.coefficients(x)
+        check = check_limits(system, limits, mesh, C)
+        violated = _violated(check)
+        if not violated.any():
+            rows = LimitRows.build(mesh, base.layout.free, n)
+            empty = np.zeros((len(KINDS), n), bool)
+            pv = LimitTerms(system, limits, rows, empty, _zeros(rows, n), _zeros(rows, n), 1.0,
+                            MARGIN).evaluate(C, grad=False)
+            ok = res.converged
+            message = (f"{res.message}; every limit holds (outer iterations: 1)" if ok
+                       else f"every limit holds, but the inner solve stopped: {res.message}")
+            return EnforceResult(status="converged" if ok else "not_converged", message=message, inner=res, x=x,
+                                 J=base.evaluate(x, grad=False).J, outer_iterations=1, rho=0.0, check=check,
+                                 working=working, rows=rows, penalty=pv), x, working
+        if res.status.value in ("max_iter", "not_finite"):
+            return None, x, working | violated
+        working = working | violated
+    if working[EFFORT].any() or not kinematic_working(limits).any():
+        return None, x, working
+    x_start = x
+    for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
+        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=working)
+        if record is not None:
+            record(s.result)
+        if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
+            return None, x_start, working
+        x = s.result.x
+        C = base.coefficients(x)
+        check = check_limits(system, limits, mesh, C)
+        violated = _violated(check)
+        active = np.stack([((lo + hi) > 0).reshape(-1, n).any(axis=0) for lo, hi in zip(s.penalty.mu_lo, s.penalty.mu_hi)])
+        working = working | violated | active
+        if not violated.any() or violated[EFFORT].any():
+            break
+    if violated.any():
+        return None, x, working
+    ok = s.result.converged
+    message = (f"{s.result.message}; every limit holds (SQP iterations: {s.result.iterations})" if ok
+               else f"every limit holds, but the SQP stopped: {s.result.message}")
+    rows = LimitRows.build(mesh, base.layout.free, n)
+    return EnforceResult(status="converged" if ok else "not_converged", message=message, inner=s.result, x=x,
+                         J=base.evaluate(x, grad=False).J, outer_iterations=s.result.iterations, rho=0.0,
+                         check=check, working=working, rows=rows, penalty=s.penalty), x, working
+
+
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], *, working: np.ndarray | None = None,
-            max_outer: int = 40) -> EnforceResult:
+            max_outer: int = 40, use_sqp: bool = False,
+            record: Callable[[object], None] | None = None) -> EnforceResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
 
     inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
     with ``evaluate``/``newton``/``mesh``. ``working`` (4, n) carries over from a coarser level.
+    With ``use_sqp`` (``base`` a ControlProblem) the kinematic limits are imposed by ``sqp`` first
+    (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
+    takes over only when an effort limit binds or the SQP fails.
     """
     mesh, n = base.mesh, limits.n
-    rows = LimitRows.build(mesh, base.layout.free, n)
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
-    lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
     x = np.asarray(x0, float)
+    if use_sqp:
+        done, x, working = _sqp_phase(base, system, limits, x, tol, inner_solve, working, record)
+        if done is not None:
+            return done
+    rows = LimitRows.build(mesh, base.layout.free, n)
+    lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
     rho = rho0 = None
     prev = math.inf
     res = check = pv = None

@@ -1,0 +1,104 @@
+"""The SQP that imposes the kinematic limits: its pieces against dense references, and the whole
+against the augmented Lagrangian (an independent method) on a robot whose velocity and acceleration
+limits bind."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hoc_cli.constraints import JointLimits, check_limits
+from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
+from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.constraints.sqp import _line_minimum, _Model, block_matvec, kinematic_working
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.model import load_robot
+from hoc_cli.optimize import minimize
+from hoc_cli.planner import plan
+from hoc_cli.problem import ControlProblem
+from hoc_cli.system import RobotSystem
+from tests._robots import ROBOTS
+
+START, GOAL = [0.0, 0.0], [1.2, -0.6]
+
+
+def _problem(N: int = 6):
+    model = load_robot(ROBOTS / "two_link.urdf")
+    system = RobotSystem(model)
+    mesh = HermiteMesh("quintic", 1.5, N)
+    return model, system, ControlProblem(system, mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
+
+
+def test_block_matvec_is_the_assembled_matrix_times_the_vector():
+    rng = np.random.default_rng(1)
+    N, mn = 5, 4
+    L = 2 * mn
+    blocks = rng.normal(size=(N, L, L))
+    dense = np.zeros(((N + 1) * mn, (N + 1) * mn))
+    for e in range(N):
+        dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
+    v = rng.normal(size=(N + 1) * mn)
+    assert np.allclose(block_matvec(blocks, v, mn), dense @ v, rtol=1e-13, atol=1e-13)
+
+
+def test_line_minimum_is_the_minimiser_of_the_piecewise_quadratic_model_along_the_step():
+    model, system, problem = _problem()
+    limits = JointLimits.from_arrays(model.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], velocity=[1.0, 0.5],
+                                     acceleration=[3.0, 2.0])
+    rows = LimitRows.build(problem.mesh, problem.layout.free, 2)
+    rng = np.random.default_rng(3)
+    lam = tuple(tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3)
+                      for k in range(4)) for _ in range(2))
+    terms = LimitTerms(system, limits, rows, kinematic_working(limits), lam[0], lam[1], rho=30.0, margin=MARGIN)
+    ev = problem.evaluate(problem.initial_guess())
+    qp = _Model(problem, ev, rows, terms)
+    d = 0.05 * rng.normal(size=ev.x.size)
+    s = 0.3 * rng.normal(size=ev.x.size)
+    q0, r0, pv0 = qp.value(d, terms)
+    _, _, pv1 = qp.value(d + s, terms)
+    slope = float(r0 @ s)
+    if slope > 0:  # make s a descent direction
+        s, slope = -s, -slope
+        _, _, pv1 = qp.value(d + s, terms)
+    a = _line_minimum(slope, float(s @ qp.Hd(s)), terms, pv0, pv1)
+    grid = np.linspace(0.0, 3.0 * max(a, 1e-3), 3001)
+    values = np.array([qp.value(d + t * s, terms)[0] for t in grid])
+    assert a > 0
+    assert qp.value(d + a * s, terms)[0] <= values.min() + 1e-12 * abs(values.min())
+    eps = 1e-6 * a  # the directional derivative changes sign at a
+    assert float(qp.value(d + (a - eps) * s, terms)[1] @ s) < 0 < float(qp.value(d + (a + eps) * s, terms)[1] @ s)
+
+
+def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limits_bind():
+    model, system, problem = _problem(N=12)
+    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
+    t = np.linspace(0, 1.5, 301)
+    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
+    ddq = np.abs(free.mesh.evaluate(free.coeffs, t, 2)).max(axis=0)
+    # joint 0's velocity 10 % below its free peak, joint 1's acceleration 20 % below
+    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf],
+                                     acceleration=[np.inf, 0.8 * ddq[1]])
+
+    def inner(p, x0, tol):
+        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
+                        method="newton", c2=0.9, tol=tol)
+
+    x0 = problem.initial_guess()
+    results = {use: enforce(problem, system, limits, x0, 1e-11, inner, use_sqp=use) for use in (True, False)}
+    for r in results.values():
+        assert r.status == "converged"
+        assert check_limits(system, limits, problem.mesh, problem.coefficients(r.x)).violations() == []
+        kinds = {(a["joint"], a["kind"]) for a in r.active_limits()}
+        assert kinds == {(model.joint_names[0], "velocity"), (model.joint_names[1], "acceleration")}
+    assert "SQP" in results[True].message and "SQP" not in results[False].message
+    # the SQP's multipliers are KKT multipliers of the plan: ∇J + Σ μ ∇g = 0 to the level the stopping
+    # test (tol 1e-11) leaves, measured 2.3e-7 relative (free_time's envelope derivative relies on them;
+    # multipliers that miss the ρ·g part of an exact-multiplier step are off by 1e-3)
+    r = results[True]
+    pv = r.penalty
+    terms = LimitTerms(system, limits, r.rows, np.ones((4, 2), bool), pv.mu_lo, pv.mu_hi, rho=1e-30, margin=MARGIN)
+    grad = problem.evaluate(r.x).grad
+    stationarity = grad + problem.layout.pack(terms.evaluate(problem.coefficients(r.x)).grad)
+    assert np.abs(stationarity).max() <= 2e-6 * np.abs(grad).max()
+    J_sqp, J_al = results[True].J, results[False].J
+    assert J_sqp > free.J * (1 + 1e-4)  # the limits cost something
+    assert J_sqp == pytest.approx(J_al, rel=1e-9)
