@@ -21,10 +21,11 @@ from tests._robots import ROBOTS
 START, GOAL = [0.0, 0.0], [1.2, -0.6]
 
 
-def _problem(N: int = 6):
+def _problem(N: int = 6, split: tuple[int, ...] = ()):
     model = load_robot(ROBOTS / "two_link.urdf")
     system = RobotSystem(model)
     mesh = HermiteMesh("quintic", 1.5, N)
+    mesh = mesh.split(list(split)) if split else mesh
     return model, system, ControlProblem(system, mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
 
 
@@ -68,8 +69,10 @@ def test_line_minimum_is_the_minimiser_of_the_piecewise_quadratic_model_along_th
     assert float(qp.value(d + (a - eps) * s, terms)[1] @ s) < 0 < float(qp.value(d + (a + eps) * s, terms)[1] @ s)
 
 
-def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limits_bind():
-    model, system, problem = _problem(N=12)
+@pytest.mark.parametrize("split", [(), (0, 3, 4, 5, 9)], ids=["uniform", "nonuniform"])
+def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limits_bind(split):
+    model, system, problem = _problem(N=12, split=split)
+    assert problem.mesh.uniform == (not split)
     free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
     t = np.linspace(0, 1.5, 301)
     dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)

@@ -178,9 +178,11 @@ class _Model:
                     continue
                 a = np.arange(2 * m)
                 cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
-                vals.append(side * R[r] / sig[k, j][:, None])
+                Rr = R[r] if terms.rows.scale is None else R[r] * terms.rows.scale[k][e]  # non-uniform: h_e factors
+                vals.append(side * Rr / sig[k, j][:, None])
                 gW.append(g[e, r, j])
-                muW.append(mu[e, r, j] - terms.rho * terms.rows.weight(k) * g[e, r, j])
+                w = np.broadcast_to(terms.rows.weight(k), g.shape)[e, r, j]  # per row on a non-uniform mesh
+                muW.append(mu[e, r, j] - terms.rho * w * g[e, r, j])
                 where.append((k, side, e, r, j))
                 count += e.size
         if count == 0:
@@ -387,10 +389,10 @@ def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: Penalt
     """
     c0, c1, dg = [], [], []
     for k in range(len(KINDS)):
-        rw = terms.rho * terms.rows.weight(k)
         for lam, g0, g1 in ((terms.lam_lo[k], at0.g_lo[k], at1.g_lo[k]), (terms.lam_hi[k], at0.g_hi[k], at1.g_hi[k])):
             on = np.isfinite(g0)
             if on.any():
+                rw = np.broadcast_to(terms.rho * terms.rows.weight(k), g0.shape)[on]  # per row on a non-uniform mesh
                 delta = g1[on] - g0[on]
                 c0.append(lam[on] + rw * g0[on]), c1.append(rw * delta), dg.append(delta)
     if not c0:
