@@ -150,3 +150,25 @@ class FrameResidual:
             cT.append(-a)
         return (np.concatenate(c, axis=1), np.concatenate(cq, axis=1), np.concatenate(cv, axis=1),
                 np.concatenate(cT))
+
+
+def reach(model, link: str) -> tuple[np.ndarray, float] | None:
+    """(o (3,) [m], r [m]): the link origin stays within the ball of radius r about o for every q, or None
+    when the chain to the link has a prismatic joint (no such bound).
+
+    o is the origin of the first moving joint of the chain (fixed in the root frame); every joint
+    origin o_k lies on its axis, so it is fixed in both the parent and the child body, and the
+    distances |o_{k+1} − o_k| (and from the last one to the link origin) do not depend on q:
+    |p(q) − o| ≤ Σ_k |o_{k+1} − o_k| + |p − o_last| (the triangle inequality along the chain).
+    """
+    from hoc_cli.dynamics.kinematics import _body_poses, _chain, _link
+
+    b, offset = _link(model, link)
+    if b < 0:
+        return None
+    chain = _chain(model, b)
+    if any(model.joint_types[j] == "prismatic" for j in chain):
+        return None
+    poses = _body_poses(model, np.zeros((model.n, 1)), chain)
+    points = [poses[j][0, :3, 3] for j in chain] + [(poses[b][0] @ offset)[:3, 3]]
+    return points[0], float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:])))
