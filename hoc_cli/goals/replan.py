@@ -108,7 +108,7 @@ def _start(previous) -> tuple[GoalResult, float | None]:
 
 
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
-           curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 12,
+           curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
            fallback: bool = True) -> ReplanResult:
     """Re-solve ``goals`` warm from ``previous`` (see the module docstring).
 
