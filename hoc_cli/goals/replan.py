@@ -9,7 +9,7 @@ no quadrature refinement: G stays the previous plan's). Each step, at the curren
    system W dx + Dᵀ dλ = −∇ℒ, D dx = −c (D = ∂c/∂x, W the block-banded Newton matrix of I + Φ plus
    Σλ∇²c and ρDᵀD, which makes W positive definite without changing dx), solved by the banded
    factorisation of W and the Schur complement D W⁻¹ Dᵀ on the r goal rows; the step is halved while
-   it raises max|c| (at most 4 times);
+   it raises max|c| (down to 1/32);
 2. when that step was converged (decrement ½ gᵀW⁻¹g ≤ ``tol``·|J|): the limits' multiplier update
    μ ← max(0, μ + ρg) and, with a free T, one Newton step on F'(T) = dJ*/dT + weight = 0:
    T ← T − F'/F'' with F'' the curvature d²J*/dT² of the previous search (a secant when none is
@@ -20,8 +20,8 @@ weight) (or T sits at a bound it is pushed against) and the plan is within its l
 (``check_limits``; a limit that became active joins the working set). After ``max_steps`` steps
 the full solver finishes (``plan_goals``, and the free-T search with a free T), from the previous
 plan when the steps wandered off. Measured on the lbr7 catch (docs/goals.md): a step costs about
-one cost-and-gradient evaluation plus one Newton matrix (~10-15 ms at N = 8); a move of 1 mm takes
-~25 steps with the free T (the T steps each need a converged x), a fixed-T replan ~4-6.
+one cost-and-gradient evaluation plus one Newton matrix (15-40 ms at N = 8 on a loaded 2-core machine); a move of 1 mm takes
+~25 steps with the free T (the T steps each need a converged x), a fixed-T replan ~11 (docs/goals.md).
 Pure maths: no I/O.
 """
 from __future__ import annotations
