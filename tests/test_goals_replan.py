@@ -3,6 +3,7 @@ optimum as a cold solve of the moved task (J, T, the link at the target to 1e-9)
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -45,12 +46,13 @@ def test_fixed_time_replan_meets_the_cold_optimum(dx):
     assert np.max(np.abs(p - goals_at(dx).final.position)) <= 1e-9
 
 
+@pytest.mark.skipif(not os.environ.get("HOC_SLOW_TESTS"), reason="~5 min (the cold free-T search); HOC_SLOW_TESTS=1")
 def test_free_time_replan_of_a_moving_target_is_a_free_time_optimum():
     """After the target moves, the replan's T makes F'(T) = dJ*/dT + weight vanish, the link meets the
     target in position and velocity at T to 1e-9, and fixed-T plans at T ± 2 % cost no less."""
-    span = TimeRange(0.6, 1.2, weight=1.0)
-    solver = goal_solver(SYSTEM, "quintic", 4, Q0, Z, goals_at(0.0, moving=True))
-    previous = minimize_time(solver, span.min, span.max, guess=0.85, weight=span.weight)
+    span = TimeRange(0.3, 1.5, weight=1.0)
+    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals_at(0.0, moving=True))
+    previous = minimize_time(solver, span.min, span.max, guess=0.6, weight=span.weight)
     assert previous.bound is None and curvature_of(previous) > 0
     same = replan(SYSTEM, previous, goals_at(0.0, moving=True), free=span, fallback=False)
     assert same.steps == 1 and same.converged  # from its own optimum: converged at once
@@ -63,7 +65,7 @@ def test_free_time_replan_of_a_moving_target_is_a_free_time_optimum():
     assert np.max(np.abs(link_poses(MODEL, C[-1, 0])["tool"][:3, 3] - p)) <= 1e-9
     assert np.max(np.abs(link_velocity(MODEL, C[-1, 0], C[-1, 1], "tool")[:3] - v)) <= 1e-9
     for factor in (0.98, 1.02):
-        other = plan_goals(SYSTEM, HermiteMesh("quintic", T * factor, 4), Q0, Z, moved,
+        other = plan_goals(SYSTEM, HermiteMesh("quintic", T * factor, 8), Q0, Z, moved,
                            C_init=rescale(C, T, T * factor), terms=dataclasses.replace(warm.plan.terms, rho=0.0))
         assert other.converged
         assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T
