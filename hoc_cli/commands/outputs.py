@@ -10,9 +10,10 @@ from hoc_cli.trajectory import Trajectory
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
-                  summary: dict) -> list[str]:
+                  summary: dict, goals=None) -> list[str]:
     """Write ``traj`` to every target; returns the labels written ("-" for stdout).
 
+    ``goals`` (``hoc_cli.goals.Goals`` or None): link goals shown on an MCAP's /goal_marker.
     Each file goes to a temporary file beside its target and is renamed into place only when
     complete, so an interrupted or failed run leaves existing files as they were.
     """
@@ -34,6 +35,18 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
                            metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
-                           link_poses=lambda q: dynamics.link_poses(model, q))
+                           link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj))
         written.append(target.label)
     return written
+
+
+def _markers(goals, urdf_text: str, traj: Trajectory) -> list:
+    """The /goal_marker tracks of ``goals`` at the samples, in the URDF's root link frame."""
+    if goals is None:
+        return []
+    from hoc_cli.io.mcap import urdf_tf_parents
+    from hoc_cli.io.mcap_markers import goal_tracks
+
+    parents = urdf_tf_parents(urdf_text)
+    roots = sorted(set(parents.values()) - set(parents))
+    return goal_tracks(goals, roots[0] if roots else "", traj.t)

@@ -149,7 +149,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=_reproducible(summary))
+                                           summary=_reproducible(summary), goals=goals)
     warn_limit_violations(summary["limit_violations"])
     if as_json:
         print_json(summary)

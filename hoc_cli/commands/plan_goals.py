@@ -13,7 +13,7 @@ import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import TaskError
+from hoc_cli.errors import HocError, TaskError
 from hoc_cli.free_time import goal_solver, joint_goal_solver, minimize_time
 from hoc_cli.goals import (
     FrameResidual,
@@ -25,11 +25,39 @@ from hoc_cli.goals import (
     quaternion_matrix,
     rotation_angle,
 )
+from hoc_cli.goals.residuals import reach
 from hoc_cli.io.task import Task
 from hoc_cli.io.task.checks import Checker
 from hoc_cli.io.task.goals import LinkGoal
 from hoc_cli.io.task.resolve import _vector
 from hoc_cli.system import RobotSystem
+
+
+class UnreachableGoal(HocError):
+    """A link goal beyond the arm's reach at every admissible T: infeasible (exit 1, nothing solved)."""
+
+    exit_code = 1
+
+
+def check_reach(task: Task, model, goals: Goals) -> None:
+    """Raise ``UnreachableGoal`` when a link goal (x1 or a via) lies beyond the reach of its chain
+    (``hoc_cli.goals.residuals.reach``) at every T of the task (for a free T, at 400 times in [min, max]).
+    """
+    free = task.time.free
+    times = np.linspace(free.min, free.max, 400) if free is not None else np.array([task.T])
+    points = [("x1", 1.0, goals.final)] if goals.final is not None else []
+    points += [(gp.label, gp.s, gp.residual) for gp in goals.vias if isinstance(gp.residual, FrameResidual)]
+    for key, s, res in points:
+        ball = reach(model, res.link)
+        if ball is None:
+            continue
+        o, r = ball
+        dist = np.array([np.linalg.norm(res.target(s * T)[0] - o) for T in times])
+        if np.all(dist > r * (1 + 1e-9)):
+            where = "" if free is None else f" for every T in [{free.min:g}, {free.max:g}] s"
+            raise UnreachableGoal(f"infeasible: the goal of {res.link} is {dist.min():.4g} m from the first joint "
+                                  f"of its chain{where}, beyond the arm's reach {r:.4g} m (the sum of its link lengths)",
+                                  file=task.path, key=key)
 
 
 def has_goals(task: Task) -> bool:
@@ -83,6 +111,7 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
     """(PlanResult, summary keys) for a task with goals: ``plan_goals`` at T (from ``C_init`` when given,
     ``--init``), or the free-T search (its first solve from the initial guess).
     """
+    check_reach(task, model, goals)
     system = RobotSystem(model)
     options = {"cost": task.cost, "method": task.method, "tol": task.tol, "max_iter": task.max_iter,
                "callback": callback}

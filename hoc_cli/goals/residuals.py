@@ -120,26 +120,55 @@ class FrameResidual:
         return P[:3, 3], P[:3, :3]
 
     def __call__(self, q: np.ndarray, dq: np.ndarray, T: float):
-        n = q.size
-        p, R = self.pose(q)
+        c, cq, cv, cT = self.batch(np.asarray(q, float)[None], np.asarray(dq, float)[None], T)
+        return c[0], cq[0], cv[0], cT
+
+    def batch(self, q: np.ndarray, dq: np.ndarray, T: float):
+        """The residual at K instants together: q, dq (K, n) → (c (K, r), ∂c/∂q (K, r, n), ∂c/∂q̇ (K, r, n),
+        ∂c/∂T (r,)) (the forward kinematics batched over the K samples).
+        """
+        K, n = q.shape
         v0, a = self._motion()
         p_goal, v_goal = self.target(T)
-        c, cq, cv, cT = [p - p_goal], [], [], [-(v0 + a * T)]
+        zero = np.zeros((K, 3, n))
         if self.match_velocity:
             V, dV_dq, J = link_velocity_derivatives(self.model, q, dq, self.link)
         else:
             J = frame_jacobian(self.model, q, self.link)
-        cq.append(J[:3])
-        cv.append(np.zeros((3, n)))
+        P = link_poses(self.model, q)[self.link]
+        c, cq, cv, cT = [P[:, :3, 3] - p_goal], [J[:, :3]], [zero], [-(v0 + a * T)]
         if self.orientation is not None:
-            e, de = orientation_residual(R, self.orientation)
-            c.append(e)
-            cq.append(de @ J[3:])
-            cv.append(np.zeros((3, n)))
+            e, de = zip(*(orientation_residual(R, self.orientation) for R in P[:, :3, :3]))
+            c.append(np.array(e))
+            cq.append(np.matmul(np.array(de), J[:, 3:]))
+            cv.append(zero)
             cT.append(np.zeros(3))
         if self.match_velocity:
-            c.append(V[:3] - v_goal)
-            cq.append(dV_dq[:3])
-            cv.append(J[:3])
+            c.append(V[:, :3] - v_goal)
+            cq.append(dV_dq[:, :3])
+            cv.append(J[:, :3])
             cT.append(-a)
-        return np.concatenate(c), np.vstack(cq), np.vstack(cv), np.concatenate(cT)
+        return (np.concatenate(c, axis=1), np.concatenate(cq, axis=1), np.concatenate(cv, axis=1),
+                np.concatenate(cT))
+
+
+def reach(model, link: str) -> tuple[np.ndarray, float] | None:
+    """(o (3,) [m], r [m]): the link origin stays within the ball of radius r about o for every q, or None
+    when the chain to the link has a prismatic joint (no such bound).
+
+    o is the origin of the first moving joint of the chain (fixed in the root frame); every joint
+    origin o_k lies on its axis, so it is fixed in both the parent and the child body, and the
+    distances |o_{k+1} − o_k| (and from the last one to the link origin) do not depend on q:
+    |p(q) − o| ≤ Σ_k |o_{k+1} − o_k| + |p − o_last| (the triangle inequality along the chain).
+    """
+    from hoc_cli.dynamics.kinematics import _body_poses, _chain, _link
+
+    b, offset = _link(model, link)
+    if b < 0:
+        return None
+    chain = _chain(model, b)
+    if any(model.joint_types[j] == "prismatic" for j in chain):
+        return None
+    poses = _body_poses(model, np.zeros((model.n, 1)), chain)
+    points = [poses[j][0, :3, 3] for j in chain] + [(poses[b][0] @ offset)[:3, 3]]
+    return points[0], float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:])))

@@ -95,11 +95,25 @@ class GoalTerms:
             S[1, i] = r[2].T @ m
         return where.transpose(S)
 
-    def newton_blocks(self, C: np.ndarray, curvature: bool = True) -> np.ndarray:
+    def jacobian(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(c (r,), ∂c/∂C (r, N+1, m, n)): every row (the points' rows in order) and its gradient."""
+        res = self.residuals(C)
+        where = self._where()
+        n = C.shape[-1]
+        rows = []
+        for i, r in enumerate(res):
+            for j in range(r[0].size):
+                S = np.zeros((3, len(self.points), n))
+                S[0, i], S[1, i] = r[1][j], r[2][j]
+                rows.append(where.transpose(S))
+        c = np.concatenate([r[0] for r in res]) if res else np.zeros(0)
+        return c, np.array(rows).reshape((len(rows),) + C.shape)
+
+    def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of ρ Dᵀ D, plus with ``curvature`` the positive part of Σ μ ∇²c.
 
         The second-order part in (q, q̇) is the forward difference (step 1e-7·(1 + |x|)) of the vector
-        Dᵀ μ at fixed μ, symmetrised, its negative eigenvalues dropped (measured on the lbr7 catch:
+        Dᵀ μ at fixed μ, symmetrised, its negative eigenvalues dropped unless ``indefinite`` (measured on the lbr7 catch:
         half the inner iterations of the blocks without it, and fewer than with the indefinite part).
         """
         n = C.shape[-1]
@@ -112,15 +126,15 @@ class GoalTerms:
                 mu = self.lam[i] + self.rho * r[0]
                 x = np.concatenate([r[4], r[5]])
                 base = D[:, :2 * n].T @ mu
-                H = np.zeros((2 * n, 2 * n))
-                for j in range(2 * n):
-                    xj = x.copy()
-                    step = 1e-7 * (1.0 + abs(x[j]))
-                    xj[j] += step
-                    _, cq, cv, _ = self.points[i].residual(xj[:n], xj[n:], T)
-                    H[:, j] = (np.hstack([cq, cv]).T @ mu - base) / step
-                ev, V = np.linalg.eigh(0.5 * (H + H.T))
-                Hs[i, :2 * n, :2 * n] += (V * np.maximum(ev, 0.0)) @ V.T
+                steps = 1e-7 * (1.0 + np.abs(x))
+                X = x[None, :] + np.diag(steps)  # (2n, 2n): one perturbed (q, q̇) per row
+                _, cq, cv, _ = self.points[i].residual.batch(X[:, :n], X[:, n:], T)
+                H = ((np.concatenate([cq, cv], axis=2).transpose(0, 2, 1) @ mu) - base).T / steps
+                H = 0.5 * (H + H.T)
+                if not indefinite:
+                    ev, V = np.linalg.eigh(H)
+                    H = (V * np.maximum(ev, 0.0)) @ V.T
+                Hs[i, :2 * n, :2 * n] += H
         return self._where().sample_blocks(Hs)
 
     def time_derivative(self, C: np.ndarray, T: float) -> tuple[float, np.ndarray]:

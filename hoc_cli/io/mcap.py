@@ -41,12 +41,14 @@ import struct
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Callable, Mapping, Union
+from typing import IO, Callable, Mapping, Sequence, Union
 
 import numpy as np
 
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError
+from hoc_cli.io.mcap_markers import MARKER_TYPE, TOPIC_GOAL_MARKER, MarkerTrack, marker_message
+from hoc_cli.io.ros2_msgdefs import MSGDEFS
 from hoc_cli.trajectory import Trajectory
 
 TOPIC_JOINT_STATES = "/joint_states"
@@ -60,36 +62,6 @@ ATTACHMENT_TASK = "task.yaml"
 ATTACHMENT_HERMITE = "hermite.json"
 HERMITE_FORMAT = "hoc-hermite/1"
 RESERVED_METADATA = ("hoc_version", "task", "joints")
-
-# ROS 2 message definitions as rosbag2 stores them: the type's own fields, then each dependency
-# after a line of 80 '=' and a "MSG: pkg/Type" line.
-_SEP = "=" * 80 + "\n"
-_TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
-_DURATION = "MSG: builtin_interfaces/Duration\nint32 sec\nuint32 nanosec\n"
-_HEADER = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
-MSGDEFS: dict[str, str] = {
-    "std_msgs/msg/String": "string data\n",
-    "sensor_msgs/msg/JointState": (
-        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n"
-        + _SEP + _HEADER + _SEP + _TIME
-    ),
-    "trajectory_msgs/msg/JointTrajectory": (
-        "std_msgs/Header header\nstring[] joint_names\ntrajectory_msgs/JointTrajectoryPoint[] points\n"
-        + _SEP + _HEADER + _SEP + _TIME + _SEP
-        + "MSG: trajectory_msgs/JointTrajectoryPoint\nfloat64[] positions\nfloat64[] velocities\n"
-        "float64[] accelerations\nfloat64[] effort\nbuiltin_interfaces/Duration time_from_start\n"
-        + _SEP + _DURATION
-    ),
-    "tf2_msgs/msg/TFMessage": (
-        "geometry_msgs/TransformStamped[] transforms\n"
-        + _SEP + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
-        "geometry_msgs/Transform transform\n"
-        + _SEP + _HEADER + _SEP + _TIME + _SEP
-        + "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n"
-        + _SEP + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
-        + _SEP + "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
-    ),
-}
 
 LinkPoses = Mapping[str, np.ndarray]
 LinkPosesSource = Union[LinkPoses, Callable[[np.ndarray], LinkPoses]]
@@ -204,6 +176,7 @@ def write_mcap(
     metadata: Mapping[str, str] | None = None,
     link_poses: LinkPosesSource | None = None,
     tf_parents: Mapping[str, str] | None = None,
+    markers: Sequence[MarkerTrack] = (),
 ) -> None:
     """Write ``traj`` (t (K,) s; q, dq, ddq, u (K, n)) as an MCAP plan file to the binary stream ``fh``.
 
@@ -217,6 +190,8 @@ def write_mcap(
         callable mapping q (K, n) to such a dict; None writes no /tf
     tf_parents : child link → parent link of each published transform; default: the URDF's
         joints (parent link → child link, as robot_state_publisher does)
+    markers : points (K, 3) [m] in the root frame to show on /goal_marker at each sample (a goal's
+        target, ``hoc_cli.io.mcap_markers``)
 
     The stream is always finished (``finally``), so an exception leaves a truncated file that the
     caller discards (``atomic_output``).
@@ -257,7 +232,8 @@ def write_mcap(
 
     writer = Writer(fh, compression=CompressionType.ZSTD)
     try:
-        schemas = {name: writer.register_msgdef(name, text) for name, text in MSGDEFS.items()}
+        schemas = {name: writer.register_msgdef(name, text) for name, text in MSGDEFS.items()
+                   if name != MARKER_TYPE or markers}
         writer.write_message(TOPIC_ROBOT_DESCRIPTION, schemas["std_msgs/msg/String"], {"data": urdf_text},
                              log_time=0, publish_time=0)
         writer.write_message(TOPIC_TRAJECTORY, schemas["trajectory_msgs/msg/JointTrajectory"],
@@ -281,6 +257,8 @@ def write_mcap(
                         "translation": dict(zip("xyz", p[k])),
                         "rotation": dict(zip("xyzw", r[k])),
                     }} for parent, child, p, r in transforms]}, **when)
+            for i, track in enumerate(markers):
+                writer.write_message(TOPIC_GOAL_MARKER, schemas[MARKER_TYPE], marker_message(track, i, k, stamp), **when)
         writer.add_metadata(METADATA_NAME, {"hoc_version": __version__, "task": task_text,
                                             "joints": json.dumps(joints), **meta})
         writer.add_attachment(0, 0, ATTACHMENT_URDF, "application/xml", urdf_text.encode())

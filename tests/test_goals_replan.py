@@ -1,0 +1,71 @@
+"""Warm replans (``hoc_cli.goals.replan``): from the previous optimum after the target moves, the same
+optimum as a cold solve of the moved task (J, T, the link at the target to 1e-9) in a few Newton steps."""
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+
+from hoc_cli.dynamics import link_poses, link_velocity
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.free_time import goal_solver, minimize_time, rescale
+from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
+from hoc_cli.goals.replan import TimeRange, curvature_of, replan
+from hoc_cli.model import load_robot
+from hoc_cli.system import RobotSystem
+from tests._robots import ROBOTS
+
+MODEL = load_robot(ROBOTS / "two_link.urdf")
+SYSTEM = RobotSystem(MODEL)
+Q0, Z = np.array([0.0, 0.0]), np.zeros(2)
+QG = np.array([1.0, -0.5])
+
+
+def goals_at(dx: float, moving: bool = False) -> Goals:
+    p = link_poses(MODEL, QG)["tool"][:3, 3] + np.array([dx, 0.0, 0.0])
+    if moving:
+        res = FrameResidual(MODEL, "tool", p - [0.1, 0.0, 0.0], velocity=np.array([0.2, 0.0, 0.0]),
+                            acceleration=np.zeros(3), match_velocity=True)
+        return Goals(final=res, q1_guess=inverse_kinematics(res, QG, 0.5), dq1_guess=Z)
+    res = FrameResidual(MODEL, "tool", p)
+    return Goals(final=res, q1_guess=inverse_kinematics(res, QG, 1.0))
+
+
+@pytest.mark.parametrize("dx", [0.0, 0.002, 0.01])
+def test_fixed_time_replan_meets_the_cold_optimum(dx):
+    mesh = HermiteMesh("quintic", 1.0, 8)
+    previous = plan_goals(SYSTEM, mesh, Q0, Z, goals_at(0.0))
+    warm = replan(SYSTEM, previous, goals_at(dx), fallback=False)
+    cold = plan_goals(SYSTEM, mesh, Q0, Z, goals_at(dx))
+    assert warm.converged and not warm.fallback
+    assert warm.steps <= 6
+    assert warm.plan.J == pytest.approx(cold.J, rel=1e-8)
+    p = link_poses(MODEL, warm.plan.coeffs[-1, 0])["tool"][:3, 3]
+    assert np.max(np.abs(p - goals_at(dx).final.position)) <= 1e-9
+
+
+@pytest.mark.skipif(not os.environ.get("HOC_SLOW_TESTS"), reason="~5 min (the cold free-T search); HOC_SLOW_TESTS=1")
+def test_free_time_replan_of_a_moving_target_is_a_free_time_optimum():
+    """After the target moves, the replan's T makes F'(T) = dJ*/dT + weight vanish, the link meets the
+    target in position and velocity at T to 1e-9, and fixed-T plans at T ± 2 % cost no less."""
+    span = TimeRange(0.3, 1.5, weight=1.0)
+    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals_at(0.0, moving=True))
+    previous = minimize_time(solver, span.min, span.max, guess=0.6, weight=span.weight)
+    assert previous.bound is None and curvature_of(previous) > 0
+    same = replan(SYSTEM, previous, goals_at(0.0, moving=True), free=span, fallback=False)
+    assert same.steps == 1 and same.converged  # from its own optimum: converged at once
+    moved = goals_at(0.003, moving=True)
+    warm = replan(SYSTEM, previous, moved, free=span, fallback=False, max_steps=100)
+    assert warm.converged and not warm.fallback
+    assert abs(warm.dJ_dT + span.weight) <= 1e-7 * (abs(warm.plan.J) / warm.T + span.weight)
+    C, T = warm.plan.coeffs, warm.T
+    p, v = moved.final.target(T)
+    assert np.max(np.abs(link_poses(MODEL, C[-1, 0])["tool"][:3, 3] - p)) <= 1e-9
+    assert np.max(np.abs(link_velocity(MODEL, C[-1, 0], C[-1, 1], "tool")[:3] - v)) <= 1e-9
+    for factor in (0.98, 1.02):
+        other = plan_goals(SYSTEM, HermiteMesh("quintic", T * factor, 8), Q0, Z, moved,
+                           C_init=rescale(C, T, T * factor), terms=dataclasses.replace(warm.plan.terms, rho=0.0))
+        assert other.converged
+        assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T
