@@ -142,6 +142,14 @@ def test_hoc_examples_never_replaces_a_file_without_force_and_names_unknown_exam
     assert r.exit_code == 2 and "lbr7_reach" in r.stderr and r.stderr.count("\n") == 1
 
 
+def test_hoc_examples_makes_a_missing_folder_and_refuses_a_file_as_folder(tmp_path):
+    r = hoc("examples", "two_link", "--dir", tmp_path / "new" / "sub", "-q")
+    assert r.exit_code == 0 and (tmp_path / "new" / "sub" / "two_link.yaml").is_file()
+    (tmp_path / "f").write_text("x")
+    r = hoc("examples", "two_link", "--dir", tmp_path / "f")
+    assert r.exit_code == 2 and "is not a directory" in r.stderr and (tmp_path / "f").read_text() == "x"
+
+
 def test_the_examples_are_package_data_read_through_importlib_resources():
     from importlib import resources
 

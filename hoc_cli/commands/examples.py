@@ -33,9 +33,13 @@ def run(name: str | None, directory: Path = Path("."), *, force: bool = False, q
         raise HocError(f"no example called {name!r} (expected one of: {', '.join(e.name for e in shipped)}; "
                        "'hoc examples' lists them)", key="NAME")
     directory = Path(directory)
-    if not directory.is_dir():
-        what = "is not a directory" if directory.exists() else "does not exist"
-        raise OutputError(f"{what} (expected the folder to copy the example into)", file=directory, key="--dir")
+    if directory.exists() and not directory.is_dir():
+        raise OutputError("is not a directory (expected the folder to copy the example into)", file=directory, key="--dir")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)  # a new folder, as `git clone URL DIR` makes one
+    except OSError as exc:
+        raise OutputError(f"cannot be created ({exc.strerror or type(exc).__name__}; expected a folder to copy "
+                          "the example into)", file=directory, key="--dir") from None
     task_path, robot_path = directory / f"{example.name}.yaml", directory / example.robot
     if not force:
         for path in (task_path, robot_path):
