@@ -240,8 +240,9 @@ class AutoResult:
     """``N: auto``: the first plan of the refinement whose estimate is below accuracy / ``AUTO_SAFETY``.
 
     plan, error : that plan and its estimate; steps : per mesh tried, {N, J, J_error_estimate, mesh,
-    split}; reached : whether the estimate met the accuracy (else the finest plan tried, at
-    ``AUTO_MAX_ELEMENTS``).
+    split} (and converged: False for a mesh whose solve failed: the refinement then stops and keeps
+    the previous plan); reached : whether the estimate met the accuracy (else the finest converged
+    plan tried, at most ``AUTO_MAX_ELEMENTS`` elements).
     """
 
     plan: PlanResult
@@ -272,7 +273,14 @@ def plan_auto(system: System, order: str, T: float, q0, dq0, q1, dq1, *, accurac
     steps: list[dict] = []
     hint = None  # the order measured on the last uniform mesh, for the estimates on non-uniform ones
     split = None  # how many elements were split to reach the mesh
+    previous = None  # the last converged plan and its estimate
     while True:
+        if previous is not None and not result.converged:
+            # a finer mesh whose solve failed (not converged, infeasible at rounding level): keep the last
+            # converged plan, which is the better answer, and say that the accuracy was not reached
+            steps.append({"N": result.mesh.N, "J": result.J, "J_error_estimate": None,
+                          "mesh": "uniform" if result.mesh.uniform else "nonuniform", "split": split, "converged": False})
+            return AutoResult(previous[0], previous[1], tuple(steps), False)
         err = estimate(system, result, order_hint=hint, **kw)
         if err.basis.get("order_measured") is not None:
             hint = err.basis["order_used"]
@@ -281,6 +289,7 @@ def plan_auto(system: System, order: str, T: float, q0, dq0, q1, dq1, *, accurac
         reached = err.relative is not None and err.relative <= accuracy / AUTO_SAFETY
         if reached or err.refined is None:
             return AutoResult(result, err, tuple(steps), reached)
+        previous = (result, err)
         cut = np.arange(result.mesh.N)
         if refine == "h":
             cut = marked(correction_indicators(system, result, err.refined, cost), AUTO_SPLIT_SHARE)

@@ -192,6 +192,35 @@ def test_h_refinement_reaches_the_velocity_limited_optimum_with_fewer_elements_t
     assert h.plan.limits.check.violations() == []
 
 
+def test_n_auto_keeps_the_last_converged_plan_when_a_finer_mesh_fails_to_converge(monkeypatch):
+    import hoc_cli.accuracy as accuracy
+
+    system = LinearOscillator(1, omega=0.0)
+    limits = JointLimits.from_arrays(system.joint_names, velocity=[1.3])
+    real, meshes = accuracy.plan, []
+
+    class Failed:  # the plan on a split mesh, reported as not converged (as an SQP that gave up would be)
+        converged = False
+
+        def __init__(self, plan) -> None:
+            self.plan = plan
+
+        def __getattr__(self, name):
+            return getattr(self.plan, name)
+
+    def failing_on_split_meshes(system, mesh, *args, **kw):
+        meshes.append(mesh)
+        result = real(system, mesh, *args, **kw)
+        return result if mesh.uniform else Failed(result)
+
+    monkeypatch.setattr(accuracy, "plan", failing_on_split_meshes)
+    found = plan_auto(system, "quintic", 1.0, [0.0], [0.0], [1.0], [0.0], limits=limits, accuracy=1e-9)
+    assert any(not m.uniform for m in meshes) and not found.reached
+    assert found.plan.converged and found.plan.mesh.uniform  # the last converged plan, not the failed one
+    assert found.steps[-1]["converged"] is False and found.steps[-2]["N"] == found.plan.mesh.N
+    assert found.error.relative is not None and found.error.relative > 1e-9 / AUTO_SAFETY
+
+
 def test_hoc_plan_n_auto_writes_a_non_uniform_plan_that_init_and_read_plan_accept(tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
