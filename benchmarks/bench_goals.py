@@ -113,7 +113,7 @@ def ipopt_link(K: int):
     return c.solve(c.guess(task.T, goals.q1_guess)), model
 
 
-def catch(path: Path = ROOT / "configs" / "catch_ball.yaml", moves=(0.01,), repeat: int = 3):
+def catch(path: Path = ROOT / "configs" / "catch_ball.yaml", moves=(0.01,), repeat: int = 3, K: int | None = None):
     """IPOPT on the catch task at K = its N: (cold solve, [(move [m], warm, cold moved)]), warm = best of ``repeat``
     solves warm-started from the cold optimum's primal and dual values after the ball's initial position moves
     by ``move`` along x; cold moved = the same change solved from the cold start."""
@@ -124,7 +124,7 @@ def catch(path: Path = ROOT / "configs" / "catch_ball.yaml", moves=(0.01,), repe
     f, free = goals.final, task.time.free
     c = GoalCollocation(model, st.q0, st.dq0, Goal(link=f.link, position=f.position, velocity=f.velocity,
                                                    acceleration=f.acceleration, match_velocity=f.match_velocity),
-                        (free.min, free.max), task.N, weight=free.weight, limits=Limits.from_model(model))
+                        (free.min, free.max), K or task.N, weight=free.weight, limits=Limits.from_model(model))
     x0 = c.guess(free.guess, goals.q1_guess, goals.dq1_guess)
     cold = c.solve(x0)
     rows = []
@@ -140,6 +140,7 @@ def main() -> None:
     ap.add_argument("--hoc-N", type=int, nargs="+", default=[8, 16, 32])
     ap.add_argument("--ipopt-K", type=int, nargs="+", default=[8, 16, 32, 64])
     ap.add_argument("--skip-catch", action="store_true")
+    ap.add_argument("--hoc-catch", action="store_true", help="also hoc's cold free-T catch at N = 8 (about a minute)")
     args = ap.parse_args()
     _, m2, _, _ = task_from(FREE_T, 8)
     _, m7, _, _ = task_from(LINK, 8)
@@ -179,6 +180,19 @@ def main() -> None:
         for name, r in (("cold", cold), ("warm", warm), ("cold moved", moved)):
             print(f"{name:>10} {r.J:16.10f} {r.T:12.8f} {r.iterations:10d} {1e3 * r.wall:10.1f} "
                   f"{'ok' if r.success else r.status:>8}")
+        print("   the same catch, cold, as the mesh refines")
+        print(f"{'solver':>10} {'mesh':>5} {'J':>16} {'T [s]':>12} {'wall [s]':>9}")
+        if args.hoc_catch:
+            from bench_replan import cold as hoc_cold
+            task = load_task(ROOT / "configs" / "catch_ball.yaml", purpose="plan")
+            model = load_model(task)
+            st = resolve(task, model.joint_names)
+            ft, wall = hoc_cold(RobotSystem(model), task, st, task_goals(task, model, st), task_limits(model, st.limits))
+            print(f"{'hoc':>10} {task.N:5d} {ft.J:16.10f} {ft.T:12.8f} {wall:9.2f}", flush=True)
+        for K in args.ipopt_K:
+            r = catch(moves=(), K=K)[0]
+            print(f"{'IPOPT':>10} {K:5d} {r.J:16.10f} {r.T:12.8f} {r.wall:9.2f}  {'' if r.success else r.status}",
+                  flush=True)
 
 
 if __name__ == "__main__":
