@@ -1,6 +1,6 @@
 """hoc's free-T and link-goal optima beside CasADi + IPOPT direct collocation of the same continuous problems.
 
-    python benchmarks/bench_goals.py [--hoc-N 8 16 32] [--ipopt-K 8 16 32 64] [--skip-catch]
+    python benchmarks/bench_goals.py [--hoc-N 8 16 32] [--ipopt-K 8 16 32 64] [--skip-catch] [--hoc-catch]
 
 1. Free T: the two-link arm (configs/two_link.yaml's move) with ``T: {free: true, min: 0.5, max: 4,
    weight: 1}``, J + weight·T minimised over T, URDF limits enforced. hoc (``minimize_time`` on quintic
@@ -11,8 +11,9 @@
    to the finest IPOPT final q, and the reached position's error by forward kinematics (hoc's own and
    the CasADi transcription, checked against each other to 1e-12 first).
 3. The catch (configs/catch_ball.yaml: free T, a moving target, match_velocity) at K = N = 8: IPOPT cold,
-   then warm-started (primal and dual) after the ball's initial position moves by 1 cm. hoc's warm
-   replan of the same change: ``python benchmarks/bench_replan.py --ipopt``.
+   then warm-started (primal and dual) after the ball's initial position moves by 1 cm; then the catch
+   cold at each K (and hoc's cold free-T search at N = 8 with ``--hoc-catch``, about a minute or more).
+   hoc's warm replan of the same change: ``python benchmarks/bench_replan.py --ipopt``.
 
 The two discretisations differ (Hermite elements with Gauss quadrature against Radau collocation), so
 single meshes differ by their discretisation errors; the converged values are compared.
