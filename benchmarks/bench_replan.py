@@ -1,7 +1,7 @@
 """Replanning latency of the lbr7 catch (configs/catch_ball.yaml, N = 8): the cold free-T solve, then warm
 replans (``hoc_cli.goals.replan``) after the ball's initial position moves by a few millimetres to centimetres.
 
-    python benchmarks/bench_replan.py [--task configs/catch_ball.yaml] [--moves 0.003 0.01 0.03] [--repeat 3]
+    python benchmarks/bench_replan.py [--task configs/catch_ball.yaml] [--moves 0.003 0.01 0.03] [--repeat 3] [--ipopt]
 
 Times the Python call alone (no process start-up, no task loading): the cold solve is the free-T search
 of ``hoc plan`` (coarse to fine, 7 fixed-T solves); each replan starts from the cold optimum, its
@@ -50,6 +50,7 @@ def main() -> None:
     ap.add_argument("--moves", type=float, nargs="+", default=[0.003, 0.01, 0.03])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--cold-moved", action="store_true", help="also solve each moved task cold (minutes each)")
+    ap.add_argument("--ipopt", action="store_true", help="also CasADi + IPOPT cold and warm-started on the same changes")
     args = ap.parse_args()
     task = load_task(Path(args.task), purpose="plan")
     model = load_model(task)
@@ -85,6 +86,24 @@ def main() -> None:
             fc, wc = cold(system, task, states, g, limits)
             row += f" {wc:9.2f} {fc.J:14.9f}"
         print(row, flush=True)
+    if args.ipopt:
+        ipopt_rows(Path(args.task), args.moves, args.repeat)
+
+
+def ipopt_rows(path: Path, moves, repeat: int) -> None:
+    """Print IPOPT's cold solve and, per move, its warm-started and cold re-solves (``bench_goals.catch``)."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_goals import catch
+
+    cold, rows = catch(path, moves, repeat)
+    print(f"IPOPT cold (K = N, Radau d = 3): {1e3 * cold.wall:.1f} ms, {cold.iterations} iterations, T = {cold.T:.6f} s, "
+          f"J = {cold.J:.9f}")
+    print(f"{'move [m]':>9} {'IPOPT warm [ms]':>15} {'iter':>5} {'T [s]':>10} {'J':>14} {'cold [ms]':>9} {'iter':>5} "
+          f"{'|ΔJ| warm-cold':>14}")
+    for dx, warm, again in rows:
+        print(f"{dx:9.3f} {1e3 * warm.wall:15.1f} {warm.iterations:5d} {warm.T:10.6f} {warm.J:14.9f} "
+              f"{1e3 * again.wall:9.1f} {again.iterations:5d} {abs(warm.J - again.J):14.1e}", flush=True)
 
 
 if __name__ == "__main__":
