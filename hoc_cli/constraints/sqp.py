@@ -32,7 +32,8 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_solve_banded
+from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpstrf, dtbtrs
 
 from hoc_cli.banded import element_blocks
 from hoc_cli.constraints.bounds import KINDS, JointLimits
@@ -186,20 +187,14 @@ class _Model:
         if count == 0:
             return d, pv, terms
         cols, vals, gW, muW = np.concatenate(cols), np.concatenate(vals), np.concatenate(gW), np.concatenate(muW)
-        AT = np.zeros((self.free.size, count))
-        np.add.at(AT, (cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)), vals)
-        AT = AT[self.free]
         K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
-        full = np.zeros((self.free.size, count))
-        full[self.free] = AT
-        KA = cho_solve_banded((K.factor, False), full, check_finite=False)[self.free]
-        S = AT.T @ KA
-        w, V = np.linalg.eigh(0.5 * (S + S.T))
-        keep = w > 1e-12 * max(float(w.max()), 1e-300)
-        delta = V[:, keep] @ ((V[:, keep].T @ gW) / w[keep])
-        if np.any(muW + delta < 0):
+        AT = np.zeros((K.size, count))  # the active rows' columns, full coefficient vector (fixed rows 0)
+        AT[cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)] = vals
+        AT[~K.free] = 0.0
+        delta, KAdelta = _pseudo_solve(K, AT, gW)
+        if delta is None or np.any(muW + delta < 0):
             return None  # a multiplier would turn negative: that row leaves W, this step does not apply
-        d = d - KA @ delta
+        d = d - KAdelta
         lam_lo = [np.array(x) for x in pv.mu_lo]
         lam_hi = [np.array(x) for x in pv.mu_hi]
         start = 0
@@ -365,6 +360,37 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                             n_precond=len(history) + 1, decrement=dec, history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
     return SQPResult(ok=ok, result=result, penalty=pv)
+
+
+def _pseudo_solve(K, AT: np.ndarray, gW: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """δ = S⁺ g_W with S = A_W K⁻¹ A_Wᵀ, and K⁻¹A_Wᵀδ (on the free coefficients).
+
+    K = UᵀU (``K.factor``, upper banded): Y = U⁻ᵀA_Wᵀ by one banded triangular solve, S = YᵀY. A
+    pivoted Cholesky of S gives its rank r and S = BᵀB with B (r, |W|) of full row rank, so
+    S⁺g = Bᵀ(BBᵀ)⁻²Bg, with one Cholesky of the r × r matrix BBᵀ: far cheaper than the
+    eigendecomposition of S over a few hundred rows. Returns (None, ·) when the factorisation fails.
+    """
+    Y, info = dtbtrs(K.factor, AT, uplo="U", trans="T")
+    if info != 0:
+        return None, np.zeros(int(K.free.sum()))
+    S = Y.T @ Y
+    scale = float(np.max(np.diag(S), initial=0.0))
+    if not scale > 0:
+        return None, np.zeros(int(K.free.sum()))
+    R, piv, rank, info = dpstrf(S, tol=1e-12 * scale, lower=0)
+    if info < 0 or rank == 0:
+        return None, np.zeros(int(K.free.sum()))
+    B = np.zeros((rank, S.shape[0]))
+    B[:, piv - 1] = np.triu(R[:rank])
+    G = B @ B.T
+    try:
+        c = cho_factor(G, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None, np.zeros(int(K.free.sum()))
+    z = cho_solve(c, cho_solve(c, B @ gW, check_finite=False), check_finite=False)
+    delta = B.T @ z
+    x, info = dtbtrs(K.factor, (Y @ delta)[:, None], uplo="U", trans="N")
+    return delta, x[:, 0][K.free]
 
 
 def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms):
