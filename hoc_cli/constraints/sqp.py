@@ -19,7 +19,8 @@ constraints an SQP step keeps every linearisation exact, so each iteration is
    after one full step every iterate is feasible and the merit is J itself.
 
 Stopping test: x within the imposed bounds and the Newton decrement of the limited model,
-½ dᵀHd, at most tol·|J| (or at most J's rounding level): the constrained analogue of the inner
+|gᵀd + ½ dᵀHd| (= ½ dᵀHd at a fixed active set; ≥ 0 up to rounding, since d = 0 is feasible;
+reported as its absolute value), at most tol·|J| (or at most J's rounding level): the constrained analogue of the inner
 minimiser's test. Near the optimum the active set is fixed and the iteration is Newton's method
 on the equality-constrained problem: a few iterations, one Newton matrix each. Effort limits
 (nonlinear) are not imposed here: the caller checks them and falls back to the augmented
@@ -51,6 +52,7 @@ SSN_MAX = 30
 QP_BUDGET = 150  # semismooth Newton steps one QP may take
 STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over after
 STIFF_ITERATIONS = 3  # this many such iterations in a row
+STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
 C1 = 1e-4
 
@@ -178,9 +180,11 @@ class _Model:
                     continue
                 a = np.arange(2 * m)
                 cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
-                vals.append(side * R[r] / sig[k, j][:, None])
+                Re = R[r] if terms.rows.scale is None else R[r] * terms.rows.scale[k][e]  # non-uniform mesh
+                vals.append(side * Re / sig[k, j][:, None])
                 gW.append(g[e, r, j])
-                muW.append(mu[e, r, j] - terms.rho * terms.rows.weight(k) * g[e, r, j])
+                w = np.broadcast_to(terms.rows.weight(k), mu.shape)[e, r, j]  # non-uniform mesh: per row
+                muW.append(mu[e, r, j] - terms.rho * w * g[e, r, j])
                 where.append((k, side, e, r, j))
                 count += e.size
         if count == 0:
@@ -290,7 +294,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         v0 = _violation_sum(at_x)
         pv = at_x
         feasible = at_x.max_violation() <= 1e-10
-        if feasible and (dec <= tol * abs(J) or dec <= ev.noise) and feas > QP_FEAS:
+        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise) and feas > QP_FEAS:
             # the stopping test is taken only on an accurately solved QP
             feas = QP_FEAS
             d, lam, _, qp_ok = model.solve(lam, rho, d, feas)
@@ -298,8 +302,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                 ok, status = False, Status.LINE_SEARCH_FAILED
                 break
             dec = -float(ev.grad @ d + 0.5 * d @ model.Hd(d))
-        if feasible and (dec <= tol * abs(J) or dec <= ev.noise):
-            stop, status = ("decrement" if dec <= tol * abs(J) else "rounding"), Status.CONVERGED
+        # |dec|: at a feasible x the QP's minimiser has dec >= 0 up to the QP's rounding (d = 0 is feasible)
+        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise):
+            stop, status = ("decrement" if abs(dec) <= tol * abs(J) else "rounding"), Status.CONVERGED
             # The last (small) step too: the QP's multipliers are exact for x + d (gradient + H d +
             # Aᵀμ = 0), to O(|d|²) at the optimum rather than O(|d|) at x; ``free_time`` uses them.
             final = _final_step(base, x, d, J, ev.noise, probe)
@@ -326,6 +331,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                 break
             nu = 2.0 * max(float(np.max(m, initial=0.0)) for m in lam[0] + lam[1]) + 1e-12 * abs(J)
             slope = float(ev.grad @ d) - nu * v0
+        if model.mu >= STRONG_MU:
+            ok, status = False, Status.LINE_SEARCH_FAILED
+            break
         phi0 = J + nu * v0
         a, accepted = 1.0, False
         for _ in range(LS_MAX):
@@ -351,12 +359,13 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
         history.append(IterLog(it + 1, J, float(np.max(np.abs(ev.grad), initial=0.0)), dec, a, n_evals))
-    msg = {"decrement": "the SQP stopping test held: ½ dᵀHd <= tol·|J| for the limited Newton step d",
-           "rounding": "the SQP rounding-level test held: ½ dᵀHd <= the rounding level of J, which exceeds tol·|J|"}
+    msg = {"decrement": "the SQP stopping test held: |gᵀd + ½ dᵀHd| <= tol·|J| for the limited Newton step d",
+           "rounding": "the SQP rounding-level test held: |gᵀd + ½ dᵀHd| <= the rounding level of J, which exceeds "
+                       "tol·|J|"}
     text = msg[stop] if stop else ("the SQP's quadratic programme or line search failed" if not ok
                                    else "the SQP iteration limit was reached")
     result = OptimizeResult(x=x, fun=J, grad=ev.grad, status=status, iterations=len(history), n_evals=n_evals,
-                            n_precond=len(history) + 1, decrement=dec, history=tuple(history), message=text,
+                            n_precond=len(history) + 1, decrement=abs(dec), history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
     return SQPResult(ok=ok, result=result, penalty=pv)
 
@@ -405,7 +414,8 @@ def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: Penalt
             on = np.isfinite(g0)
             if on.any():
                 delta = g1[on] - g0[on]
-                c0.append(lam[on] + rw * g0[on]), c1.append(rw * delta), dg.append(delta)
+                w = np.broadcast_to(rw, g0.shape)[on]  # non-uniform mesh: a penalty per row
+                c0.append(lam[on] + w * g0[on]), c1.append(w * delta), dg.append(delta)
     if not c0:
         return -slope / curvature
     c0, c1, dg = np.concatenate(c0), np.concatenate(c1), np.concatenate(dg)
