@@ -143,7 +143,7 @@ class _Model:
         for _ in range(SSN_MAX):
             self.steps += 1
             pattern = _pattern(pv)
-            K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
+            K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d), pv))
             step = -K.solve(r)
             slope = float(r @ step)
             if not slope < -1e-15 * max(abs(q), 1.0):
@@ -190,7 +190,7 @@ class _Model:
         if count == 0:
             return d, pv, terms
         cols, vals, gW, muW = np.concatenate(cols), np.concatenate(vals), np.concatenate(gW), np.concatenate(muW)
-        K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
+        K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d), pv))
         AT = np.zeros((K.size, count))  # the active rows' columns, full coefficient vector (fixed rows 0)
         AT[cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)] = vals
         AT[~K.free] = 0.0
