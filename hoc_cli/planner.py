@@ -140,6 +140,10 @@ class _Session:
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
         self.current_N = 0
+        # the SQP skips the first solve on a new mesh after the previous mesh's SQP handed over (or was
+        # skipped): far from a limited optimum whose Newton matrix is strongly indefinite (torque cost)
+        # it fails again, at the cost of its attempt; a re-solve on the same mesh tries it again
+        self.sqp_mesh, self.sqp_failed = 0, False
 
     def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         """The unconstrained minimiser on ``problem`` from x0 (the inner solve of ``enforce`` too)."""
@@ -196,9 +200,11 @@ class _Session:
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
+        use_sqp = self.precondition and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
-                     max_outer=max_outer, use_sqp=self.precondition, record=self.record)
+                     max_outer=max_outer, use_sqp=use_sqp, record=self.record)
         self.working = er.working
+        self.sqp_mesh, self.sqp_failed = problem.mesh.N, er.sqp == "handed_over" or (self.precondition and not use_sqp)
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
     def problem(self, mesh: HermiteMesh, G: int | None) -> ControlProblem:

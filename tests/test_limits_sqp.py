@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hoc_cli.banded import BandedSPD
 from hoc_cli.constraints import JointLimits, check_limits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
-from hoc_cli.constraints.sqp import _line_minimum, _Model, block_matvec, kinematic_working
+from hoc_cli.constraints.sqp import _line_minimum, _Model, _pseudo_solve, block_matvec, kinematic_working
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 from hoc_cli.optimize import minimize
@@ -93,6 +94,8 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
         kinds = {(a["joint"], a["kind"]) for a in r.active_limits()}
         assert kinds == {(model.joint_names[0], "velocity"), (model.joint_names[1], "acceleration")}
     assert "SQP" in results[True].message and "SQP" not in results[False].message
+    assert results[True].sqp == "converged" and results[False].sqp == ""
+    assert results[True].inner.decrement >= 0  # |gᵀd + ½dᵀHd|, never a negative rounding residue
     # the SQP's multipliers are KKT multipliers of the plan: ∇J + Σ μ ∇g = 0 to the level the stopping
     # test (tol 1e-11) leaves, measured 2.3e-7 relative (free_time's envelope derivative relies on them;
     # multipliers that miss the ρ·g part of an exact-multiplier step are off by 1e-3)
@@ -105,3 +108,36 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
     J_sqp, J_al = results[True].J, results[False].J
     assert J_sqp > free.J * (1 + 1e-4)  # the limits cost something
     assert J_sqp == pytest.approx(J_al, rel=1e-9)
+
+
+
+def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement():
+    """δ = S⁺g and K⁻¹Aᵀδ for S = A K⁻¹ Aᵀ with dependent rows (repeated and combined), against dense
+    numpy (pinv and solve) on a banded SPD K with fixed coefficients."""
+    rng = np.random.default_rng(7)
+    N, mn = 6, 4
+    L = 2 * mn
+    size = (N + 1) * mn
+    M = rng.normal(size=(N, L, L))
+    blocks = M @ np.swapaxes(M, 1, 2) + 0.5 * np.eye(L)
+    free = np.ones(size, bool)
+    free[:mn] = free[-mn:] = False
+    K = BandedSPD.assemble(blocks, stride=mn, size=size, free=free, shift=0.0)
+    dense = np.zeros((size, size))
+    for e in range(N):
+        dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
+    Kf = dense[np.ix_(free, free)]
+    A = np.zeros((9, size))
+    for i, e in enumerate([0, 1, 1, 2, 3, 3, 4, 5, 5]):
+        A[i, e * mn:e * mn + L] = rng.normal(size=L)
+    A[2] = 2.0 * A[1]  # dependent rows, consistent targets below
+    A[5] = A[4] - 0.5 * A[3]
+    A[:, ~free] = 0.0
+    g = A[:, free] @ rng.normal(size=free.sum())
+    delta, step = _pseudo_solve(K, A.T.copy(), g)
+    Af = A[:, free]
+    S = Af @ np.linalg.solve(Kf, Af.T)
+    ref = np.linalg.pinv(S, rcond=1e-12) @ g
+    assert np.allclose(delta, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    assert np.allclose(step, np.linalg.solve(Kf, Af.T @ ref), rtol=1e-9, atol=1e-12)
+    assert np.allclose(Af @ step, g, rtol=1e-9, atol=1e-12 * np.abs(g).max())  # the rows reach their targets

@@ -73,7 +73,10 @@ class EnforceResult:
     status : "converged" | "infeasible" | "not_converged"; message : which test held or failed;
     inner : the last inner OptimizeResult; x : the plan's design vector; J : I(q_h) without Φ;
     outer_iterations; rho; check : the LimitCheck of the plan; working : (4, n) pairs imposed;
-    rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row).
+    rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row);
+    sqp : "converged" (the SQP decided the plan), "handed_over" (it failed and the augmented
+    Lagrangian took over), or "" (not tried: no kinematic limit binds, an effort limit does, or
+    the caller did not ask for it).
     """
 
     status: str
@@ -87,6 +90,7 @@ class EnforceResult:
     working: np.ndarray
     rows: LimitRows
     penalty: PenaltyValue | None
+    sqp: str = ""
 
     def active_limits(self) -> list[dict]:
         """(joint, kind, intervals [[t0, t1], …] [s]) where a multiplier is positive at the optimum.
@@ -177,9 +181,9 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                record: Callable[[object], None] | None):
     """The unconstrained solve (when nothing is known to bind), then the SQP on the kinematic rows.
 
-    Returns (EnforceResult or None, x, working): a result when the plan is decided here; else the
-    point and working set the augmented-Lagrangian loop continues from (an effort limit broken, or
-    the SQP failed, e.g. an infeasible task).
+    Returns (outcome, x, working): outcome an EnforceResult when the plan is decided here, else
+    "handed_over" (the SQP failed, e.g. an infeasible task) or None (not tried, or an effort limit
+    is broken), with the point and working set the augmented-Lagrangian loop continues from.
     """
     mesh, n = base.mesh, limits.n
     if not working.any():  # exactly the unconstrained solve: no price when nothing binds
@@ -210,7 +214,7 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         if record is not None:
             record(s.result)
         if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
-            return None, x_start, working
+            return "handed_over", x_start, working
         x = s.result.x
         C = base.coefficients(x)
         check = check_limits(system, limits, mesh, C)
@@ -227,7 +231,7 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     rows = LimitRows.build(mesh, base.layout.free, n)
     return EnforceResult(status="converged" if ok else "not_converged", message=message, inner=s.result, x=x,
                          J=base.evaluate(x, grad=False).J, outer_iterations=s.result.iterations, rho=0.0,
-                         check=check, working=working, rows=rows, penalty=s.penalty), x, working
+                         check=check, working=working, rows=rows, penalty=s.penalty, sqp="converged"), x, working
 
 
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
@@ -245,10 +249,12 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     mesh, n = base.mesh, limits.n
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
     x = np.asarray(x0, float)
+    handed_over = ""
     if use_sqp:
         done, x, working = _sqp_phase(base, system, limits, x, tol, inner_solve, working, record)
-        if done is not None:
+        if isinstance(done, EnforceResult):
             return done
+        handed_over = done or ""
     rows = LimitRows.build(mesh, base.layout.free, n)
     lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
     rho = rho0 = None
@@ -298,4 +304,5 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             status, message = "infeasible", "no trajectory within the limits was found (the penalty grew 1e8-fold)"
             break
     return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
-                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv)
+                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv,
+                         sqp=handed_over)

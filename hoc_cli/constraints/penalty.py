@@ -229,11 +229,11 @@ class LimitTerms:
             G = Gk if G is None else G + Gk
         return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
 
-    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
-        """Element blocks (N, 2mn, 2mn) of Φ's (Gauss-Newton) Hessian at C."""
+    def newton_blocks(self, C: np.ndarray, pv: PenaltyValue | None = None) -> np.ndarray:
+        """Element blocks (N, 2mn, 2mn) of Φ's (Gauss-Newton) Hessian at C (``pv``: these terms at C, if known)."""
         mesh, n = self.rows.mesh, self.limits.n
         N, m = mesh.N, mesh.m
-        pv = self.evaluate(C, grad=False)
+        pv = self.evaluate(C, grad=False) if pv is None else pv
         _, _, sig = self._bounds
         blocks = np.zeros((N, 2 * m, n, 2 * m, n))
         eff = None

@@ -19,7 +19,8 @@ constraints an SQP step keeps every linearisation exact, so each iteration is
    after one full step every iterate is feasible and the merit is J itself.
 
 Stopping test: x within the imposed bounds and the Newton decrement of the limited model,
-½ dᵀHd, at most tol·|J| (or at most J's rounding level): the constrained analogue of the inner
+|gᵀd + ½ dᵀHd| (= ½ dᵀHd at a fixed active set; ≥ 0 up to rounding, since d = 0 is feasible;
+reported as its absolute value), at most tol·|J| (or at most J's rounding level): the constrained analogue of the inner
 minimiser's test. Near the optimum the active set is fixed and the iteration is Newton's method
 on the equality-constrained problem: a few iterations, one Newton matrix each. Effort limits
 (nonlinear) are not imposed here: the caller checks them and falls back to the augmented
@@ -32,7 +33,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_solve_banded
+from scipy.linalg.lapack import dtbtrs
 
 from hoc_cli.banded import element_blocks
 from hoc_cli.constraints.bounds import KINDS, JointLimits
@@ -45,12 +46,13 @@ _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 RHO_QP = 1e4  # the QP's penalty per unit time, × |J|/T
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
 QP_STALL = 1e-10  # ... or at least this, when the rounding of the banded solves stops progress
-QP_LOOSE = 1e-5  # ... the loosest, far from the solution (the tolerance is 1e-2 × the last relative decrement)
+QP_LOOSE = 1e-7  # ... the loosest, far from the solution (the tolerance is 1e-2 × the last relative decrement)
 QP_MAX_OUTER = 40
 SSN_MAX = 30
 QP_BUDGET = 150  # semismooth Newton steps one QP may take
 STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over after
 STIFF_ITERATIONS = 3  # this many such iterations in a row
+STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
 C1 = 1e-4
 
@@ -141,7 +143,7 @@ class _Model:
         for _ in range(SSN_MAX):
             self.steps += 1
             pattern = _pattern(pv)
-            K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
+            K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d), pv))
             step = -K.solve(r)
             slope = float(r @ step)
             if not slope < -1e-15 * max(abs(q), 1.0):
@@ -178,30 +180,24 @@ class _Model:
                     continue
                 a = np.arange(2 * m)
                 cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
-                Rr = R[r] if terms.rows.scale is None else R[r] * terms.rows.scale[k][e]  # non-uniform: h_e factors
-                vals.append(side * Rr / sig[k, j][:, None])
+                Re = R[r] if terms.rows.scale is None else R[r] * terms.rows.scale[k][e]  # non-uniform mesh
+                vals.append(side * Re / sig[k, j][:, None])
                 gW.append(g[e, r, j])
-                w = np.broadcast_to(terms.rows.weight(k), g.shape)[e, r, j]  # per row on a non-uniform mesh
+                w = np.broadcast_to(terms.rows.weight(k), mu.shape)[e, r, j]  # non-uniform mesh: per row
                 muW.append(mu[e, r, j] - terms.rho * w * g[e, r, j])
                 where.append((k, side, e, r, j))
                 count += e.size
         if count == 0:
             return d, pv, terms
         cols, vals, gW, muW = np.concatenate(cols), np.concatenate(vals), np.concatenate(gW), np.concatenate(muW)
-        AT = np.zeros((self.free.size, count))
-        np.add.at(AT, (cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)), vals)
-        AT = AT[self.free]
-        K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d)))
-        full = np.zeros((self.free.size, count))
-        full[self.free] = AT
-        KA = cho_solve_banded((K.factor, False), full, check_finite=False)[self.free]
-        S = AT.T @ KA
-        w, V = np.linalg.eigh(0.5 * (S + S.T))
-        keep = w > 1e-12 * max(float(w.max()), 1e-300)
-        delta = V[:, keep] @ ((V[:, keep].T @ gW) / w[keep])
-        if np.any(muW + delta < 0):
+        K = self.base.banded(self.H + terms.newton_blocks(self.base.coefficients(self.x + d), pv))
+        AT = np.zeros((K.size, count))  # the active rows' columns, full coefficient vector (fixed rows 0)
+        AT[cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)] = vals
+        AT[~K.free] = 0.0
+        delta, KAdelta = _pseudo_solve(K, AT, gW)
+        if delta is None or np.any(muW + delta < 0):
             return None  # a multiplier would turn negative: that row leaves W, this step does not apply
-        d = d - KA @ delta
+        d = d - KAdelta
         lam_lo = [np.array(x) for x in pv.mu_lo]
         lam_hi = [np.array(x) for x in pv.mu_hi]
         start = 0
@@ -298,7 +294,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         v0 = _violation_sum(at_x)
         pv = at_x
         feasible = at_x.max_violation() <= 1e-10
-        if feasible and (dec <= tol * abs(J) or dec <= ev.noise) and feas > QP_FEAS:
+        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise) and feas > QP_FEAS:
             # the stopping test is taken only on an accurately solved QP
             feas = QP_FEAS
             d, lam, _, qp_ok = model.solve(lam, rho, d, feas)
@@ -306,8 +302,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                 ok, status = False, Status.LINE_SEARCH_FAILED
                 break
             dec = -float(ev.grad @ d + 0.5 * d @ model.Hd(d))
-        if feasible and (dec <= tol * abs(J) or dec <= ev.noise):
-            stop, status = ("decrement" if dec <= tol * abs(J) else "rounding"), Status.CONVERGED
+        # |dec|: at a feasible x the QP's minimiser has dec >= 0 up to the QP's rounding (d = 0 is feasible)
+        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise):
+            stop, status = ("decrement" if abs(dec) <= tol * abs(J) else "rounding"), Status.CONVERGED
             # The last (small) step too: the QP's multipliers are exact for x + d (gradient + H d +
             # Aᵀμ = 0), to O(|d|²) at the optimum rather than O(|d|) at x; ``free_time`` uses them.
             final = _final_step(base, x, d, J, ev.noise, probe)
@@ -334,6 +331,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                 break
             nu = 2.0 * max(float(np.max(m, initial=0.0)) for m in lam[0] + lam[1]) + 1e-12 * abs(J)
             slope = float(ev.grad @ d) - nu * v0
+        if model.mu >= STRONG_MU:
+            ok, status = False, Status.LINE_SEARCH_FAILED
+            break
         phi0 = J + nu * v0
         a, accepted = 1.0, False
         for _ in range(LS_MAX):
@@ -359,14 +359,34 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
         history.append(IterLog(it + 1, J, float(np.max(np.abs(ev.grad), initial=0.0)), dec, a, n_evals))
-    msg = {"decrement": "the SQP stopping test held: ½ dᵀHd <= tol·|J| for the limited Newton step d",
-           "rounding": "the SQP rounding-level test held: ½ dᵀHd <= the rounding level of J, which exceeds tol·|J|"}
+    msg = {"decrement": "the SQP stopping test held: |gᵀd + ½ dᵀHd| <= tol·|J| for the limited Newton step d",
+           "rounding": "the SQP rounding-level test held: |gᵀd + ½ dᵀHd| <= the rounding level of J, which exceeds "
+                       "tol·|J|"}
     text = msg[stop] if stop else ("the SQP's quadratic programme or line search failed" if not ok
                                    else "the SQP iteration limit was reached")
     result = OptimizeResult(x=x, fun=J, grad=ev.grad, status=status, iterations=len(history), n_evals=n_evals,
-                            n_precond=len(history) + 1, decrement=dec, history=tuple(history), message=text,
+                            n_precond=len(history) + 1, decrement=abs(dec), history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
     return SQPResult(ok=ok, result=result, penalty=pv)
+
+
+def _pseudo_solve(K, AT: np.ndarray, gW: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """δ = S⁺ g_W with S = A_W K⁻¹ A_Wᵀ, and K⁻¹A_Wᵀδ (on the free coefficients).
+
+    K = UᵀU (``K.factor``, upper banded): Y = U⁻ᵀA_Wᵀ by one banded triangular solve (half of a
+    Cholesky solve), S = YᵀY, its pseudo-inverse from its eigendecomposition (eigenvalues below
+    1e-12 × the largest count as zero); K⁻¹A_Wᵀδ = U⁻¹(Yδ), one more triangular solve of a vector.
+    Returns (None, ·) when a triangular solve fails.
+    """
+    Y, info = dtbtrs(K.factor, AT, uplo="U", trans="T")
+    if info != 0:
+        return None, np.zeros(int(K.free.sum()))
+    S = Y.T @ Y
+    w, V = np.linalg.eigh(S)
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    delta = V[:, keep] @ ((V[:, keep].T @ gW) / w[keep])
+    x, info = dtbtrs(K.factor, (Y @ delta)[:, None], uplo="U", trans="N")
+    return delta, x[:, 0][K.free]
 
 
 def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms):
@@ -389,12 +409,13 @@ def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: Penalt
     """
     c0, c1, dg = [], [], []
     for k in range(len(KINDS)):
+        rw = terms.rho * terms.rows.weight(k)
         for lam, g0, g1 in ((terms.lam_lo[k], at0.g_lo[k], at1.g_lo[k]), (terms.lam_hi[k], at0.g_hi[k], at1.g_hi[k])):
             on = np.isfinite(g0)
             if on.any():
-                rw = np.broadcast_to(terms.rho * terms.rows.weight(k), g0.shape)[on]  # per row on a non-uniform mesh
                 delta = g1[on] - g0[on]
-                c0.append(lam[on] + rw * g0[on]), c1.append(rw * delta), dg.append(delta)
+                w = np.broadcast_to(rw, g0.shape)[on]  # non-uniform mesh: a penalty per row
+                c0.append(lam[on] + w * g0[on]), c1.append(w * delta), dg.append(delta)
     if not c0:
         return -slope / curvature
     c0, c1, dg = np.concatenate(c0), np.concatenate(c1), np.concatenate(dg)
