@@ -56,6 +56,7 @@ DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
 RHO_AUG = 1e3  # ρ of the KKT matrix's W + ρDᵀD per unit |J| (measured on the lbr7 catch: 1e1 leaves W + ρDᵀD
 # indefinite, 1e6 too ill-conditioned for the banded Cholesky factorisation)
 SLOPE_RTOL = 1e-7  # |F'| relative to |J|/T + weight (as ``hoc_cli.free_time.minimize_time``)
+VIOLATION_FLOOR = 1e-3  # a step may raise max|c| up to this (m, rad, m/s): the T steps move the rows nonlinearly
 
 
 @dataclass(frozen=True)
@@ -314,11 +315,13 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                 v_try = float(np.max(np.abs(trial.c), initial=0.0))
             except NumericalError:
                 trial, v_try = None, math.inf
-            if (trial is not None and v_try <= max(violation, 1e-6)) or alpha < 0.05:
+            if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
                 break
             alpha *= 0.5
         if trial is None:
             break
+        if _DEBUG:
+            print(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
         pt, T, lam = trial, T_try, lam_try
     violation = float(np.max(np.abs(pt.c), initial=0.0))
     problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
