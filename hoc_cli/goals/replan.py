@@ -233,7 +233,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                       state, weight, free is not None)
 
     pt = at(T, C, lam)
-    for steps in range(1, max_steps + 1):
+    for _ in range(max_steps + 4):  # the steps, the final check, and a few re-checks after the working set grows
         problem, x, C = pt.problem, pt.x, pt.C
         evals += 1
         violation = float(np.max(np.abs(pt.c), initial=0.0))
@@ -270,6 +270,9 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
             state[0] = state[0] | newly
             pt = at(T, C, lam)
             continue
+        if steps == max_steps:
+            break
+        steps += 1
         DY = pt.D @ Y
         Dw = pt.D @ w
         r = pt.c.size
