@@ -232,8 +232,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         return _point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
                       state, weight, free is not None)
 
-    pt = at(T, C, lam)
-    for _ in range(max_steps + 4):  # the steps, the final check, and a few re-checks after the working set grows
+    pt, fresh = at(T, C, lam), False
+    for _ in range(3 * max_steps + 1):  # the steps, the final test, the limits' multiplier updates
         problem, x, C = pt.problem, pt.x, pt.C
         evals += 1
         violation = float(np.max(np.abs(pt.c), initial=0.0))
@@ -254,12 +254,10 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         at_bound = free is not None and ((T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
         t_done = free is None or at_bound or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight)
         x_done = decrement <= tol * max(abs(pt.J), 1.0)
-        if limited and pt.pv is not None and x_done:  # the limits' multiplier update, at an inner optimum
-            state[1], state[2] = pt.pv.mu_lo, pt.pv.mu_hi
         if _DEBUG:
             print(f"step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"F' {pt.F:.2e} t {1e3 * (time.perf_counter() - start):.1f} ms")
-        if x_done and violation <= EQ_ACCEPT and t_done:
+        if x_done and violation <= EQ_ACCEPT and t_done and not fresh:
             newly = None
             if limited:
                 check = check_limits(system, limits, problem.mesh, C)
@@ -268,8 +266,12 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                 status = Status.CONVERGED
                 break
             state[0] = state[0] | newly
-            pt = at(T, C, lam)
+        if x_done and not fresh and limited:  # the limits' multiplier update at an inner optimum (and the rows
+            if pt.pv is not None:  # that joined), then a step at the new multipliers before the next test
+                state[1], state[2] = pt.pv.mu_lo, pt.pv.mu_hi
+            pt, fresh = at(T, C, lam), True
             continue
+        fresh = False
         if steps == max_steps:
             break
         steps += 1
