@@ -36,13 +36,12 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.linalg import cho_solve_banded
 
-from hoc_cli.constraints.augmented_lagrangian import MARGIN, EnforceResult, PenalizedProblem
+from hoc_cli.constraints.augmented_lagrangian import MARGIN, EnforceResult
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import (
-    cost_time_derivative,
     fixed_coefficient_correction,
     limits_time_derivative,
     rescale,
@@ -50,6 +49,7 @@ from hoc_cli.free_time import (
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
+from hoc_cli.problem import Evaluation
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
@@ -127,46 +127,64 @@ class _Point:
     lt: object
     pv: object
     rows: object
+    res: list | None
 
 
-def _point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope) -> _Point:
-    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]."""
-    mesh = HermiteMesh(order, T, N)
-    problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
-    problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian, quadratic steps
-    lt = rows = pv = None
-    full = problem
+def _point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
+           cache: dict) -> _Point:
+    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
+    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
+    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only).
+    """
+    if T not in cache:
+        mesh = HermiteMesh(order, T, N)
+        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
+        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
+        cache[T] = (problem, rows)
+    problem, rows = cache[T]
+    mesh = problem.mesh
+    lt = pv = None
     if limits is not None:
         working, mu_lo, mu_hi, rho_l = limit_state
-        rows = LimitRows.build(mesh, problem.layout.free, limits.n)
         lt = LimitTerms(system, limits, rows, working, mu_lo, mu_hi, rho_l, MARGIN)
-        if not lt.empty:
-            full = PenalizedProblem(problem, lt)
+        lt = None if lt.empty else lt
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
-    ev = full.evaluate(x)
-    g = ev.grad
-    c, D = np.zeros(0), np.zeros((0, x.size))
-    terms = GoalTerms(mesh, problem.points, lam, 0.0)
-    if problem.points:
-        c, dc = terms.jacobian(C)
-        D = dc.reshape(len(c), -1)[:, problem.layout.free]
-        g = g + D.T @ np.concatenate(lam)
-    F = 0.0
-    if slope:
-        dT, Gc = cost_time_derivative(problem, C)
-        if lt is not None and not lt.empty:
-            pv = lt.evaluate(C, grad=False)
+    op = problem.op
+    q, dq, ddq = op.apply(C)
+    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+    J = float(np.dot(op.w, s.L))
+    if not np.isfinite(J):
+        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+    Wt = op.w[:, None]
+    Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
+    dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
+    G_all = Gc
+    value = J
+    if lt is not None:
+        pv = lt.evaluate(C)
+        G_all = G_all + pv.grad
+        value += pv.value
+        if slope:
             dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
             dT, Gc = dT + dl, Gc + Gl
-        if problem.points:
-            dg, Gg = terms.time_derivative(C, T)
+    c, D = np.zeros(0), np.zeros((0, x.size))
+    res = None
+    if problem.points:
+        terms = GoalTerms(mesh, problem.points, lam, 0.0)
+        res = terms.residuals(C)
+        c, dc = terms.jacobian(C, res)
+        D = dc.reshape(len(c), -1)[:, problem.layout.free]
+        if slope:
+            dg, Gg = terms.time_derivative(C, T, res)
             dT, Gc = dT + dg, Gc + Gg
-        F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight
-    elif lt is not None and not lt.empty:
-        pv = lt.evaluate(C, grad=False)
-    J = ev.J - (pv.value if pv is not None else 0.0)
-    return _Point(problem, x, C, J, ev, g, c, D, F, lt, pv, rows)
+    g = problem.layout.pack(G_all)
+    if D.size:
+        g = g + D.T @ np.concatenate(lam)
+    F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
+    ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
+    return _Point(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res)
 
 
 def _solve_many(W, B: np.ndarray) -> np.ndarray:
@@ -230,18 +248,19 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
 
     def at(T_, C_, lam_):
         return _point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
-                      state, weight, free is not None)
+                      state, weight, free is not None, cache)
 
+    cache: dict = {}
     pt, fresh = at(T, C, lam), False
     for _ in range(3 * max_steps + 1):  # the steps, the final test, the limits' multiplier updates
         problem, x, C = pt.problem, pt.x, pt.C
         evals += 1
         violation = float(np.max(np.abs(pt.c), initial=0.0))
-        extra = pt.lt.newton_blocks(C) if pt.lt is not None and not pt.lt.empty else None
+        extra = pt.lt.newton_blocks(C) if pt.lt is not None else None
         if problem.points:
             # W + ρDᵀD is positive definite where W alone is not (q at T is held by the rows only); the
             # step is the same (the multiplier step absorbs −ρc)
-            blocks = GoalTerms(problem.mesh, problem.points, lam, rho_aug).newton_blocks(C, indefinite=True)
+            blocks = GoalTerms(problem.mesh, problem.points, lam, rho_aug).newton_blocks(C, indefinite=True, res=pt.res)
             extra = blocks if extra is None else extra + blocks
         try:
             W = problem.newton(pt.ev, extra=extra)
