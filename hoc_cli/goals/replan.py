@@ -251,7 +251,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                       state, weight, free is not None, cache)
 
     cache: dict = {}
-    pt, fresh = at(T, C, lam), False
+    pt, fresh, updated = at(T, C, lam), False, True  # the previous plan's multipliers are its optimum's
     for _ in range(3 * max_steps + 1):  # the steps, the final test, the limits' multiplier updates
         problem, x, C = pt.problem, pt.x, pt.C
         evals += 1
@@ -285,12 +285,12 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                 status = Status.CONVERGED
                 break
             state[0] = state[0] | newly
-        if x_done and not fresh and limited:  # the limits' multiplier update at an inner optimum (and the rows
+        if x_done and not updated and limited:  # the limits' multiplier update at an inner optimum (and the rows
             if pt.pv is not None:  # that joined), then a step at the new multipliers before the next test
                 state[1], state[2] = pt.pv.mu_lo, pt.pv.mu_hi
-            pt, fresh = at(T, C, lam), True
+            pt, fresh, updated = at(T, C, lam), True, True
             continue
-        fresh = False
+        fresh = updated = False
         if steps == max_steps:
             break
         steps += 1
