@@ -257,6 +257,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         evals += 1
         violation = float(np.max(np.abs(pt.c), initial=0.0))
         extra = pt.lt.newton_blocks(C) if pt.lt is not None else None
+        blocks = None
         if problem.points:
             # W + ρDᵀD is positive definite where W alone is not (q at T is held by the rows only); the
             # step is the same (the multiplier step absorbs −ρc)
@@ -264,8 +265,14 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
             extra = blocks if extra is None else extra + blocks
         try:
             W = problem.newton(pt.ev, extra=extra)
-        except NumericalError:
-            break
+        except NumericalError:  # away from the optimum: the rows' curvature without its negative part
+            if blocks is None:
+                break
+            try:
+                extra = extra - blocks + GoalTerms(problem.mesh, problem.points, lam, rho_aug).newton_blocks(C, res=pt.res)
+                W = problem.newton(pt.ev, extra=extra)
+            except NumericalError:
+                break
         A = np.vstack([pt.g[None], pt.D])  # W⁻¹ on g and the rows together
         Z = _solve_many(W, A.T)
         w, Y = Z[:, 0], Z[:, 1:]
