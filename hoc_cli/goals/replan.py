@@ -3,25 +3,29 @@
 A real-time user re-solves the same task when the target moves a little. ``replan`` starts from the
 previous plan's coefficients, its T, the goal rows' multipliers λ, and the limits' working set,
 multipliers μ and penalty (no coarse-to-fine continuation, no initial guess, no inverse kinematics,
-no quadrature refinement: G stays the previous plan's). Each step, at the current T:
+no quadrature refinement: G stays the previous plan's). The unknowns are x (the free Hermite
+coefficients, in the s = t/T domain), T when it is free, and λ; the Lagrangian is
+ℒ = I + Φ_limits + λ·c + weight·T with the limits as augmented-Lagrangian terms at fixed μ. Each step is
+one Newton (SQP) step on its KKT system, x, T and λ together:
 
-1. one Newton (SQP) step on the goal rows c = 0 with the Lagrangian ℒ = I + Φ_limits + λ·c: the KKT
-   system W dx + Dᵀ dλ = −∇ℒ, D dx = −c (D = ∂c/∂x, W the block-banded Newton matrix of I + Φ plus
-   Σλ∇²c and ρDᵀD, which makes W positive definite without changing dx), solved by the banded
-   factorisation of W and the Schur complement D W⁻¹ Dᵀ on the r goal rows; the step is halved while
-   it raises max|c| (down to 1/32);
-2. when that step was converged (decrement ½ gᵀW⁻¹g ≤ ``tol``·|J|): the limits' multiplier update
-   μ ← max(0, μ + ρg) and, with a free T, one Newton step on F'(T) = dJ*/dT + weight = 0:
-   T ← T − F'/F'' with F'' the curvature d²J*/dT² of the previous search (a secant when none is
-   known), clipped to the range; the coefficients are rescaled to the new T.
+    [ W    b    Dᵀ ] [dx]     [∇ₓℒ]
+    [ bᵀ   h    c_Tᵀ] [dT] = − [ F ]        F = ∂ℒ/∂T,  c the goal rows, D = ∂c/∂x
+    [ D    c_T  0  ] [dλ]     [ c ]
 
-It stops when a step is converged, every goal row is met to 1e-9 (m, rad, m/s), |F'| ≤ 1e-7·(|J|/T +
-weight) (or T sits at a bound it is pushed against) and the plan is within its limits
-(``check_limits``; a limit that became active joins the working set). After ``max_steps`` steps
-the full solver finishes (``plan_goals``, and the free-T search with a free T), from the previous
-plan when the steps wandered off. Measured on the lbr7 catch (docs/goals.md): a step costs about
-one cost-and-gradient evaluation plus one Newton matrix (15-40 ms at N = 8 on a loaded 2-core machine); a move of 1 mm takes
-~25 steps with the free T (the T steps each need a converged x), a fixed-T replan ~11 (docs/goals.md).
+W is the block-banded Hessian of I + Φ on the cost's own quadrature (exact, so the steps converge
+quadratically) plus Σλ∇²c (finite differences) plus ρDᵀD (ρ = 1e3·|J|: positive definite where W alone
+is not, without changing the step); b = ∂∇ₓℒ/∂T, h = ∂²ℒ/∂T² and c_T = ∂c/∂T come from a forward
+difference (δ = 1e-6·T) of the exact gradient, F and c at T + δ (the coefficients rescaled). The system is
+solved by one banded Cholesky factorisation of W (W⁻¹ on ∇ₓℒ, b and the r rows of Dᵀ together) and the
+(1 + r)-square Schur complement on (dT, dλ). A step is halved while it raises max|c| above
+max(max|c|, 1e-3) (down to 1/32); T is clipped to its range.
+
+It stops when the decrement ½∇ₓℒᵀW⁻¹∇ₓℒ ≤ ``tol``·|J|, every goal row is met to 1e-9 (m, rad, m/s),
+|F| ≤ 1e-7·(|J|/T + weight) (or T sits at a bound it is pushed against) and the plan is within its
+limits (``check_limits``). At an inner optimum that fails the last test the limits' multipliers are
+updated (μ ← max(0, μ + ρg)), a pair that broke its limit joins the working set, and a step at the new
+multipliers follows. After ``max_steps`` steps the full solver finishes (``plan_goals``, and the free-T
+search with a free T), from the previous plan when the steps wandered off. Measured in docs/goals.md.
 Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -209,7 +213,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         The new goals (e.g. the target moved); the same kind of rows as the previous plan's.
     free : the range of a free T, or None to keep T fixed at the previous plan's.
     limits : ``JointLimits`` enforced, or None.
-    curvature : unused (kept for callers; the T curvature is now a finite difference at each step).
+    curvature : d²J*/dT² [cost units/s²] to report as the result's ``curvature`` instead of the previous plan's
+        (the steps take ∂²ℒ/∂T² from a finite difference).
     tol : the Newton decrement's tolerance relative to |J|.
     max_steps : Newton steps before the full solver takes over (``fallback``; else returned as is).
 
@@ -219,6 +224,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     """
     start = time.perf_counter()
     plan0, d2 = _start(previous)
+    d2 = curvature if curvature is not None else d2
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
     q0, dq0 = problem0.boundary[:2]
