@@ -3,25 +3,29 @@
 A real-time user re-solves the same task when the target moves a little. ``replan`` starts from the
 previous plan's coefficients, its T, the goal rows' multipliers λ, and the limits' working set,
 multipliers μ and penalty (no coarse-to-fine continuation, no initial guess, no inverse kinematics,
-no quadrature refinement: G stays the previous plan's). Each step, at the current T:
+no quadrature refinement: G stays the previous plan's). The unknowns are x (the free Hermite
+coefficients, in the s = t/T domain), T when it is free, and λ; the Lagrangian is
+ℒ = I + Φ_limits + λ·c + weight·T with the limits as augmented-Lagrangian terms at fixed μ. Each step is
+one Newton (SQP) step on its KKT system, x, T and λ together:
 
-1. one Newton (SQP) step on the goal rows c = 0 with the Lagrangian ℒ = I + Φ_limits + λ·c: the KKT
-   system W dx + Dᵀ dλ = −∇ℒ, D dx = −c (D = ∂c/∂x, W the block-banded Newton matrix of I + Φ plus
-   Σλ∇²c and ρDᵀD, which makes W positive definite without changing dx), solved by the banded
-   factorisation of W and the Schur complement D W⁻¹ Dᵀ on the r goal rows; the step is halved while
-   it raises max|c| (down to 1/32);
-2. when that step was converged (decrement ½ gᵀW⁻¹g ≤ ``tol``·|J|): the limits' multiplier update
-   μ ← max(0, μ + ρg) and, with a free T, one Newton step on F'(T) = dJ*/dT + weight = 0:
-   T ← T − F'/F'' with F'' the curvature d²J*/dT² of the previous search (a secant when none is
-   known), clipped to the range; the coefficients are rescaled to the new T.
+    [ W    b    Dᵀ ] [dx]     [∇ₓℒ]
+    [ bᵀ   h    c_Tᵀ] [dT] = − [ F ]        F = ∂ℒ/∂T,  c the goal rows, D = ∂c/∂x
+    [ D    c_T  0  ] [dλ]     [ c ]
 
-It stops when a step is converged, every goal row is met to 1e-9 (m, rad, m/s), |F'| ≤ 1e-7·(|J|/T +
-weight) (or T sits at a bound it is pushed against) and the plan is within its limits
-(``check_limits``; a limit that became active joins the working set). After ``max_steps`` steps
-the full solver finishes (``plan_goals``, and the free-T search with a free T), from the previous
-plan when the steps wandered off. Measured on the lbr7 catch (docs/goals.md): a step costs about
-one cost-and-gradient evaluation plus one Newton matrix (15-40 ms at N = 8 on a loaded 2-core machine); a move of 1 mm takes
-~25 steps with the free T (the T steps each need a converged x), a fixed-T replan ~11 (docs/goals.md).
+W is the block-banded Hessian of I + Φ on the cost's own quadrature (exact, so the steps converge
+quadratically) plus Σλ∇²c (finite differences) plus ρDᵀD (ρ = 1e3·|J|: positive definite where W alone
+is not, without changing the step); b = ∂∇ₓℒ/∂T, h = ∂²ℒ/∂T² and c_T = ∂c/∂T come from a forward
+difference (δ = 1e-6·T) of the exact gradient, F and c at T + δ (the coefficients rescaled). The system is
+solved by one banded Cholesky factorisation of W (W⁻¹ on ∇ₓℒ, b and the r rows of Dᵀ together) and the
+(1 + r)-square Schur complement on (dT, dλ). A step is halved while it raises max|c| above
+max(max|c|, 1e-3) (down to 1/32); T is clipped to its range.
+
+It stops when the decrement ½∇ₓℒᵀW⁻¹∇ₓℒ ≤ ``tol``·|J|, every goal row is met to 1e-9 (m, rad, m/s),
+|F| ≤ 1e-7·(|J|/T + weight) (or T sits at a bound it is pushed against) and the plan is within its
+limits (``check_limits``). At an inner optimum that fails the last test the limits' multipliers are
+updated (μ ← max(0, μ + ρg)), a pair that broke its limit joins the working set, and a step at the new
+multipliers follows. After ``max_steps`` steps the full solver finishes (``plan_goals``, and the free-T
+search with a free T), from the previous plan when the steps wandered off. Measured in docs/goals.md.
 Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -34,14 +38,14 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.linalg import cho_solve_banded
 
-from hoc_cli.constraints.augmented_lagrangian import MARGIN, EnforceResult, PenalizedProblem
+from hoc_cli.constraints.augmented_lagrangian import MARGIN, EnforceResult
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import (
-    cost_time_derivative,
     fixed_coefficient_correction,
     limits_time_derivative,
     rescale,
@@ -49,12 +53,14 @@ from hoc_cli.free_time import (
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
+from hoc_cli.problem import Evaluation
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
 RHO_AUG = 1e3  # ρ of the KKT matrix's W + ρDᵀD per unit |J| (measured on the lbr7 catch: 1e1 leaves W + ρDᵀD
 # indefinite, 1e6 too ill-conditioned for the banded Cholesky factorisation)
 SLOPE_RTOL = 1e-7  # |F'| relative to |J|/T + weight (as ``hoc_cli.free_time.minimize_time``)
+VIOLATION_FLOOR = 1e-3  # a step may raise max|c| up to this (m, rad, m/s): the T steps move the rows nonlinearly
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,91 @@ def _start(previous) -> tuple[GoalResult, float | None]:
     return previous, None
 
 
+@dataclass(eq=False)
+class _Point:
+    """The Lagrangian at (x, T): the problem, x, C, J, its gradient g (P,), the goal rows c (r,), D (r, P),
+    F = ∂ℒ/∂T + weight at fixed s-domain free coefficients, the limit terms and their value.
+    """
+
+    problem: GoalProblem
+    x: np.ndarray
+    C: np.ndarray
+    J: float
+    ev: object
+    g: np.ndarray
+    c: np.ndarray
+    D: np.ndarray
+    F: float
+    lt: object
+    pv: object
+    rows: object
+    res: list | None
+
+
+def _point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
+           cache: dict) -> _Point:
+    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
+    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
+    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only).
+    """
+    if T not in cache:
+        mesh = HermiteMesh(order, T, N)
+        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
+        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
+        cache[T] = (problem, rows)
+    problem, rows = cache[T]
+    mesh = problem.mesh
+    lt = pv = None
+    if limits is not None:
+        working, mu_lo, mu_hi, rho_l = limit_state
+        lt = LimitTerms(system, limits, rows, working, mu_lo, mu_hi, rho_l, MARGIN)
+        lt = None if lt.empty else lt
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
+    op = problem.op
+    q, dq, ddq = op.apply(C)
+    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+    J = float(np.dot(op.w, s.L))
+    if not np.isfinite(J):
+        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+    Wt = op.w[:, None]
+    Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
+    dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
+    G_all = Gc
+    value = J
+    if lt is not None:
+        pv = lt.evaluate(C)
+        G_all = G_all + pv.grad
+        value += pv.value
+        if slope:
+            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
+            dT, Gc = dT + dl, Gc + Gl
+    c, D = np.zeros(0), np.zeros((0, x.size))
+    res = None
+    if problem.points:
+        terms = GoalTerms(mesh, problem.points, lam, 0.0)
+        res = terms.residuals(C)
+        c, dc = terms.jacobian(C, res)
+        D = dc.reshape(len(c), -1)[:, problem.layout.free]
+        if slope:
+            dg, Gg = terms.time_derivative(C, T, res)
+            dT, Gc = dT + dg, Gc + Gg
+    g = problem.layout.pack(G_all)
+    if D.size:
+        g = g + D.T @ np.concatenate(lam)
+    F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
+    ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
+    return _Point(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res)
+
+
+def _solve_many(W, B: np.ndarray) -> np.ndarray:
+    """W⁻¹ B for B (P, k) by one banded back-substitution of W's factor (``BandedSPD``)."""
+    full = np.zeros((W.size, B.shape[1]))
+    full[W.free] = B
+    return cho_solve_banded((W.factor, False), full, check_finite=False)[W.free]
+
+
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
            fallback: bool = True) -> ReplanResult:
@@ -122,7 +213,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         The new goals (e.g. the target moved); the same kind of rows as the previous plan's.
     free : the range of a free T, or None to keep T fixed at the previous plan's.
     limits : ``JointLimits`` enforced, or None.
-    curvature : d²J*/dT² [cost units/s²] to use instead of the previous plan's.
+    curvature : d²J*/dT² [cost units/s²] to report as the result's ``curvature`` instead of the previous plan's
+        (the steps take ∂²ℒ/∂T² from a finite difference).
     tol : the Newton decrement's tolerance relative to |J|.
     max_steps : Newton steps before the full solver takes over (``fallback``; else returned as is).
 
@@ -139,135 +231,149 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     T, C = mesh0.T, np.array(plan0.coeffs)
     limited = limits is not None and limits.any
     lam, rho = (plan0.terms.lam, plan0.terms.rho) if plan0.terms is not None else (None, 0.0)
-    working = mu_lo = mu_hi = None
-    rho_l = 1.0
+    points = GoalProblem(system, mesh0, q0, dq0, goals, cost=cost, G=G).points
+    if lam is None or len(lam) != len(points):
+        lam = [np.zeros(p.residual.size) for p in points]
+    lam = [np.array(v, float) for v in lam]
+    state = None
     if limited:
         lr = plan0.limits
         working = np.zeros((4, limits.n), bool) if lr is None else lr.working.copy()
+        rows0 = LimitRows.build(mesh0, problem0.layout.free, limits.n)
+        zeros = tuple(np.zeros(rows0.shape(k, limits.n)) for k in range(4))
         if lr is not None and lr.penalty is not None:
-            mu_lo, mu_hi, rho_l = lr.penalty.mu_lo, lr.penalty.mu_hi, lr.rho or 1.0
+            state = [working, lr.penalty.mu_lo, lr.penalty.mu_hi, lr.rho or 1.0]
+        else:
+            state = [working, zeros, zeros, 1.0]
     weight = free.weight if free is not None else 0.0
     rho_aug = RHO_AUG * max(abs(plan0.J), 1.0)
-    slope = 0.0
-    probe = None  # (T, F') of the last step whose x had converged, for a secant when d2 is unknown
-    evals = 0
     status = Status.MAX_ITER
-    steps = 0
-    for steps in range(1, max_steps + 1):
-        mesh = HermiteMesh(order, T, N)
-        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
-        if lam is None or len(lam) != len(problem.points):
-            lam = [np.zeros(p.residual.size) for p in problem.points]
-            rho = rho if rho > 0 else 10.0 * max(abs(plan0.J), 1e-6)
-        terms = GoalTerms(mesh, problem.points, lam, 0.0)  # ρ = 0: the Lagrangian's λ·c
-        lt = rows = None
-        full = problem
-        if limited:
-            rows = LimitRows.build(mesh, problem.layout.free, limits.n)
-            if mu_lo is None or any(a.shape != rows.shape(k, limits.n) for k, a in enumerate(mu_lo)):
-                mu_lo = mu_hi = tuple(np.zeros(rows.shape(k, limits.n)) for k in range(4))
-            lt = LimitTerms(system, limits, rows, working, mu_lo, mu_hi, rho_l, MARGIN)
-            if not lt.empty:
-                full = PenalizedProblem(problem, lt)
-        x = problem.layout.pack(C)
-        ev = full.evaluate(x)
+    steps = evals = 0
+    violation = decrement = math.inf
+    split = np.cumsum([p.residual.size for p in points])[:-1]
+
+    def at(T_, C_, lam_):
+        return _point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
+                      state, weight, free is not None, cache)
+
+    cache: dict = {}
+    pt, fresh, updated = at(T, C, lam), False, True  # the previous plan's multipliers are its optimum's
+    for _ in range(3 * max_steps + 1):  # the steps, the final test, the limits' multiplier updates
+        problem, x, C = pt.problem, pt.x, pt.C
         evals += 1
-        extra = lt.newton_blocks(C) if full is not problem else None
-        grad = ev.grad
-        c = np.zeros(0)
+        violation = float(np.max(np.abs(pt.c), initial=0.0))
+        extra = pt.lt.newton_blocks(C) if pt.lt is not None else None
+        blocks = None
         if problem.points:
-            c, dc = terms.jacobian(C)
-            D = np.array([problem.layout.pack(row) for row in dc])  # (r, P)
-            grad = grad + D.T @ np.concatenate(lam)
             # W + ρDᵀD is positive definite where W alone is not (q at T is held by the rows only); the
-            # step is the same (the multiplier step absorbs −ρc), the curvature's μ = λ + ρc → λ
-            blocks = GoalTerms(mesh, problem.points, lam, rho_aug).newton_blocks(C, indefinite=True)
+            # step is the same (the multiplier step absorbs −ρc)
+            blocks = GoalTerms(problem.mesh, problem.points, lam, rho_aug).newton_blocks(C, indefinite=True, res=pt.res)
             extra = blocks if extra is None else extra + blocks
         try:
-            W = problem.newton(ev, extra=extra)
+            W = problem.newton(pt.ev, extra=extra)
         except NumericalError:  # away from the optimum: the rows' curvature without its negative part
+            if blocks is None:
+                break
             try:
-                extra = extra - blocks + GoalTerms(mesh, problem.points, lam, rho_aug).newton_blocks(C)
-                W = problem.newton(ev, extra=extra)
+                extra = extra - blocks + GoalTerms(problem.mesh, problem.points, lam, rho_aug).newton_blocks(C, res=pt.res)
+                W = problem.newton(pt.ev, extra=extra)
             except NumericalError:
                 break
-        w = W.solve(grad)
-        decrement = 0.5 * float(grad @ w)
-        dx = -w
-        if c.size:  # the KKT step: W dx + Dᵀ dλ = −∇ℒ, D dx = −c (Schur complement on the r rows)
-            Y = np.stack([W.solve(row) for row in D], axis=1)  # W⁻¹ Dᵀ (P, r)
-            dlam = np.linalg.lstsq(D @ Y, c - D @ w, rcond=1e-12)[0]  # rows may be dependent (a planar arm)
-            dx = dx - Y @ dlam
-            dlam = dlam - rho_aug * c
-            split = np.cumsum([p.residual.size for p in problem.points])[:-1]
-            lam = [lv + d for lv, d in zip(lam, np.split(dlam, split))]
-        before = terms.violation(C) if problem.points else 0.0
-        alpha = 1.0
-        while True:  # damping: a step may not raise the goal rows' violation (far steps leave the model)
-            C_try = problem.coefficients(x + alpha * dx)
-            violation = GoalTerms(mesh, problem.points, lam, 0.0).violation(C_try) if problem.points else 0.0
-            if violation <= max(before, 1e-6) or alpha < 0.05:
-                break
-            alpha *= 0.5
-        x, C = x + alpha * dx, C_try
-        if alpha < 1.0 and c.size:
-            lam = [lv - (1.0 - alpha) * d for lv, d in zip(lam, np.split(dlam, split))]
-        terms = GoalTerms(mesh, problem.points, lam, 0.0)
-        pv = lt.evaluate(C, grad=False) if lt is not None else None
-        if free is not None:
-            dT, Gc = cost_time_derivative(problem, C)
-            if pv is not None and not lt.empty:
-                dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
-                dT, Gc = dT + dl, Gc + Gl
-            if problem.points:
-                dg, Gg = terms.time_derivative(C, T)
-                dT, Gc = dT + dg, Gc + Gg
-            slope = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T)
-        J = problem.value(x)
-        x_done = decrement <= tol * max(abs(J), 1.0) and alpha == 1.0
-        if pv is not None and not lt.empty and x_done:  # the limits' outer update, at an inner optimum
-            mu_lo, mu_hi = pv.mu_lo, pv.mu_hi
-        F = slope + weight
-        at_bound = free is not None and ((T >= free.max and F < 0) or (T <= free.min and F > 0))
-        t_done = free is None or at_bound or abs(F) <= SLOPE_RTOL * (abs(J) / T + weight)
+        A = np.vstack([pt.g[None], pt.D])  # W⁻¹ on g and the rows together
+        Z = _solve_many(W, A.T)
+        w, Y = Z[:, 0], Z[:, 1:]
+        decrement = 0.5 * float(pt.g @ w)
+        at_bound = free is not None and ((T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
+        t_done = free is None or at_bound or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight)
+        x_done = decrement <= tol * max(abs(pt.J), 1.0)
         if _DEBUG:
-            print(f"rho_l {rho_l:.3g} step {steps} T {T:.9f} J {J:.12g} dec {decrement:.2e} dx {np.max(np.abs(dx)):.1e} a {alpha} viol {violation:.1e} "
-                  f"F' {F:.2e} t {1e3 * (time.perf_counter() - start):.1f} ms")
-        if x_done and violation <= EQ_ACCEPT and t_done:
-            check = check_limits(system, limits, mesh, C) if limited else None
+            print(f"step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
+                  f"F' {pt.F:.2e} t {1e3 * (time.perf_counter() - start):.1f} ms")
+        if x_done and violation <= EQ_ACCEPT and t_done and not fresh:
             newly = None
-            if check is not None:
+            if limited:
+                check = check_limits(system, limits, problem.mesh, C)
                 newly = ((check.hi_excess > 0) | (check.lo_excess > 0)).any(axis=1)
             if newly is None or not newly.any():
                 status = Status.CONVERGED
                 break
-            working = working | newly
+            state[0] = state[0] | newly
+        if x_done and not updated and limited:  # the limits' multiplier update at an inner optimum (and the rows
+            if pt.pv is not None:  # that joined), then a step at the new multipliers before the next test
+                state[1], state[2] = pt.pv.mu_lo, pt.pv.mu_hi
+            pt, fresh, updated = at(T, C, lam), True, True
             continue
-        if free is not None and not t_done and x_done and violation <= EQ_ACCEPT:  # T steps from fixed-T optima
-            if x_done and probe is not None and probe[0] != T:
-                secant = (F - probe[1]) / (T - probe[0])
-                d2 = secant if secant > 0 else d2
-            if x_done:
-                probe = (T, F)
-            if d2 is None:
-                if not x_done:
-                    continue
-                step = -math.copysign(1e-3 * T, F)  # a probe for the secant
-            else:
-                step = -F / d2
-            T_new = min(max(T + step, free.min), free.max)
-            C = rescale(C, T, T_new)
-            T = T_new
-    grad = np.zeros_like(x)
-    opt = OptimizeResult(x=x, fun=J, grad=grad, status=status, iterations=steps, n_evals=evals, n_precond=steps,
-                         decrement=decrement, message="warm replan: " + ("converged" if status is Status.CONVERGED
-                                                                           else f"{steps} Newton steps"))
+        fresh = updated = False
+        if steps == max_steps:
+            break
+        steps += 1
+        DY = pt.D @ Y
+        Dw = pt.D @ w
+        r = pt.c.size
+        dT = 0.0
+        if free is not None and not at_bound:
+            # the T row: b = ∂∇ℒ/∂T (P,), h = ∂²ℒ/∂T², c_T = ∂c/∂T at fixed s-domain coefficients, by a
+            # forward difference of the exact gradient, F and c at T + δ
+            delta = 1e-6 * T
+            ph = at(T + delta, rescale(C, T, T + delta), lam)
+            evals += 1
+            scale = problem.layout.pack(rescale(np.ones_like(C), T, T + delta))
+            b = (scale * ph.g - pt.g) / delta
+            h = (ph.F - pt.F) / delta
+            cT = (ph.c - pt.c) / delta
+            b = b + rho_aug * pt.D.T @ cT
+            h = h + rho_aug * float(cT @ cT)
+            u = W.solve(b)
+            Du = pt.D @ u
+            K = np.zeros((r + 1, r + 1))
+            K[0, 0] = h - b @ u
+            K[0, 1:] = K[1:, 0] = cT - Du
+            K[1:, 1:] = -DY
+            rhs = np.concatenate([[-pt.F + b @ w], -pt.c + Dw])
+            sol = np.linalg.lstsq(K, rhs, rcond=1e-12)[0]
+            if K[0, 0] > 0 and free.min <= T + sol[0] <= free.max:
+                dT, nu = sol[0], sol[1:]
+            else:  # clipped: T moves to the bound (or by the curvature's sign) and the rows follow
+                dT = float(np.clip(T + (sol[0] if K[0, 0] > 0 else -math.copysign(1e-3 * T, pt.F)),
+                                   free.min, free.max) - T)
+                nu = np.linalg.lstsq(-DY, -pt.c + Dw - (cT - Du) * dT, rcond=1e-12)[0] if r else np.zeros(0)
+            dx = -w - u * dT - Y @ nu
+        else:
+            nu = np.linalg.lstsq(DY, pt.c - Dw, rcond=1e-12)[0] if r else np.zeros(0)  # rows may be dependent
+            dx = -w - Y @ nu
+        dlam = nu - rho_aug * pt.c
+        alpha = 1.0
+        while True:  # damping: a step may not raise the goal rows' violation (far steps leave the model)
+            T_try = T + alpha * dT
+            C_try = rescale(problem.coefficients(x + alpha * dx), T, T_try)
+            lam_try = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
+            try:
+                trial = at(T_try, C_try, lam_try)
+                v_try = float(np.max(np.abs(trial.c), initial=0.0))
+            except NumericalError:
+                trial, v_try = None, math.inf
+            if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
+                break
+            alpha *= 0.5
+        if trial is None:
+            break
+        if _DEBUG:
+            print(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
+        pt, T, lam = trial, T_try, lam_try
+    violation = float(np.max(np.abs(pt.c), initial=0.0))
+    problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
+    mesh = problem.mesh
+    slope = pt.F - weight
+    opt = OptimizeResult(x=x, fun=J, grad=np.zeros_like(x), status=status, iterations=steps, n_evals=evals,
+                         n_precond=steps, decrement=decrement,
+                         message="warm replan: " + ("converged" if status is Status.CONVERGED
+                                                    else f"{steps} Newton steps"))
     enforced = None
     if limited:
         check = check_limits(system, limits, mesh, C)
         enforced = EnforceResult(status="converged" if status is Status.CONVERGED else "not_converged",
-                                 message=opt.message, inner=opt, x=x, J=J, outer_iterations=steps, rho=rho_l,
-                                 check=check, working=working, rows=rows, penalty=pv)
+                                 message=opt.message, inner=opt, x=x, J=J, outer_iterations=steps, rho=state[3],
+                                 check=check, working=state[0], rows=pt.rows, penalty=pt.pv)
     used = GoalTerms(mesh, problem.points, lam, rho if rho > 0 else 10.0 * max(abs(J), 1e-6))
     plan = GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=opt, G=G, quadrature_change=math.nan,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=enforced, terms=used,

@@ -95,9 +95,11 @@ class GoalTerms:
             S[1, i] = r[2].T @ m
         return where.transpose(S)
 
-    def jacobian(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(c (r,), ∂c/∂C (r, N+1, m, n)): every row (the points' rows in order) and its gradient."""
-        res = self.residuals(C)
+    def jacobian(self, C: np.ndarray, res: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(c (r,), ∂c/∂C (r, N+1, m, n)): every row (the points' rows in order) and its gradient
+        (``res``: ``residuals(C)`` when already known).
+        """
+        res = self.residuals(C) if res is None else res
         where = self._where()
         n = C.shape[-1]
         rows = []
@@ -109,7 +111,8 @@ class GoalTerms:
         c = np.concatenate([r[0] for r in res]) if res else np.zeros(0)
         return c, np.array(rows).reshape((len(rows),) + C.shape)
 
-    def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False) -> np.ndarray:
+    def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False,
+                      res: list | None = None) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of ρ Dᵀ D, plus with ``curvature`` the positive part of Σ μ ∇²c.
 
         The second-order part in (q, q̇) is the forward difference (step 1e-7·(1 + |x|)) of the vector
@@ -119,7 +122,7 @@ class GoalTerms:
         n = C.shape[-1]
         T = self.mesh.T
         Hs = np.zeros((len(self.points), 3 * n, 3 * n))
-        for i, r in enumerate(self.residuals(C)):
+        for i, r in enumerate(self.residuals(C) if res is None else res):
             D = np.hstack([r[1], r[2], np.zeros_like(r[1])])
             Hs[i] = self.rho * D.T @ D
             if curvature and not isinstance(self.points[i].residual, JointResidual):
@@ -137,9 +140,9 @@ class GoalTerms:
                 Hs[i, :2 * n, :2 * n] += H
         return self._where().sample_blocks(Hs)
 
-    def time_derivative(self, C: np.ndarray, T: float) -> tuple[float, np.ndarray]:
+    def time_derivative(self, C: np.ndarray, T: float, res: list | None = None) -> tuple[float, np.ndarray]:
         """(Σ μ·∂c/∂T at fixed s-domain coefficients, Σ μ ∂c/∂C (N+1, m, n)), μ = λ + ρ c."""
-        res = self.residuals(C)
+        res = self.residuals(C) if res is None else res
         mu = [lam + self.rho * r[0] for lam, r in zip(self.lam, res)]
         dT = sum(float(m @ (r[3] - r[2] @ r[5] / T)) for m, r in zip(mu, res))
         return dT, self._gradient(C, res, mu)
