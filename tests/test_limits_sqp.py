@@ -141,3 +141,29 @@ def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(
     assert np.allclose(delta, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
     assert np.allclose(step, np.linalg.solve(Kf, Af.T @ ref), rtol=1e-9, atol=1e-12)
     assert np.allclose(Af @ step, g, rtol=1e-9, atol=1e-12 * np.abs(g).max())  # the rows reach their targets
+
+
+def test_a_stalled_augmented_lagrangian_from_a_start_within_the_limits_is_not_called_infeasible(monkeypatch):
+    """A start within the limits proves the task feasible: when the penalty grows out of range anyway
+    (made to happen at once here by shrinking RHO_RANGE), the result is "not_converged" and the start."""
+    import hoc_cli.constraints.augmented_lagrangian as al
+
+    model, system, problem = _problem(N=12)
+    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
+    t = np.linspace(0, 1.5, 301)
+    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
+    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf])
+
+    def inner(p, x0, tol):
+        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
+                        method="newton", c2=0.9, tol=tol)
+
+    solved = enforce(problem, system, limits, problem.initial_guess(), 1e-11, inner)
+    assert solved.status == "converged" and solved.check.violations() == []
+    monkeypatch.setattr(al, "RHO_RANGE", 1e-6)
+    outside = np.array(problem.initial_guess())  # min-jerk: outside this velocity limit
+    assert check_limits(system, limits, problem.mesh, problem.coefficients(outside)).violations()
+    assert enforce(problem, system, limits, outside, 1e-11, inner).status == "infeasible"
+    r = enforce(problem, system, limits, solved.x, 1e-11, inner, working=solved.working)
+    assert r.status == "not_converged" and "stalled" in r.message
+    assert np.array_equal(r.x, solved.x) and r.check.violations() == []

@@ -257,6 +257,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         handed_over = done or ""
     rows = LimitRows.build(mesh, base.layout.free, n)
     lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
+    x_begin = x  # a start within the limits proves the task feasible (see the "infeasible" test below)
     rho = rho0 = None
     prev = math.inf
     res = check = pv = None
@@ -302,6 +303,14 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         prev = excess if excess > 0 else prev
         if rho0 is not None and rho > rho0 * RHO_RANGE and not within:
             status, message = "infeasible", "no trajectory within the limits was found (the penalty grew 1e8-fold)"
+            start = check_limits(system, limits, mesh, base.coefficients(x_begin))
+            if not ((start.hi_excess > 0).any() or (start.lo_excess > 0).any()):
+                # the start is within the limits, so the task is not infeasible: the iteration stalled
+                # (degenerate rows at a huge penalty). Return that start: a plan within the limits.
+                x, check, res = x_begin, start, res
+                pv = terms.evaluate(base.coefficients(x), grad=False)
+                status, message = "not_converged", ("the limit solver stalled (the penalty grew 1e8-fold without "
+                                                    "meeting the limits); the plan returned is its start, within the limits")
             break
     return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
                          outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv,
