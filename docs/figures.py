@@ -173,7 +173,8 @@ def examples() -> str:
             if not proc.stdout.strip():  # a failed replay: its one-line error, up to the advice after ';'
                 message = proc.stderr.strip().splitlines()[-1].removeprefix("hoc: error: ").split(";")[0]
                 return f"exit {proc.returncode}: {message}"
-            return f"{json.loads(proc.stdout)['final_error']:.2g}"
+            error = json.loads(proc.stdout)["final_error"]
+            return "— (a link goal: no joint x1)" if error is None else f"{error:.2g}"
 
         kinds: dict[str, list[str]] = {}
         for v in s["limit_violations"]:
