@@ -32,10 +32,9 @@ Pure maths: no I/O.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -202,7 +201,7 @@ def estimate(system: System, result: PlanResult, *, cost: str, method: str = "pr
              "J": [J_coarse, result.J, fine.J] if J_coarse is not None else [result.J, fine.J], **info}
     if J_coarse is not None:
         basis["coarse"] = coarse_source
-    fine = dataclasses.replace(fine, levels=result.levels + fine.levels, coarser=result)
+    fine = replace(fine, levels=result.levels + fine.levels, coarser=result)
     return ErrorEstimate(relative, basis, eta, fine, time.perf_counter() - start, iterations)
 
 
@@ -282,6 +281,15 @@ def plan_auto(system: System, order: str, T: float, q0, dq0, q1, dq1, *, accurac
                           "mesh": "uniform" if result.mesh.uniform else "nonuniform", "split": split, "converged": False})
             return AutoResult(previous[0], previous[1], tuple(steps), False)
         err = estimate(system, result, order_hint=hint, **kw)
+        if err.relative is None and previous is not None and result.converged and previous[1].relative is not None:
+            # the estimate's own solve (on the bisected mesh) failed; the plan refines the previous one
+            # (its space holds the previous plan, J did not rise), so the previous estimate bounds its error
+            J_prev = previous[0].J
+            bound = (abs(J_prev - result.J) + previous[1].relative * abs(J_prev)) / max(abs(result.J), 1e-300)
+            err = replace(err, relative=bound, basis={
+                "method": "bound from the coarser mesh (the estimate's solve on the bisected mesh did not converge)",
+                "N_coarser": previous[0].mesh.N, "J_coarser": J_prev, "estimate_coarser": previous[1].relative,
+                "failed": err.basis})
         if err.basis.get("order_measured") is not None:
             hint = err.basis["order_used"]
         steps.append({"N": result.mesh.N, "J": result.J, "J_error_estimate": err.relative,

@@ -221,6 +221,28 @@ def test_n_auto_keeps_the_last_converged_plan_when_a_finer_mesh_fails_to_converg
     assert found.error.relative is not None and found.error.relative > 1e-9 / AUTO_SAFETY
 
 
+def test_n_auto_bounds_the_error_by_the_coarser_estimate_when_the_estimate_s_own_solve_fails(monkeypatch):
+    import hoc_cli.accuracy as accuracy
+
+    system = LinearOscillator(1, omega=0.0)
+    limits = JointLimits.from_arrays(system.joint_names, velocity=[1.3])
+    real = accuracy.estimate
+
+    def failing_on_split_meshes(system, result, **kw):  # as when the solve on the bisected mesh stalls
+        err = real(system, result, **kw)
+        return err if result.mesh.uniform else accuracy.ErrorEstimate(None, {"method": "failed"})
+
+    monkeypatch.setattr(accuracy, "estimate", failing_on_split_meshes)
+    found = plan_auto(system, "quintic", 1.0, [0.0], [0.0], [1.0], [0.0], limits=limits, accuracy=1e-6)
+    assert not found.plan.mesh.uniform and found.plan.converged
+    basis = found.error.basis
+    assert basis["method"].startswith("bound from the coarser mesh")
+    J, Jc = found.plan.J, basis["J_coarser"]
+    assert found.error.relative == pytest.approx((abs(Jc - J) + basis["estimate_coarser"] * abs(Jc)) / J, rel=1e-12)
+    J_star = velocity_limited_optimum(1.0, 1.0, 1.3)
+    assert (J - J_star) / J <= found.error.relative  # an upper bound of the true error
+
+
 def test_hoc_plan_n_auto_writes_a_non_uniform_plan_that_init_and_read_plan_accept(tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
