@@ -348,6 +348,31 @@ def starts() -> str:
             f"and {max(every):.2f} (median {sorted(every)[len(every) // 2]:.2f}).")
 
 
+GOAL_TASKS = (("free final time", "two_link_free_time.yaml"), ("via point", "two_link_via.yaml"),
+              ("end-effector (link) position", "two_link_pose.yaml"), ("catching a moving target", "catch_ball.yaml"))
+
+
+def goals() -> str:
+    """One shipped task per goal kind, planned as a user would: J and how the goal was met (README)."""
+    tmp = scratch()
+    rows = ["| goal | task | J | converged | what the summary reports | solve [s] |", "| --- | --- | --- | --- | --- | --- |"]
+    for kind, name in GOAL_TASKS:
+        s = hoc_json(["plan", f"configs/{name}", "-o", "none"], tmp)
+        met = []
+        if isinstance(s.get("dJ_dT"), float):
+            met.append(f"T = {s['T']:.6g} s, dJ/dT = {s['dJ_dT']:.6g}")
+        for v in s.get("vias") or []:
+            met.append(f"via at t = {v['t']:g} s met to {v['error']:.1e}")
+        reached = s.get("reached")
+        for r in (reached if isinstance(reached, list) else [reached] if reached else []):
+            errs = ", ".join(f"{k.removesuffix('_error')} to {r[k]:.1e}" for k in r if k.endswith("_error"))
+            met.append(f"`{r['link']}` {errs}")
+        rows.append(f"| {kind} | `configs/{name}` | {s['cost']:.9g} | {s['converged']} | {'; '.join(met) or '-'} | "
+                    f"{s['wall_time_s']:.2f} |")
+    shutil.rmtree(tmp)
+    return "\n".join(rows)
+
+
 @dataclass(frozen=True)
 class Section:
     target: str
@@ -375,6 +400,7 @@ SECTIONS: dict[str, Section] = {
     "batch": Section("docs/batch.md", batch, "python docs/figures.py batch", True),
     "readme-batch": Section("README.md", readme_batch, "python docs/figures.py batch readme-batch", True),
     "starts": Section("README.md", starts, "python docs/figures.py starts", True),
+    "goals": Section("README.md", goals, "python docs/figures.py goals", True),
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
 }
