@@ -98,3 +98,18 @@ def test_the_shipped_catch_meets_the_ball_at_a_fixed_T(tmp_path):
     s = json.loads(r.stdout)
     assert s["converged"] and s["limit_violations"] == []
     assert s["reached"]["position_error"] < 1e-9 and s["reached"]["velocity_error"] < 1e-9
+
+
+def test_a_free_t_task_simulated_with_its_plan_s_torque_csv_runs_to_the_plan_s_t(tmp_path, monkeypatch):
+    """The shipped free-T task: the CSV's last sample is the plan's T, and the replay reaches x1 there."""
+    monkeypatch.chdir(tmp_path)
+    task = ROOT / "configs" / "two_link_free_time.yaml"
+    r = CliRunner().invoke(app, ["plan", str(task), "-o", "p.csv", "--json", "-q"])
+    assert r.exit_code == 0, r.output
+    T = json.loads(r.stdout)["T"]
+    assert abs(T - 1.5) > 0.1  # the optimum is not the guess
+    r = CliRunner().invoke(app, ["simulate", str(task), "--torque", "p.csv", "--integrator", "rk", "--json", "-q",
+                                 "-o", "none", "--check", "1e-3"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["T"] == T and s["final_error"] < 1e-3

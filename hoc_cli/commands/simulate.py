@@ -117,6 +117,9 @@ def run(
             task = load_task(source, purpose="simulate")
             urdf_text = ""
         task = apply_overrides(task, **(overrides or {}))
+        if plan is None and task.time.free is not None and torque is not None and Path(torque).suffix.lower() == ".csv":
+            # a free-T task replayed with a plan's torque CSV: the plan's T is the CSV's last sample time
+            task = apply_overrides(task, T=_csv_duration(Path(torque)))
         targets = parse_outputs(outputs, f"{source.stem}-sim")  # never a plan's <stem>.csv/.mcap
         refuse_inputs(targets, {"the simulation source": source, "the URDF": None if plan else task.robot,
                                 "--torque": torque})
@@ -264,6 +267,17 @@ def _columns(file: Path, have: tuple[str, ...], joints: tuple[str, ...]) -> list
             f"torque columns name joints {', '.join(have)}; the task's joints are {', '.join(joints)}", file=file
         )
     return [have.index(j) for j in joints]
+
+
+def _csv_duration(file: Path) -> float:
+    """The last sample time [s] of a torque CSV (a free-T task's duration when it is simulated with it)."""
+    from hoc_cli.io.csv import read_csv
+
+    traj = read_csv(file)
+    if traj.K < 2 or not traj.t[-1] > 0:
+        raise InputFileError("needs at least 2 samples ending at t > 0 to give a free-T task its duration", file=file,
+                             key="--torque")
+    return float(traj.t[-1])
 
 
 def _check_span(file: Path, t: np.ndarray, T: float) -> None:
