@@ -106,8 +106,11 @@ def test_a_free_t_task_simulated_with_its_plan_s_torque_csv_runs_to_the_plan_s_t
     task = ROOT / "configs" / "two_link_free_time.yaml"
     r = CliRunner().invoke(app, ["plan", str(task), "-o", "p.csv", "--json", "-q"])
     assert r.exit_code == 0, r.output
-    T = json.loads(r.stdout)["T"]
+    planned = json.loads(r.stdout)
+    T = planned["T"]
     assert abs(T - 1.5) > 0.1  # the optimum is not the guess
+    # the search's work, summed over its fixed-T solves (the last one, warm, may take no iteration)
+    assert planned["T_iterations"] >= max(planned["iterations"], 1) and planned["T_evaluations"] >= planned["T_solves"] > 1
     r = CliRunner().invoke(app, ["simulate", str(task), "--torque", "p.csv", "--integrator", "rk", "--json", "-q",
                                  "-o", "none", "--check", "1e-3"])
     assert r.exit_code == 0, r.output

@@ -129,8 +129,10 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
     start = time.perf_counter()
     ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
     result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search
+    solves = [p.result.optimizer for p in ft.history]  # `iterations` is the last solve's; these, the search's
     return result, {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
-                       "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged}
+                    "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged,
+                    "T_iterations": sum(o.iterations for o in solves), "T_evaluations": sum(o.n_evals for o in solves)}
 
 
 def goal_summary(model, result, goals: Goals | None) -> dict:
