@@ -42,6 +42,8 @@ from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.system import System
 
+BANDED_SHIFT = 1e-12  # relative regularisation of the banded Newton matrices (``BandedSPD.assemble``)
+
 __all__ = ["COSTS", "ControlProblem", "Evaluation", "Layout", "SampleGradients", "boundary_coefficients",
            "default_gauss_points", "minimum_jerk_guess"]
 
@@ -342,7 +344,7 @@ class ControlProblem:
         H += GN
         return 0.5 * (H + np.swapaxes(H, 1, 2)), GN
 
-    def newton(self, ev: Evaluation, extra: np.ndarray | None = None) -> BandedSPD:
+    def newton(self, ev: Evaluation, extra: np.ndarray | None = None, shift: float = BANDED_SHIFT) -> BandedSPD:
         """The Hessian of I on the free coefficients (block-banded), made positive definite.
 
         Element blocks of the per-sample Hessians (``hessian_samples``) through ``positive_definite``;
@@ -352,9 +354,9 @@ class ControlProblem:
         """
         Hs, GNs = self.hessian_samples(ev)
         if extra is None:
-            return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs))
+            return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs), shift)
         return self.positive_definite(element_blocks(self.op_h, Hs) + extra,
-                                      lambda: element_blocks(self.op_h, GNs) + extra)
+                                      lambda: element_blocks(self.op_h, GNs) + extra, shift)
 
     def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.
@@ -365,7 +367,7 @@ class ControlProblem:
         """
         return self._sweep_sample_hessians(*self._preconditioner_samples(ev))
 
-    def positive_definite(self, H: np.ndarray, psd: Callable[[], np.ndarray]) -> BandedSPD:
+    def positive_definite(self, H: np.ndarray, psd: Callable[[], np.ndarray], shift: float = BANDED_SHIFT) -> BandedSPD:
         """The banded matrix of element blocks H (N, 2mn, 2mn), made positive definite.
 
         Away from a minimum the Hessian may be indefinite; then μ·GN is added, with GN = ``psd()``
@@ -374,22 +376,24 @@ class ControlProblem:
         succeeds; GN alone last.
         """
         try:
-            return self.banded(H)
+            return self.banded(H, shift)
         except NumericalError:
             GN = psd()
             tr_gn = np.trace(GN.sum(axis=0))
             mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
             for _ in range(12):
                 try:
-                    return self.banded(H + abs(mu) * GN)
+                    return self.banded(H + abs(mu) * GN, shift)
                 except NumericalError:
                     mu *= 10
-            return self.banded(GN)
+            return self.banded(GN, shift)
 
-    def banded(self, blocks: np.ndarray) -> BandedSPD:
-        """Element blocks (N, 2mn, 2mn) summed, restricted to the free coefficients and factored."""
+    def banded(self, blocks: np.ndarray, shift: float = BANDED_SHIFT) -> BandedSPD:
+        """Element blocks (N, 2mn, 2mn) summed, restricted to the free coefficients and factored
+        (``shift``: the relative regularisation of ``BandedSPD.assemble``).
+        """
         mn = self.mesh.m * self.n
-        return BandedSPD.assemble(blocks, stride=mn, size=(self.mesh.N + 1) * mn, free=self.layout.free, shift=1e-12)
+        return BandedSPD.assemble(blocks, stride=mn, size=(self.mesh.N + 1) * mn, free=self.layout.free, shift=shift)
 
 
 def _inverse_cholesky(M: np.ndarray) -> np.ndarray:

@@ -38,28 +38,31 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.linalg import cho_solve_banded
 
-from hoc_cli.constraints.augmented_lagrangian import MARGIN, EnforceResult
+from hoc_cli.constraints.augmented_lagrangian import EnforceResult
 from hoc_cli.constraints.check import check_limits
-from hoc_cli.constraints.penalty import LimitRows, LimitTerms
-from hoc_cli.elements import HermiteMesh
+from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import (
-    fixed_coefficient_correction,
-    limits_time_derivative,
     rescale,
 )
+from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers, penalty_value
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
+from hoc_cli.goals.replan_point import evaluate_point, solve_many
+from hoc_cli.goals.replan_qp import QPReplan, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
-from hoc_cli.problem import Evaluation
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
 RHO_AUG = 1e3  # ρ of the KKT matrix's W + ρDᵀD per unit |J| (measured on the lbr7 catch: 1e1 leaves W + ρDᵀD
 # indefinite, 1e6 too ill-conditioned for the banded Cholesky factorisation)
 SLOPE_RTOL = 1e-7  # |F'| relative to |J|/T + weight (as ``hoc_cli.free_time.minimize_time``)
+NEWTON_SHIFT = 0.0  # no regularisation: the augmented matrix is positive definite and the last joint's
+# acceleration curvature (1e-6 of the largest entry on the lbr7) must survive
+QP_MODE = not os.environ.get("HOC_REPLAN_PENALTY")  # kinematic limits as QP rows (else penalty terms)
+RELEASE_RTOL = 1e-6  # the working set's multipliers are tested once the decrement is below this·|J| ...
+RELEASE_VIOLATION = 1e-6  # ... and the rows are met to this
 VIOLATION_FLOOR = 1e-3  # a step may raise max|c| up to this (m, rad, m/s): the T steps move the rows nonlinearly
 
 
@@ -113,91 +116,6 @@ def _start(previous) -> tuple[GoalResult, float | None]:
     return previous, None
 
 
-@dataclass(eq=False)
-class _Point:
-    """The Lagrangian at (x, T): the problem, x, C, J, its gradient g (P,), the goal rows c (r,), D (r, P),
-    F = ∂ℒ/∂T + weight at fixed s-domain free coefficients, the limit terms and their value.
-    """
-
-    problem: GoalProblem
-    x: np.ndarray
-    C: np.ndarray
-    J: float
-    ev: object
-    g: np.ndarray
-    c: np.ndarray
-    D: np.ndarray
-    F: float
-    lt: object
-    pv: object
-    rows: object
-    res: list | None
-
-
-def _point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
-           cache: dict) -> _Point:
-    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
-    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
-    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only).
-    """
-    if T not in cache:
-        mesh = HermiteMesh(order, T, N)
-        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
-        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
-        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
-        cache[T] = (problem, rows)
-    problem, rows = cache[T]
-    mesh = problem.mesh
-    lt = pv = None
-    if limits is not None:
-        working, mu_lo, mu_hi, rho_l = limit_state
-        lt = LimitTerms(system, limits, rows, working, mu_lo, mu_hi, rho_l, MARGIN)
-        lt = None if lt.empty else lt
-    x = problem.layout.pack(C)
-    C = problem.coefficients(x)
-    op = problem.op
-    q, dq, ddq = op.apply(C)
-    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
-    J = float(np.dot(op.w, s.L))
-    if not np.isfinite(J):
-        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
-    Wt = op.w[:, None]
-    Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
-    dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
-    G_all = Gc
-    value = J
-    if lt is not None:
-        pv = lt.evaluate(C)
-        G_all = G_all + pv.grad
-        value += pv.value
-        if slope:
-            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
-            dT, Gc = dT + dl, Gc + Gl
-    c, D = np.zeros(0), np.zeros((0, x.size))
-    res = None
-    if problem.points:
-        terms = GoalTerms(mesh, problem.points, lam, 0.0)
-        res = terms.residuals(C)
-        c, dc = terms.jacobian(C, res)
-        D = dc.reshape(len(c), -1)[:, problem.layout.free]
-        if slope:
-            dg, Gg = terms.time_derivative(C, T, res)
-            dT, Gc = dT + dg, Gc + Gg
-    g = problem.layout.pack(G_all)
-    if D.size:
-        g = g + D.T @ np.concatenate(lam)
-    F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
-    ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
-    return _Point(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res)
-
-
-def _solve_many(W, B: np.ndarray) -> np.ndarray:
-    """W⁻¹ B for B (P, k) by one banded back-substitution of W's factor (``BandedSPD``)."""
-    full = np.zeros((W.size, B.shape[1]))
-    full[W.free] = B
-    return cho_solve_banded((W.factor, False), full, check_finite=False)[W.free]
-
-
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
            fallback: bool = True) -> ReplanResult:
@@ -226,9 +144,9 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     plan0, d2 = _start(previous)
     d2 = curvature if curvature is not None else d2
     mesh0, problem0 = plan0.mesh, plan0.problem
-    order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    G, cost = plan0.G, problem0.cost
     q0, dq0 = problem0.boundary[:2]
-    T, C = mesh0.T, np.array(plan0.coeffs)
+    weight = free.weight if free is not None else 0.0
     limited = limits is not None and limits.any
     lam, rho = (plan0.terms.lam, plan0.terms.rho) if plan0.terms is not None else (None, 0.0)
     points = GoalProblem(system, mesh0, q0, dq0, goals, cost=cost, G=G).points
@@ -245,15 +163,69 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
             state = [working, lr.penalty.mu_lo, lr.penalty.mu_hi, lr.rho or 1.0]
         else:
             state = [working, zeros, zeros, 1.0]
-    weight = free.weight if free is not None else 0.0
+    active = None  # the kinematic limits' working set when the steps solve QPs (None: penalty terms at fixed μ)
+    if limited and QP_MODE:
+        lr = plan0.limits
+        pen = lr.penalty if lr is not None else None
+        active = from_multipliers(pen) if pen is not None else ActiveRows.empty()
+        if active is not None:
+            lam.append(active.gather(pen.mu_lo, pen.mu_hi) if pen is not None else np.zeros(0))
+    npts = len(points)
     rho_aug = RHO_AUG * max(abs(plan0.J), 1.0)
+    if active is not None:
+        out = qp_steps(system, plan0, goals, lam, active, free=free, limits=limits, tol=tol, max_steps=max_steps,
+                       rho_aug=rho_aug)
+    else:
+        out = _penalty_steps(system, plan0, goals, lam, state, free=free, limits=limits if limited else None,
+                             tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start)
+    pt, T, lam, active, status, steps, evals, decrement = (out.point, out.T, out.lam, out.active, out.status,
+                                                           out.steps, out.evals, out.decrement)
+    violation = float(np.max(np.abs(pt.c), initial=0.0))
+    problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
+    mesh = problem.mesh
+    slope = pt.F - weight
+    opt = OptimizeResult(x=x, fun=J, grad=np.zeros_like(x), status=status, iterations=steps, n_evals=evals,
+                         n_precond=steps, decrement=decrement,
+                         message="warm replan: " + ("converged" if status is Status.CONVERGED
+                                                    else f"{steps} Newton steps"))
+    enforced = None
+    if limited:
+        check = check_limits(system, limits, mesh, C)
+        working, rho_l, penalty = (state[0], state[3], pt.pv) if active is None else _row_outcome(
+            system, limits, pt.rows, C, active, lam[npts], plan0.limits)
+        enforced = EnforceResult(status="converged" if status is Status.CONVERGED else "not_converged",
+                                 message=opt.message, inner=opt, x=x, J=J, outer_iterations=steps, rho=rho_l,
+                                 check=check, working=working, rows=pt.rows, penalty=penalty)
+    used = GoalTerms(mesh, problem.points, lam[:npts], rho if rho > 0 else 10.0 * max(abs(J), 1e-6))
+    plan = GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=opt, G=G, quadrature_change=math.nan,
+                      wall_time_s=time.perf_counter() - start, problem=problem, limits=enforced, terms=used,
+                      violation=violation, outer_iterations=steps, goals=goals)
+    if status is not Status.CONVERGED and fallback:  # from the previous plan: the steps may have wandered off
+        return _finish(system, plan0 if violation > 1e-6 else plan, goals, free, limits, d2, start)
+    return ReplanResult(plan=plan, T=T, dJ_dT=slope, curvature=d2, steps=steps, fallback=False,
+                        wall_time_s=time.perf_counter() - start)
+
+
+def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limits, tol: float, max_steps: int,
+                   rho_aug: float, start: float) -> QPReplan:
+    """The Newton steps with the limits as augmented-Lagrangian terms at fixed multipliers (``state``:
+    [working, μ_lo, μ_hi, ρ], updated in place) and their multiplier rounds at inner optima: the steps
+    of plans whose effort limits bind (module docstring).
+    """
+    mesh0, problem0 = plan0.mesh, plan0.problem
+    order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    q0, dq0 = problem0.boundary[:2]
+    T = mesh0.T
+    C = np.array(plan0.coeffs)
+    limited = limits is not None
+    weight = free.weight if free is not None else 0.0
+    split = np.cumsum([v.size for v in lam])[:-1]
     status = Status.MAX_ITER
     steps = evals = 0
     violation = decrement = math.inf
-    split = np.cumsum([p.residual.size for p in points])[:-1]
 
     def at(T_, C_, lam_):
-        return _point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
+        return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
                       state, weight, free is not None, cache)
 
     cache: dict = {}
@@ -280,7 +252,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
             except NumericalError:
                 break
         A = np.vstack([pt.g[None], pt.D])  # W⁻¹ on g and the rows together
-        Z = _solve_many(W, A.T)
+        Z = solve_many(W, A.T)
         w, Y = Z[:, 0], Z[:, 1:]
         decrement = 0.5 * float(pt.g @ w)
         at_bound = free is not None and ((T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
@@ -360,28 +332,17 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         if _DEBUG:
             print(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
         pt, T, lam = trial, T_try, lam_try
-    violation = float(np.max(np.abs(pt.c), initial=0.0))
-    problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
-    mesh = problem.mesh
-    slope = pt.F - weight
-    opt = OptimizeResult(x=x, fun=J, grad=np.zeros_like(x), status=status, iterations=steps, n_evals=evals,
-                         n_precond=steps, decrement=decrement,
-                         message="warm replan: " + ("converged" if status is Status.CONVERGED
-                                                    else f"{steps} Newton steps"))
-    enforced = None
-    if limited:
-        check = check_limits(system, limits, mesh, C)
-        enforced = EnforceResult(status="converged" if status is Status.CONVERGED else "not_converged",
-                                 message=opt.message, inner=opt, x=x, J=J, outer_iterations=steps, rho=state[3],
-                                 check=check, working=state[0], rows=pt.rows, penalty=pt.pv)
-    used = GoalTerms(mesh, problem.points, lam, rho if rho > 0 else 10.0 * max(abs(J), 1e-6))
-    plan = GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=opt, G=G, quadrature_change=math.nan,
-                      wall_time_s=time.perf_counter() - start, problem=problem, limits=enforced, terms=used,
-                      violation=violation, outer_iterations=steps, goals=goals)
-    if status is not Status.CONVERGED and fallback:  # from the previous plan: the steps may have wandered off
-        return _finish(system, plan0 if violation > 1e-6 else plan, goals, free, limits, d2, start)
-    return ReplanResult(plan=plan, T=T, dJ_dT=slope, curvature=d2, steps=steps, fallback=False,
-                        wall_time_s=time.perf_counter() - start)
+    return QPReplan(point=pt, T=T, lam=lam, active=None, status=status, steps=steps, evals=evals,
+                    decrement=decrement)
+
+
+def _row_outcome(system, limits, rows: LimitRows, C: np.ndarray, active: ActiveRows, mu: np.ndarray, previous):
+    """(working pairs, ρ, ``PenaltyValue``) of a replan that held the limit rows as equalities."""
+    pen = penalty_value(active, mu, all_rows(system, limits, rows, C), rows, limits.n)
+    working = np.zeros((4, limits.n), bool) if previous is None else previous.working.copy()
+    for k in range(3):
+        working[k] |= ((pen.mu_lo[k] > 0) | (pen.mu_hi[k] > 0)).reshape(-1, limits.n).any(axis=0)
+    return working, (previous.rho if previous is not None and previous.rho else 1.0), pen
 
 
 def _finish(system, plan: GoalResult, goals: Goals, free: TimeRange | None, limits, d2, start: float) -> ReplanResult:

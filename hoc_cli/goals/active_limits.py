@@ -1,0 +1,160 @@
+"""The kinematic limit rows a warm replan holds as equalities: its working set of active Bernstein rows.
+
+At a constrained optimum the position, velocity and acceleration limits that bind are Bernstein rows
+at their (inward-moved) bound, each with a multiplier μ ≥ 0 (``hoc_cli.constraints.penalty``). A small
+change of the goals keeps most of them binding, so a replan holds exactly those rows as linear
+equalities g = 0 in its KKT step (no penalty, hence no kink in the Newton matrix), and then corrects
+the working set: a row whose multiplier turned negative leaves it, a row outside its bound joins it.
+
+Symbols: N elements, m coefficients per node, n joints, P the flattened C (N+1, m, n); a row is
+(kind k ∈ {0, 1, 2}, element e, Bernstein row r, joint j, side s = +1 upper / −1 lower), its value
+g = s (V − b) / σ with V the Bernstein coefficient, b the bound moved inwards by the margin, σ the
+limit's size (``effective_bounds``): dimensionless, linear in C at a fixed mesh. Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue, effective_bounds
+
+KINEMATIC = 3  # position, velocity, acceleration: the kinds with linear rows
+
+
+@dataclass(frozen=True, eq=False)
+class ActiveRows:
+    """A set of kinematic limit rows, each (kind, element, row, joint, side); arrays of shape (a,)."""
+
+    kind: np.ndarray
+    elem: np.ndarray
+    row: np.ndarray
+    joint: np.ndarray
+    side: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(self.kind.size)
+
+    @classmethod
+    def empty(cls) -> "ActiveRows":
+        z = np.zeros(0, int)
+        return cls(z, z, z, z, z)
+
+    @classmethod
+    def where(cls, lo: tuple[np.ndarray, ...], hi: tuple[np.ndarray, ...]) -> "ActiveRows":
+        """The rows where the boolean arrays ``lo``/``hi`` (per kind 0..2, shape (N, R_k, n)) are True."""
+        parts = []
+        for k in range(KINEMATIC):
+            for side, mask in ((-1, lo[k]), (1, hi[k])):
+                e, r, j = np.nonzero(mask)
+                parts.append(np.stack([np.full(e.size, k), e, r, j, np.full(e.size, side)]))
+        a = np.concatenate(parts, axis=1).astype(int)
+        return cls(*a)
+
+    def union(self, other: "ActiveRows") -> "ActiveRows":
+        return ActiveRows(*(np.concatenate([a, b]) for a, b in zip(self._fields(), other._fields())))
+
+    def keep(self, mask: np.ndarray) -> "ActiveRows":
+        return ActiveRows(*(a[mask] for a in self._fields()))
+
+    def _fields(self) -> tuple[np.ndarray, ...]:
+        return self.kind, self.elem, self.row, self.joint, self.side
+
+    def gather(self, lo: tuple[np.ndarray, ...], hi: tuple[np.ndarray, ...]) -> np.ndarray:
+        """Per-row values (a,) from per-kind arrays of the lower and upper rows (shape (N, R_k, n))."""
+        out = np.zeros(self.size)
+        for k in range(KINEMATIC):
+            for side, arr in ((-1, lo[k]), (1, hi[k])):
+                sel = (self.kind == k) & (self.side == side)
+                out[sel] = arr[self.elem[sel], self.row[sel], self.joint[sel]]
+        return out
+
+    def scatter(self, values: np.ndarray, rows: LimitRows, n: int) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """(lo, hi): per kind (all four), arrays of the kind's row shape holding ``values`` (a,) at the rows."""
+        lo = [np.zeros(rows.shape(k, n)) for k in range(len(KINDS))]
+        hi = [np.zeros(rows.shape(k, n)) for k in range(len(KINDS))]
+        for k in range(KINEMATIC):
+            for side, arr in ((-1, lo[k]), (1, hi[k])):
+                sel = (self.kind == k) & (self.side == side)
+                np.add.at(arr, (self.elem[sel], self.row[sel], self.joint[sel]), values[sel])
+        return tuple(lo), tuple(hi)
+
+    def jacobian(self, rows: LimitRows, limits: JointLimits, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A (a, P_free), A_full (a, P)): g = A_full · C.ravel() + ``offsets``; A its free columns."""
+        mesh = rows.mesh
+        m, n = mesh.m, limits.n
+        a = self.size
+        A = np.zeros((a, (mesh.N + 1) * m * n))
+        if a == 0:
+            return A[:, free], A
+        local = np.arange(2 * m)
+        node = self.elem[:, None] + local[None, :] // m  # (a, 2m)
+        slot = np.broadcast_to(local % m, (a, 2 * m))
+        coef = self._coefficients(rows, limits)
+        cols = (node * m + slot) * n + self.joint[:, None]
+        np.add.at(A, (np.repeat(np.arange(a), 2 * m), cols.ravel()), coef.ravel())
+        return A[:, free], A
+
+    def gram_blocks(self, rows: LimitRows, limits: JointLimits, rho: float) -> np.ndarray:
+        """Element blocks (N, 2mn, 2mn) of ρ AᵀA (each row touches one element and one joint): added to the
+        Newton matrix, they make it positive definite on the rows' span without changing the KKT step.
+        """
+        mesh = rows.mesh
+        m, n = mesh.m, limits.n
+        blocks = np.zeros((mesh.N, 2 * m, n, 2 * m, n))
+        if self.size:
+            coef = self._coefficients(rows, limits)  # (a, 2m)
+            outer = rho * coef[:, :, None] * coef[:, None, :]  # (a, 2m, 2m)
+            np.add.at(blocks.transpose(0, 2, 4, 1, 3), (self.elem, self.joint, self.joint), outer)
+        return blocks.reshape(mesh.N, 2 * m * n, 2 * m * n)
+
+    def _coefficients(self, rows: LimitRows, limits: JointLimits) -> np.ndarray:
+        """∂g/∂(element-local coefficients of the row's joint), (a, 2m)."""
+        _, _, sig = effective_bounds(limits, MARGIN)
+        coef = np.zeros((self.size, 2 * rows.mesh.m))
+        for k in range(KINEMATIC):
+            sel = self.kind == k
+            if not sel.any():
+                continue
+            c = rows.rows[k][self.row[sel]]
+            if rows.scale is not None:
+                c = c * rows.scale[k][self.elem[sel]]
+            coef[sel] = c * (self.side[sel] / sig[k, self.joint[sel]])[:, None]
+        return coef
+
+    def offsets(self, limits: JointLimits) -> np.ndarray:
+        """−s b / σ per row (a,): g = A_full · C.ravel() + offsets."""
+        lo, hi, sig = effective_bounds(limits, MARGIN)
+        b = np.where(self.side > 0, hi[self.kind, self.joint], lo[self.kind, self.joint])
+        return -self.side * b / sig[self.kind, self.joint]
+
+
+def from_multipliers(pv: PenaltyValue | None) -> ActiveRows | None:
+    """The kinematic rows with a positive multiplier in ``pv``; None when an effort multiplier is
+    positive (effort rows are not linear: the replan keeps them as penalty terms) or ``pv`` is None.
+    """
+    if pv is None:
+        return None
+    if np.any(pv.mu_lo[EFFORT] > 0) or np.any(pv.mu_hi[EFFORT] > 0):
+        return None
+    return ActiveRows.where(tuple(m > 0 for m in pv.mu_lo[:KINEMATIC]), tuple(m > 0 for m in pv.mu_hi[:KINEMATIC]))
+
+
+def all_rows(system, limits: JointLimits, rows: LimitRows, C: np.ndarray) -> PenaltyValue:
+    """Every kinematic row's g (lower, upper; −inf where not imposed) at C, multipliers zero."""
+    n = limits.n
+    working = np.zeros((len(KINDS), n), bool)
+    working[:KINEMATIC] = True
+    zeros = tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
+    return LimitTerms(system, limits, rows, working, zeros, zeros, 1.0, MARGIN).evaluate(C, grad=False)
+
+
+def penalty_value(active: ActiveRows, mu: np.ndarray, everything: PenaltyValue, rows: LimitRows, n: int) -> PenaltyValue:
+    """A ``PenaltyValue`` holding the active rows' multipliers μ (a,) ≥ 0 (rounded up from −0) and every
+    row's g, as the augmented Lagrangian reports its outcome (for dJ*/dT, the summary, the next replan).
+    """
+    mu_lo, mu_hi = active.scatter(np.maximum(mu, 0.0), rows, n)
+    return PenaltyValue(0.0, None, everything.g_lo, everything.g_hi, mu_lo, mu_hi)

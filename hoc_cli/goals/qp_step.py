@@ -1,0 +1,111 @@
+"""One SQP step of a warm replan: the inequality-constrained quadratic programme, solved exactly and densely.
+
+The replan's unknowns are few (P ≈ 100-300 free coefficients, plus T when it is free), so its quadratic
+model is solved with dense linear algebra. With the model's matrix H = UᵀU (Cholesky), the programme
+
+    min_d  gᵀd + ½ dᵀHd    subject to   E d = e   (goal rows, linearised),   A d ≤ b   (limit rows)
+
+becomes, in y = U d, the least-distance problem min ½‖y − y0‖² (y0 = −U⁻ᵀg) over the same rows. The
+equalities are eliminated with an orthonormal basis Z of the null space of EU⁻¹ (y = y_p + Z z, y_p the
+minimum-norm solution, which is orthogonal to Z), leaving min ½‖u‖² subject to G u ≥ h with z = Zᵀy0 + u;
+that least-distance programme is solved by one non-negative least-squares problem (Lawson & Hanson,
+"Solving Least Squares Problems", 1974, ch. 23): w ≥ 0 minimising ‖[Gᵀ; hᵀ] w − (0, …, 0, 1)‖ gives
+u = Gᵀμ with μ = w / (1 − hᵀw), the rows' multipliers. Lawson-Hanson is an active-set method with finite
+termination that is indifferent to linearly dependent active rows (a limit active along a whole element makes
+its Bernstein rows dependent), so the step's working set is exact at every step: no multiplier rounds.
+Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
+from scipy.optimize import nnls
+
+from hoc_cli.errors import NumericalError
+
+
+@dataclass(frozen=True, eq=False)
+class QPStep:
+    """The step d (P,), the equality rows' multipliers ν (r,), the inequality rows' μ (k,) ≥ 0, and the
+    model's decrease −(gᵀd + ½dᵀHd) ≥ 0.
+    """
+
+    d: np.ndarray
+    nu: np.ndarray
+    mu: np.ndarray
+    decrease: float
+
+
+def upper_factor(H: np.ndarray) -> np.ndarray:
+    """The upper Cholesky factor U of H = UᵀU (P, P); ``NumericalError`` when H is not positive definite."""
+    try:
+        return np.triu(cho_factor(H, lower=False, check_finite=False)[0])
+    except np.linalg.LinAlgError:
+        raise NumericalError("the replan's quadratic model is not positive definite") from None
+
+
+def bordered_factor(U: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
+    """The upper factor of [[UᵀU, b], [bᵀ, h]] from U's (one more row and column); ``NumericalError`` when
+    that matrix is not positive definite.
+    """
+    v = solve_triangular(U, b, trans="T", check_finite=False)
+    s = h - float(v @ v)
+    if not s > 0:
+        raise NumericalError("the replan's quadratic model is not positive definite")
+    P = U.shape[0]
+    out = np.zeros((P + 1, P + 1))
+    out[:P, :P], out[:P, P], out[P, P] = U, v, np.sqrt(s)
+    return out
+
+
+def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray) -> QPStep:
+    """Min gᵀd + ½dᵀHd subject to E d = e and A d ≤ b (see the module docstring).
+
+    Parameters
+    ----------
+    U : (P, P) the upper Cholesky factor of the symmetric positive definite H = UᵀU (``upper_factor``).
+    g : (P,)
+    E, e : (r, P), (r,) equality rows (r may be 0; dependent rows are allowed when consistent).
+    A, b : (k, P), (k,) inequality rows (k may be 0).
+
+    Raises
+    ------
+    NumericalError
+        The rows admit no step.
+    """
+    P = g.size
+    y0 = -solve_triangular(U, g, trans="T", check_finite=False)
+    if E.shape[0]:
+        Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
+        Q, R, _ = qr(Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
+        rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
+        y_p = lstsq(Eh, e, cond=1e-12, check_finite=False)[0]
+        Z = Q[:, rank:]
+    else:
+        y_p, Z = np.zeros(P), np.eye(P)
+    z0 = Z.T @ y0
+    if A.shape[0]:
+        Ah = solve_triangular(U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
+        G = -(Ah @ Z)
+        h = -(b - Ah @ y_p - Ah @ (Z @ z0))
+        scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
+        Gs, hs = G / scale[:, None], h / scale
+        M = np.vstack([Gs.T, hs[None, :]])
+        f = np.zeros(M.shape[0])
+        f[-1] = 1.0
+        w, _ = nnls(M, f, maxiter=50 * M.shape[1])
+        r = M @ w - f
+        if abs(r[-1]) < 1e-12:
+            raise NumericalError("the replan's limit rows admit no step")
+        u = -r[:-1] / r[-1]
+        mu = (w / (-r[-1])) / scale
+    else:
+        u, mu = np.zeros(Z.shape[1]), np.zeros(0)
+    y = y_p + Z @ (z0 + u)
+    d = solve_triangular(U, y, check_finite=False)
+    stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
+    nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
+    decrease = -float(g @ d + 0.5 * y @ y)
+    return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)

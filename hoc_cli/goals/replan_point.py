@@ -1,0 +1,134 @@
+"""The Lagrangian of a warm replan at one (x, T): values, gradients and the rows, for its Newton steps.
+
+ℒ = I + Φ_limits + λ·c + weight·T: I the cost on the previous plan's quadrature, Φ the limits'
+augmented-Lagrangian terms at fixed multipliers (or none), c the goal rows and, when given, a set of
+kinematic limit rows held with multipliers (``ActiveRows``). x are the free Hermite coefficients in the
+s = t/T domain. Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+from scipy.linalg import cho_solve_banded
+
+from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.errors import NumericalError
+from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
+from hoc_cli.goals.active_limits import ActiveRows
+from hoc_cli.goals.plan import GoalProblem
+from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.problem import Evaluation
+
+
+@dataclass(eq=False)
+class LagrangianPoint:
+    """The Lagrangian at (x, T): the problem, x, C, J, its gradient g (P,), the goal rows c (r,), D (r, P),
+    F = ∂ℒ/∂T + weight at fixed s-domain free coefficients (F_I: of the cost and weight alone), the limit
+    terms and their value, the limit rows of the mesh, the goal residuals.
+    """
+
+    problem: GoalProblem
+    x: np.ndarray
+    C: np.ndarray
+    J: float
+    ev: object
+    g: np.ndarray
+    c: np.ndarray
+    D: np.ndarray
+    F: float
+    lt: object
+    pv: object
+    rows: object
+    res: list | None
+    F_I: float = 0.0
+
+
+def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
+           cache: dict, active: ActiveRows | None = None) -> LagrangianPoint:
+    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
+    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
+    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only).
+    """
+    if T not in cache:
+        mesh = HermiteMesh(order, T, N)
+        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
+        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
+        cache[T] = (problem, rows)
+    problem, rows = cache[T]
+    mesh = problem.mesh
+    lt = pv = None
+    npts = len(problem.points)
+    if limit_state is not None and active is None:
+        working, mu_lo, mu_hi, rho_l = limit_state
+        lt = LimitTerms(system, limits, rows, working, mu_lo, mu_hi, rho_l, MARGIN)
+        lt = None if lt.empty else lt
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
+    op = problem.op
+    q, dq, ddq = op.apply(C)
+    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+    J = float(np.dot(op.w, s.L))
+    if not np.isfinite(J):
+        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+    Wt = op.w[:, None]
+    Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
+    dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
+    F_I = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
+    G_all = Gc
+    value = J
+    if lt is not None:
+        pv = lt.evaluate(C)
+        G_all = G_all + pv.grad
+        value += pv.value
+        if slope:
+            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
+            dT, Gc = dT + dl, Gc + Gl
+    c, D = np.zeros(0), np.zeros((0, x.size))
+    res = None
+    if problem.points:
+        terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0)
+        res = terms.residuals(C)
+        c, dc = terms.jacobian(C, res)
+        D = dc.reshape(len(c), -1)[:, problem.layout.free]
+        if slope:
+            dg, Gg = terms.time_derivative(C, T, res)
+            dT, Gc = dT + dg, Gc + Gg
+    if active is not None:  # the working set's limit rows, linear equalities g = A x + const
+        A, A_full = active.jacobian(rows, limits, problem.layout.free)
+        c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
+        D = np.vstack([D, A])
+        if slope and active.size:
+            lo, hi = active.scatter(lam[npts], rows, limits.n)
+            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=SimpleNamespace(mu_lo=lo, mu_hi=hi)),
+                                            system, limits, C)
+            dT, Gc = dT + dl, Gc + Gl
+    g = problem.layout.pack(G_all)
+    if D.size:
+        g = g + D.T @ np.concatenate(lam)
+    F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
+    ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
+    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I)
+
+
+def solve_many(W, B: np.ndarray) -> np.ndarray:
+    """W⁻¹ B for B (P, k) by one banded back-substitution of W's factor (``BandedSPD``)."""
+    full = np.zeros((W.size, B.shape[1]))
+    full[W.free] = B
+    return cho_solve_banded((W.factor, False), full, check_finite=False)[W.free]
+
+
+def dense_factor(W) -> np.ndarray:
+    """The upper Cholesky factor U (P_free, P_free) of a ``BandedSPD`` W = UᵀU on its free coefficients."""
+    ab = W.factor
+    u = ab.shape[0] - 1
+    n = ab.shape[1]
+    U = np.zeros((n, n))
+    for d in range(u + 1):  # ab[u - d, j] = U[j - d, j]
+        j = np.arange(d, n)
+        U[j - d, j] = ab[u - d, d:]
+    return U[np.ix_(W.free, W.free)]

@@ -1,0 +1,195 @@
+"""The Newton (SQP) steps of a warm replan with the kinematic limits as inequality rows of every step.
+
+Each step solves, densely and exactly (``qp_step.solve_qp``), the quadratic programme of the Lagrangian
+ℒ = I + λ·c + μ·g_A + weight·T at the current (x, T):
+
+    min  ∇Iᵀdx + F_I·dT + ½ [dx; dT]ᵀ H [dx; dT]
+    s.t. D dx + c_T dT = −c                  (the goal rows, linearised)
+         A dx + a_T dT ≤ −g_A                (the Bernstein rows within ``CANDIDATE_GAP`` of their bound)
+         T_min ≤ T + dT ≤ T_max              (a free T)
+
+H: the banded Newton matrix of ℒ (the cost's exact Hessian on its own quadrature, the goal rows' curvature
+Σλ∇²c; the limit rows are linear in x) plus ρDᵀD, which makes it positive definite where the final q is
+held by the goal rows alone without changing the step (the multipliers absorb −ρc), and ρAᵀA over the
+working set's rows (the limits hold the motion there; zero along steps that keep them); its T row and
+column b = ∂∇ℒ/∂T, h = ∂²ℒ/∂T² and c_T, a_T come from a forward difference of the exact gradient and rows
+at T + δ, as in ``replan``. The programme's multipliers are the next ones: the rows with μ > 0 are the
+next working set (their μ·g_A enters ℒ's T derivatives). Since every step's working set is that of its
+own programme, a change of the active limits costs no extra rounds. The step is damped while it raises
+the goal rows' violation above max(violation, 1e-3).
+
+It stops when the programme's decrease −(∇Iᵀd + ½dᵀHd) ≤ ``tol``·|J|, the goal rows are met to 1e-9
+(m, rad, m/s) and the imposed rows to 1e-9 (relative to the limit), with the exact extrema check to
+confirm. Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_triangular
+
+from hoc_cli.constraints.check import check_limits
+from hoc_cli.errors import NumericalError
+from hoc_cli.free_time import rescale
+from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.plan import EQ_ACCEPT
+from hoc_cli.goals.qp_step import bordered_factor, solve_qp
+from hoc_cli.goals.replan_point import dense_factor, evaluate_point
+from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.optimize import Status
+
+_DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
+CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
+ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
+VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s)
+
+
+def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool):
+    """Element blocks added to the cost's Newton matrix: the goal rows' Σλ∇²c + ρDᵀD (its negative part
+    dropped unless ``indefinite``) and ρAᵀA of the working set's rows (``held``; zero at a step that keeps
+    them, so the programme's solution keeps its meaning while the matrix is positive definite where the
+    limits hold the motion).
+    """
+    out = held
+    if problem.points:
+        goal = GoalTerms(problem.mesh, problem.points, lam, rho).newton_blocks(C, indefinite=indefinite, res=res)
+        out = goal if out is None else out + goal
+    return out
+
+
+@dataclass(eq=False)
+class QPReplan:
+    """Where the steps ended: the point (``LagrangianPoint``), T [s], the multipliers (goal rows', then the
+    working set's), the working set, status, steps, evaluations, the last decrease.
+    """
+
+    point: object
+    T: float
+    lam: list
+    active: ActiveRows
+    status: Status
+    steps: int
+    evals: int
+    decrement: float
+
+
+def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
+             rho_aug: float) -> QPReplan:
+    """The SQP steps from the previous plan ``plan0`` (module docstring).
+
+    lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
+    active : the working set (the previous plan's kinematic rows with μ > 0); free : ``TimeRange`` or None;
+    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD.
+    """
+    mesh0, problem0 = plan0.mesh, plan0.problem
+    order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    q0, dq0 = problem0.boundary[:2]
+    T, C = mesh0.T, np.array(plan0.coeffs)
+    weight = free.weight if free is not None else 0.0
+    npts = len(lam) - 1
+    cache: dict = {}
+
+    def at(T_, C_, lam_, active_):
+        return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
+                              free is not None, cache, active_)
+
+    pt = at(T, C, lam, active)
+    status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
+    while True:
+        evals += 1
+        problem, C = pt.problem, pt.C
+        layout = problem.layout
+        P = pt.x.size
+        r = sum(v.size for v in lam[:npts])
+        E, cg = pt.D[:r], pt.c[:r]
+        g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
+        held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
+        try:
+            W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, True), shift=0.0)
+        except NumericalError:  # away from the optimum: the goal rows' curvature without its negative part
+            try:
+                W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False), shift=0.0)
+            except NumericalError:
+                if _DEBUG:
+                    print(f"qp step {steps}: the Newton matrix is not positive definite")
+                break
+        U = dense_factor(W)
+        everything = all_rows(system, limits, pt.rows, C)
+        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo[:3]),
+                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi[:3]))
+        A, A_full = cand.jacobian(pt.rows, limits, layout.free)
+        gA = A_full @ C.ravel() + cand.offsets(limits)
+        violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
+        row_violation = float(np.max(gA, initial=0.0))
+        grad, rhs_E, rhs_A = g_I, -cg, -gA
+        if free is not None:
+            delta = 1e-6 * T
+            ph = at(T + delta, rescale(C, T, T + delta), lam, active)
+            evals += 1
+            scale = layout.pack(rescale(np.ones_like(C), T, T + delta))
+            b = (scale * ph.g - pt.g) / delta
+            h = (ph.F - pt.F) / delta
+            cT = (ph.c[:r] - cg) / delta
+            A2, A2_full = cand.jacobian(ph.rows, limits, layout.free)
+            aT = (A2_full @ ph.C.ravel() + cand.offsets(limits) - gA) / delta
+            act_T = (ph.c[r:] - pt.c[r:]) / delta  # the working set's rows' T column (ρAᵀA's T part)
+            b = b + E.T @ (rho_aug * cT) + pt.D[r:].T @ (rho_aug * act_T)
+            h = h + rho_aug * float(cT @ cT + act_T @ act_T)
+            v = solve_triangular(U, b, trans="T", check_finite=False)
+            schur = h - float(v @ v)  # the model's curvature in T with x following: made positive (its size kept)
+            if schur <= 1e-9 * abs(h):
+                h = float(v @ v) + max(abs(schur), 1e-6 * abs(h))
+            U = bordered_factor(U, b, h)
+            # the T derivative of I + weight·T as the Lagrangian's minus the rows' own T columns times their
+            # multipliers: the programme's T row then agrees with ℒ's exactly (ℒ's limit part is analytic)
+            F_I = pt.F - float(cT @ np.concatenate(lam[:npts])) - float(act_T @ lam[-1]) if r else pt.F - float(act_T @ lam[-1])
+            grad = np.concatenate([g_I, [F_I]])
+            E = np.hstack([E, cT[:, None]])
+            bounds = np.zeros((2, P + 1))
+            bounds[0, -1], bounds[1, -1] = 1.0, -1.0
+            A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
+            rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+        try:
+            step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
+        except NumericalError as exc:
+            if _DEBUG:
+                print(f"qp step {steps}: {exc}")
+            break
+        decrement = step.decrease
+        if _DEBUG:
+            print(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
+                  f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
+                  + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
+        if decrement <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT:
+            if check_limits(system, limits, problem.mesh, C).feasible:
+                status = Status.CONVERGED
+            break
+        if steps == max_steps:
+            break
+        steps += 1
+        dx = step.d[:P]
+        dT = float(step.d[P]) if free is not None else 0.0
+        nu = step.nu - rho_aug * cg
+        mu = step.mu[:cand.size]
+        new_active = cand.keep(mu > 0)
+        lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[mu > 0]]
+        alpha = 1.0
+        while True:  # damping: a step may not raise the goal rows' violation (far steps leave the model)
+            T_try = T + alpha * dT
+            C_try = rescale(problem.coefficients(pt.x + alpha * dx), T, T_try)
+            try:
+                trial = at(T_try, C_try, lam_new, new_active)
+                v_try = float(np.max(np.abs(trial.c[:r]), initial=0.0))
+            except NumericalError:
+                trial, v_try = None, math.inf
+            if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
+                break
+            alpha *= 0.5
+        if trial is None:
+            break
+        pt, T, lam, active = trial, T_try, lam_new, new_active
+    return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
+                    decrement=decrement)

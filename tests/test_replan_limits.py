@@ -1,0 +1,155 @@
+"""Warm replans with limits that bind: every Newton step solves its inequality QP exactly
+(``hoc_cli.goals.qp_step``, ``hoc_cli.goals.replan_qp``).
+
+References: the QP's answer is certified by its KKT conditions (a convex QP: stationarity, feasibility,
+μ ≥ 0 and complementarity make a point optimal) and compared with scipy's SLSQP; the limit rows' values
+and Jacobians against the augmented Lagrangian's own row evaluation; the replan against a cold solve of
+the moved task by the augmented Lagrangian (J to 1e-8, within limits by the exact extrema check).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from hoc_cli.constraints.bounds import JointLimits
+from hoc_cli.constraints.check import check_limits
+from hoc_cli.constraints.penalty import LimitRows
+from hoc_cli.dynamics import link_poses
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
+from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers
+from hoc_cli.goals.qp_step import bordered_factor, solve_qp, upper_factor
+from hoc_cli.goals.replan import TimeRange, replan
+from hoc_cli.model import load_robot
+from hoc_cli.problem import Layout
+from hoc_cli.system import RobotSystem
+from tests._robots import ROBOTS
+
+MODEL = load_robot(ROBOTS / "two_link.urdf")
+SYSTEM = RobotSystem(MODEL)
+Q0, Z = np.array([0.0, 0.0]), np.zeros(2)
+QG = np.array([1.0, -0.5])
+# the shoulder's velocity limit binds on the unmoved task (its unconstrained peak is ~1.6 rad/s)
+LIMITS = JointLimits.from_arrays(MODEL.joint_names, velocity=[1.3, 10.0])
+
+
+def goals_at(dx: float) -> Goals:
+    p = link_poses(MODEL, QG)["tool"][:3, 3] + np.array([dx, 0.0, 0.0])
+    res = FrameResidual(MODEL, "tool", p)
+    return Goals(final=res, q1_guess=inverse_kinematics(res, QG, 1.0))
+
+
+def random_qp(rng, P=12, r=2, k=30, dependent=True):
+    M = rng.standard_normal((P, P))
+    H = M @ M.T + 0.1 * np.eye(P)
+    g = rng.standard_normal(P)
+    E = rng.standard_normal((r, P))
+    e = rng.standard_normal(r) * 0.1
+    A = rng.standard_normal((k, P))
+    if dependent:  # repeated and combined rows, as the Bernstein rows of a saturated element
+        A[k // 2:] = A[: k - k // 2] * 2.0
+    b = rng.uniform(0.0, 0.5, k) * (A @ np.zeros(P) + 1.0)
+    return H, g, E, e, A, b
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_qp_step_meets_its_kkt_conditions_and_slsqp(seed):
+    rng = np.random.default_rng(seed)
+    H, g, E, e, A, b = random_qp(rng, dependent=seed % 2 == 0)
+    s = solve_qp(upper_factor(H), g, E, e, A, b)
+    d = s.d
+    scale = 1.0 + np.abs(g).max()
+    assert np.max(np.abs(E @ d - e)) <= 1e-10 * scale
+    assert np.max(A @ d - b) <= 1e-10 * scale
+    assert np.all(s.mu >= 0)
+    assert np.max(np.abs(s.mu * (A @ d - b))) <= 1e-9 * scale  # complementarity
+    stationarity = H @ d + g + E.T @ s.nu + A.T @ s.mu
+    assert np.max(np.abs(stationarity)) <= 1e-9 * scale
+    ref = minimize(lambda x: g @ x + 0.5 * x @ H @ x, np.zeros(g.size), jac=lambda x: g + H @ x, method="SLSQP",
+                   constraints=[{"type": "eq", "fun": lambda x: E @ x - e, "jac": lambda x: E},
+                                {"type": "ineq", "fun": lambda x: b - A @ x, "jac": lambda x: -A}],
+                   options={"ftol": 1e-14, "maxiter": 500})
+    assert ref.success
+    assert g @ d + 0.5 * d @ H @ d <= ref.fun + 1e-9 * scale
+    assert np.max(np.abs(d - ref.x)) <= 1e-5 * scale
+
+
+def test_qp_step_without_rows_is_the_newton_step():
+    rng = np.random.default_rng(7)
+    H, g, *_ = random_qp(rng)
+    s = solve_qp(upper_factor(H), g, np.zeros((0, g.size)), np.zeros(0), np.zeros((0, g.size)), np.zeros(0))
+    assert np.allclose(s.d, -np.linalg.solve(H, g), rtol=1e-10, atol=1e-12)
+    assert s.decrease == pytest.approx(0.5 * g @ np.linalg.solve(H, g), rel=1e-10)
+
+
+def test_bordered_factor_is_the_cholesky_factor_of_the_bordered_matrix():
+    rng = np.random.default_rng(5)
+    H, *_ = random_qp(rng)
+    b = rng.standard_normal(H.shape[0])
+    h = float(b @ np.linalg.solve(H, b)) + 0.3
+    U = bordered_factor(upper_factor(H), b, h)
+    assert np.allclose(U.T @ U, np.block([[H, b[:, None]], [b[None, :], np.array([[h]])]]), rtol=1e-12, atol=1e-10)
+    with pytest.raises(Exception):
+        bordered_factor(upper_factor(H), b, h - 0.4)
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_active_rows_values_and_jacobian_match_the_penalty_rows(uniform):
+    """g = A_full·C + offsets reproduces every kinematic row's g of the augmented Lagrangian's evaluation,
+    and A is its derivative (a linear map: one random direction, exact)."""
+    rng = np.random.default_rng(3)
+    mesh = HermiteMesh("quintic", 1.0, 4) if uniform else HermiteMesh.from_nodes("quintic", [0.0, 0.2, 0.5, 0.6, 1.0])
+    n = 2
+    limits = JointLimits.from_arrays(MODEL.joint_names, lower=[-1.0, -2.0], upper=[1.5, 2.0], velocity=[1.0, 2.0],
+                                     acceleration=[5.0, 6.0])
+    layout = Layout.build(mesh, n)
+    rows = LimitRows.build(mesh, layout.free, n)
+    C = rng.standard_normal((mesh.N + 1, mesh.m, n))
+    pv = all_rows(SYSTEM, limits, rows, C)
+    sel = ActiveRows.where(tuple(np.isfinite(g) for g in pv.g_lo[:3]), tuple(np.isfinite(g) for g in pv.g_hi[:3]))
+    A, A_full = sel.jacobian(rows, limits, layout.free)
+    values = A_full @ C.ravel() + sel.offsets(limits)
+    assert np.allclose(values, sel.gather(pv.g_lo, pv.g_hi), rtol=1e-12, atol=1e-12)
+    dC = rng.standard_normal(C.shape)
+    moved = all_rows(SYSTEM, limits, rows, C + dC)
+    assert np.allclose(sel.gather(moved.g_lo, moved.g_hi) - values, A_full @ dC.ravel(), rtol=1e-10, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def previous():
+    plan = plan_goals(SYSTEM, HermiteMesh("quintic", 1.0, 8), Q0, Z, goals_at(0.0), limits=LIMITS)
+    assert plan.converged
+    active = from_multipliers(plan.limits.penalty)
+    assert active is not None and active.size > 0  # the velocity limit binds
+    return plan
+
+
+@pytest.mark.parametrize("dx", [0.002, 0.01, 0.03])
+def test_replan_with_binding_limits_meets_the_cold_optimum(previous, dx):
+    warm = replan(SYSTEM, previous, goals_at(dx), limits=LIMITS, fallback=False)
+    cold = plan_goals(SYSTEM, previous.mesh, Q0, Z, goals_at(dx), limits=LIMITS)
+    assert warm.converged and not warm.fallback and 0 < warm.steps <= 8
+    assert warm.plan.J == pytest.approx(cold.J, rel=1e-8)
+    assert check_limits(SYSTEM, LIMITS, warm.plan.mesh, warm.plan.coeffs).feasible
+    p = link_poses(MODEL, warm.plan.coeffs[-1, 0])["tool"][:3, 3]
+    assert np.max(np.abs(p - goals_at(dx).final.position)) <= 1e-9
+    # the limit still binds, and the plan's multipliers say where
+    assert warm.plan.limits.penalty is not None
+    assert any(np.any(m > 0) for m in warm.plan.limits.penalty.mu_hi[:3] + warm.plan.limits.penalty.mu_lo[:3])
+
+
+def test_free_time_replan_with_binding_limits_is_a_free_time_optimum(previous):
+    """weight 1: after a 1 cm move the replan's T makes dJ*/dT = −weight (|.| to 1e-6 relative), and fixed-T
+    plans with the limits at T ± 1 % cost no less (J + weight·T)."""
+    span = TimeRange(0.6, 1.6, weight=1.0)
+    first = replan(SYSTEM, previous, goals_at(0.0), free=span, limits=LIMITS, fallback=False)
+    assert first.converged
+    warm = replan(SYSTEM, first, goals_at(0.01), free=span, limits=LIMITS, fallback=False)
+    assert warm.converged and not warm.fallback and warm.steps <= 8
+    assert check_limits(SYSTEM, LIMITS, warm.plan.mesh, warm.plan.coeffs).feasible
+    T = warm.T
+    for factor in (0.99, 1.01):
+        other = plan_goals(SYSTEM, HermiteMesh("quintic", T * factor, 8), Q0, Z, goals_at(0.01), limits=LIMITS)
+        assert other.converged
+        assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T - 1e-9 * warm.plan.J
