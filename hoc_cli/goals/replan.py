@@ -1,12 +1,18 @@
 """Warm replanning: the plan after a small change of its goals, by Newton steps from the previous optimum.
 
 A real-time user re-solves the same task when the target moves a little. ``replan`` starts from the
-previous plan's coefficients, its T, the goal rows' multipliers λ, and the limits' working set,
-multipliers μ and penalty (no coarse-to-fine continuation, no initial guess, no inverse kinematics,
-no quadrature refinement: G stays the previous plan's). The unknowns are x (the free Hermite
-coefficients, in the s = t/T domain), T when it is free, and λ; the Lagrangian is
-ℒ = I + Φ_limits + λ·c + weight·T with the limits as augmented-Lagrangian terms at fixed μ. Each step is
-one Newton (SQP) step on its KKT system, x, T and λ together:
+previous plan's coefficients, its T, the goal rows' multipliers λ, and the limits' multipliers μ (no
+coarse-to-fine continuation, no initial guess, no inverse kinematics, no quadrature refinement: G stays
+the previous plan's). The unknowns are x (the free Hermite coefficients, in the s = t/T domain), T when
+it is free, and the multipliers.
+
+Kinematic limits (the usual case; ``replan_qp``): each step is an SQP step whose quadratic programme has
+the goal rows as linearised equalities and the Bernstein rows near their bound as inequalities, solved
+exactly (``qp_step``), so the limits' working set follows the steps with no multiplier rounds.
+
+Effort limits binding at the previous plan (``_penalty_steps``): the limits stay augmented-Lagrangian
+terms Φ at fixed μ in ℒ = I + Φ + λ·c + weight·T, and each step is one Newton step on the KKT system of
+x, T and λ together:
 
     [ W    b    Dᵀ ] [dx]     [∇ₓℒ]
     [ bᵀ   h    c_Tᵀ] [dT] = − [ F ]        F = ∂ℒ/∂T,  c the goal rows, D = ∂c/∂x
@@ -16,17 +22,15 @@ W is the block-banded Hessian of I + Φ on the cost's own quadrature (exact, so 
 quadratically) plus Σλ∇²c (finite differences) plus ρDᵀD (ρ = 1e3·|J|: positive definite where W alone
 is not, without changing the step); b = ∂∇ₓℒ/∂T, h = ∂²ℒ/∂T² and c_T = ∂c/∂T come from a forward
 difference (δ = 1e-6·T) of the exact gradient, F and c at T + δ (the coefficients rescaled). The system is
-solved by one banded Cholesky factorisation of W (W⁻¹ on ∇ₓℒ, b and the r rows of Dᵀ together) and the
-(1 + r)-square Schur complement on (dT, dλ). A step is halved while it raises max|c| above
-max(max|c|, 1e-3) (down to 1/32); T is clipped to its range.
-
+solved by one banded Cholesky factorisation of W and the (1 + r)-square Schur complement on (dT, dλ). A
+step is halved while it raises max|c| above max(max|c|, 1e-3) (down to 1/32); T is clipped to its range.
 It stops when the decrement ½∇ₓℒᵀW⁻¹∇ₓℒ ≤ ``tol``·|J|, every goal row is met to 1e-9 (m, rad, m/s),
 |F| ≤ 1e-7·(|J|/T + weight) (or T sits at a bound it is pushed against) and the plan is within its
-limits (``check_limits``). At an inner optimum that fails the last test the limits' multipliers are
-updated (μ ← max(0, μ + ρg)), a pair that broke its limit joins the working set, and a step at the new
-multipliers follows. After ``max_steps`` steps the full solver finishes (``plan_goals``, and the free-T
-search with a free T), from the previous plan when the steps wandered off. Measured in docs/goals.md.
-Pure maths: no I/O.
+limits (``check_limits``); at an inner optimum that fails the last test the limits' multipliers are
+updated (μ ← max(0, μ + ρg)) and a pair that broke its limit joins the working set.
+
+After ``max_steps`` steps the full solver finishes (``plan_goals``, and the free-T search with a free T),
+from the previous plan when the steps wandered off. Measured in docs/goals.md. Pure maths: no I/O.
 """
 from __future__ import annotations
 
