@@ -20,6 +20,9 @@ translations (along z), then the link's ``link_offset``: ``link_position``, chec
 ``hoc_cli.dynamics.link_poses`` by ``check_kinematics``.
 
 IPOPT: exact Hessian, MUMPS, ``bound_relax_factor`` 0, tol 1e-10. ``solve(warm=previous)`` starts
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 from a previous solution's primal and dual values with IPOPT's ``warm_start_init_point``, bound pushes 1e-6, mu_init 1e-9.
 """
 from __future__ import annotations

@@ -19,6 +19,9 @@ matrix of n² entries.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import casadi as ca
 import numpy as np
 from numpy.polynomial import legendre as L

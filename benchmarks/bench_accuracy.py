@@ -35,6 +35,9 @@ IPOPT: the solver call). BLAS is pinned to one thread.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

@@ -29,6 +29,9 @@ other processes' load (printed at the start and the end).
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

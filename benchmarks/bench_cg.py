@@ -11,6 +11,9 @@ Newton matrix), plus the measured condition number of the Hessian.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import time
 
 import numpy as np

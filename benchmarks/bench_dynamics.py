@@ -10,6 +10,9 @@ in the same run. ratio = hoc / Pinocchio (below 1: hoc is faster per sample). Be
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import argparse
 import platform
 import sys

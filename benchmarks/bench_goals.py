@@ -20,6 +20,9 @@ single meshes differ by their discretisation errors; the converged values are co
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import argparse
 import sys
 import time

@@ -5,6 +5,9 @@ Run:  python benchmarks/bench_limits.py              (3 tasks × N = 16, 32, 64;
       python benchmarks/bench_limits.py --N 16 32 64 128 --d 3 --json limits.json --task configs/lbr7_swing.yaml
 
 Tasks: configs/lbr7_swing.yaml, configs/dual_arm.yaml and benchmarks/tasks/ur5_limits.yaml (a UR5
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 from example-robot-data, its path resolved at run time), each with its URDF limits (position,
 velocity, effort; no acceleration limit unless ``--acceleration``), the task's cost (``--cost torque``
 to change it, e.g. ``--task configs/lbr7_reach.yaml --cost torque --skip-free``).

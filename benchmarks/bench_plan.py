@@ -38,6 +38,9 @@ OpenBLAS on small matrices slowed hoc by up to 10× whenever another process was
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

@@ -12,6 +12,9 @@ beside the cold solve from scratch with the moved target.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import argparse
 import dataclasses
 import time

@@ -18,6 +18,9 @@ target accuracies, the cheapest setting of each method that reaches it.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import argparse
 import math
 import time

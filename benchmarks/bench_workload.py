@@ -17,6 +17,9 @@ estimate") gives the formula and the measurements it was fitted to.
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import argparse
 import json
 import os

@@ -43,6 +43,9 @@ the iterate into numpy) is inside the timings; it is small against an IPOPT iter
 """
 from __future__ import annotations
 
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
 import sys
 import sysconfig
 import time
