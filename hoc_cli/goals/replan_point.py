@@ -20,7 +20,7 @@ from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.plan import GoalProblem
-from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.goals.terms import GoalTerms, point_set
 from hoc_cli.problem import Evaluation
 
 
@@ -45,6 +45,7 @@ class LagrangianPoint:
     rows: object
     res: list | None
     F_I: float = 0.0
+    where: object = None
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
@@ -58,8 +59,8 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
         problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
         rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
-        cache[T] = (problem, rows)
-    problem, rows = cache[T]
+        cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
+    problem, rows, where = cache[T]
     mesh = problem.mesh
     lt = pv = None
     npts = len(problem.points)
@@ -91,7 +92,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     c, D = np.zeros(0), np.zeros((0, x.size))
     res = None
     if problem.points:
-        terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0)
+        terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0, where)
         res = terms.residuals(C)
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
@@ -112,7 +113,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         g = g + D.T @ np.concatenate(lam)
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
-    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I)
+    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where)
 
 
 def solve_many(W, B: np.ndarray) -> np.ndarray:

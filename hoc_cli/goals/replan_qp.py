@@ -44,10 +44,11 @@ from hoc_cli.optimize import Status
 _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
+LAG_RTOL = 1e-8  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s)
 
 
-def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool):
+def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
     """Element blocks added to the cost's Newton matrix: the goal rows' Σλ∇²c + ρDᵀD (its negative part
     dropped unless ``indefinite``) and ρAᵀA of the working set's rows (``held``; zero at a step that keeps
     them, so the programme's solution keeps its meaning while the matrix is positive definite where the
@@ -55,7 +56,7 @@ def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray
     """
     out = held
     if problem.points:
-        goal = GoalTerms(problem.mesh, problem.points, lam, rho).newton_blocks(C, indefinite=indefinite, res=res)
+        goal = GoalTerms(problem.mesh, problem.points, lam, rho, where).newton_blocks(C, indefinite=indefinite, res=res)
         out = goal if out is None else out + goal
     return out
 
@@ -98,6 +99,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
+    U_last = None
     while True:
         evals += 1
         problem, C = pt.problem, pt.C
@@ -106,17 +108,23 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         r = sum(v.size for v in lam[:npts])
         E, cg = pt.D[:r], pt.c[:r]
         g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
-        held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
-        try:
-            W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, True), shift=0.0)
-        except NumericalError:  # away from the optimum: the goal rows' curvature without its negative part
+        if U_last is not None and decrement <= LAG_RTOL * max(abs(pt.J), 1.0):
+            U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
+        else:
+            held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
             try:
-                W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False), shift=0.0)
-            except NumericalError:
-                if _DEBUG:
-                    print(f"qp step {steps}: the Newton matrix is not positive definite")
-                break
-        U = dense_factor(W)
+                W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, True, pt.where),
+                                   shift=0.0)
+            except NumericalError:  # away from the optimum: the goal rows' curvature without its negative part
+                try:
+                    W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False,
+                                                            pt.where), shift=0.0)
+                except NumericalError:
+                    if _DEBUG:
+                        print(f"qp step {steps}: the Newton matrix is not positive definite")
+                    break
+            U = dense_factor(W)
+        U_last = U
         everything = all_rows(system, limits, pt.rows, C)
         cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo[:3]),
                                 tuple(g > -CANDIDATE_GAP for g in everything.g_hi[:3]))

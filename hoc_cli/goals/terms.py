@@ -48,6 +48,7 @@ class GoalTerms:
     points: list[GoalPoint]
     lam: list[np.ndarray]
     rho: float
+    where: PointSet | None = None  # the points' PointSet on ``mesh`` when known (built on demand otherwise)
 
     @classmethod
     def start(cls, mesh: HermiteMesh, points: list[GoalPoint], rho: float = 1.0) -> "GoalTerms":
@@ -62,7 +63,7 @@ class GoalTerms:
         return not self.points
 
     def _where(self) -> PointSet:
-        return point_set(self.mesh, self.points)
+        return self.where if self.where is not None else point_set(self.mesh, self.points)
 
     def residuals(self, C: np.ndarray) -> list[tuple[np.ndarray, ...]]:
         """(c, ∂c/∂q, ∂c/∂q̇, ∂c/∂T, q, q̇) of every point at coefficients C (N+1, m, n)."""
