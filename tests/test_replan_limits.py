@@ -153,3 +153,23 @@ def test_free_time_replan_with_binding_limits_is_a_free_time_optimum(previous):
         other = plan_goals(SYSTEM, HermiteMesh("quintic", T * factor, 8), Q0, Z, goals_at(0.01), limits=LIMITS)
         assert other.converged
         assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T - 1e-9 * warm.plan.J
+
+
+@pytest.mark.parametrize("limits", [None, LIMITS])
+def test_free_time_by_sqp_steps_meets_the_search(limits):
+    """``minimize_time_sqp`` (one fixed-T solve, then Newton steps in x and T) against the search over
+    fixed-T solves (``minimize_time``): the same T (1e-6 relative) and J + weight·T (1e-9 relative)."""
+    from hoc_cli.free_time import goal_solver, minimize_time
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+
+    goals = goals_at(0.01)
+    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=limits)
+    search = minimize_time(solver, 0.6, 1.6, guess=0.8, weight=1.0)
+    sqp = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=0.8, weight=1.0, limits=limits)
+    assert sqp.converged and len(sqp.history) == 2  # the solve at the guess and the Newton steps' plan
+    assert sqp.bound is None and search.bound is None
+    assert sqp.T == pytest.approx(search.T, rel=1e-6)
+    assert sqp.objective == pytest.approx(search.objective, rel=1e-9)
+    assert abs(sqp.dJ_dT + 1.0) <= 1e-6 * (sqp.J / sqp.T + 1.0)
+    if limits is not None:
+        assert check_limits(SYSTEM, limits, sqp.result.mesh, sqp.result.coeffs).feasible
