@@ -3,9 +3,9 @@ replans (``hoc_cli.goals.replan``) after the ball's initial position moves by a 
 
     python benchmarks/bench_replan.py [--task configs/catch_ball.yaml] [--moves 0.001 0.003 0.01 0.03] [--repeat 3] [--ipopt]
 
-Times the Python call alone (no process start-up, no task loading): the cold solve is the free-T search
-of ``hoc plan`` (coarse to fine, 7 fixed-T solves); each replan starts from the cold optimum, its
-multipliers and T. Prints one row per move: the wall time (best of ``--repeat``), Newton steps and whether it
+Times the Python call alone (no process start-up, no task loading): the cold solve is ``hoc plan``'s
+free T (``minimize_time_sqp``: a fixed-T solve at the guess, then Newton steps in x and T); each replan
+starts from the cold optimum, its multipliers and T. Prints one row per move: the wall time (best of ``--repeat``), Newton steps and whether it
 converged (within 40 steps; no fallback to the full solver is timed) of a replan with T fixed at the previous
 optimum's and of one with the free T, and the free-T replan's T, J and goal rows' violation; with ``--cold-moved``
 beside the cold solve from scratch with the moved target.
@@ -25,7 +25,8 @@ import numpy as np
 from hoc_cli.commands.common import load_model
 from hoc_cli.commands.plan_goals import task_goals
 from hoc_cli.commands.plan_limits import task_limits
-from hoc_cli.free_time import goal_solver, minimize_time
+from hoc_cli.free_time import goal_solver
+from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.io.task import load_task, resolve
 from hoc_cli.system import RobotSystem
@@ -43,7 +44,8 @@ def cold(system, task, states, goals, limits):
     free = task.time.free
     solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits, cost=task.cost)
     start = time.perf_counter()
-    ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
+    ft = minimize_time_sqp(solver, system, goals, free.min, free.max, guess=free.guess, weight=free.weight,
+                           limits=limits)
     return ft, time.perf_counter() - start
 
 
@@ -63,7 +65,7 @@ def main() -> None:
     system = RobotSystem(model)
     free = task.time.free
     ft, wall = cold(system, task, states, goals, limits)
-    print(f"cold free-T solve (N = {task.N}, {task.order}): {wall:.2f} s, {len(ft.history)} fixed-T solves, "
+    print(f"cold free-T solve (N = {task.N}, {task.order}): {wall:.2f} s, {len(ft.history)} solves (the guess, the Newton steps' plan), "
           f"T = {ft.T:.6f} s, J = {ft.J:.9f}")
     span = TimeRange(free.min, free.max, free.weight)
     print(f"{'move [m]':>9} {'fixed T [ms]':>12} {'steps':>5} {'conv':>5} {'free T [ms]':>11} {'steps':>5} {'conv':>5} "
