@@ -180,7 +180,7 @@ def warm_replan(task: Task, system, states, goals: Goals, limits, mesh0: Hermite
     T = min(max(mesh0.T, free.min), free.max)
     if T != mesh0.T:
         C, mesh = rescale(C, mesh0.T, T), scaled_mesh(task.order, T, task.N, fractions)
-    previous = previous_plan(system, mesh, C, states.q0, states.dq0, goals, cost=task.cost, G=G)
+    previous = previous_plan(system, mesh, C, states.q0, states.dq0, goals, cost=task.cost, G=G, limits=limits)
     start = time.perf_counter()
     if fractions is not None:
         solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits,
