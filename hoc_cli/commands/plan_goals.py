@@ -1,8 +1,10 @@
 """``hoc plan``'s goals: the task's link goal, vias and free T as ``Goals``, the solve, the summary keys.
 
 The maths is in ``hoc_cli.goals`` and ``hoc_cli.free_time``; this module reads the task (link names
-against the model, joint values in model order), picks the solver and reports ``T``, ``dJ_dT``,
-``final_q``, ``reached`` (the link's pose, and velocity for a moving target) and ``vias`` (docs/goals.md).
+against the model, joint values in model order), builds the mesh with every via time a node
+(``hoc_cli.goals.mesh``), picks the solver (with ``--init`` and a free T: a warm replan) and reports ``T``,
+``dJ_dT``, ``final_q``, ``reached`` (the link's pose, and velocity for a moving target), ``vias`` and
+``warm_start`` (docs/goals.md).
 """
 from __future__ import annotations
 

@@ -3,7 +3,8 @@
 ``Goals`` says what is fixed and what is imposed: the final joint state (``q1``, ``dq1``) or a
 ``FrameResidual`` at T with the final q (and q̇ when it is free) released from the ``Layout``;
 via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh node, which are
-pinned in the ``Layout`` (met exactly). Rows that are not pinned enter an augmented Lagrangian
+pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a node,
+and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that are not pinned enter an augmented Lagrangian
 (``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
 are given (which then sees the goal rows as part of its base problem). Coarse to fine as
 ``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
