@@ -82,7 +82,7 @@ def estimate_state(system, problem: GoalProblem, C: np.ndarray, grad: np.ndarray
         sol = np.linalg.lstsq(M, -np.asarray(grad, float), rcond=None)[0]
     elif M.shape[1]:
         lower = np.concatenate([np.full(r, -np.inf), np.zeros(len(candidates))])
-        sol = lsq_linear(M, -np.asarray(grad, float), bounds=(lower, np.inf)).x
+        sol = lsq_linear(M, -np.asarray(grad, float), bounds=(lower, np.inf), method="bvls", tol=1e-14).x
     lam = np.split(sol[:r], np.cumsum([p.residual.size for p in problem.points])[:-1]) if problem.points else []
     if not limited:
         return lam, None
