@@ -170,3 +170,42 @@ def test_too_few_elements_for_the_vias_is_a_task_error(workdir):
     r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "-o", "out.csv"])
     assert r.exit_code == 2
     assert "N: 2 via times split the duration into 3 intervals" in r.output and "expected N >= 3" in r.output
+
+
+@pytest.mark.parametrize("order", ["cubic", "quintic"])
+def test_goal_rows_on_a_non_uniform_mesh_against_evaluation_and_central_differences(order):
+    """Rows off the nodes of a non-uniform mesh (a joint via with q̇ and a link via): q, q̇ at the rows are
+    ``mesh.evaluate``'s at s·T, Ψ's gradient and ∂Ψ/∂T (scaled mesh) match central differences."""
+    from hoc_cli.free_time import rescale
+    from hoc_cli.goals import GoalTerms
+
+    fractions = np.array([0.0, 0.1, 0.35, 0.5, 0.8, 1.0])
+    mesh = scaled_mesh(order, 1.2, 5, fractions)
+    points = [GoalPoint(0.42, JointResidual(VIA_Q, VIA_DQ)),
+              GoalPoint(0.9, FrameResidual(MODEL, "tool", link_poses(MODEL, [0.5, 0.3])["tool"][:3, 3]))]
+    problem = GoalProblem(SYSTEM, mesh, Q0, Z, Goals(q1=Q1, dq1=Z, vias=tuple(points)))
+    assert len(problem.points) == 2  # off the nodes: rows
+    rng = np.random.default_rng(1)
+    x = problem.initial_guess() + 0.1 * rng.standard_normal(problem.layout.size)
+    C = problem.coefficients(x)
+    lam = [rng.standard_normal(p.residual.size) for p in points]
+    terms = GoalTerms(mesh, points, lam, rho=2.0)
+    for r, p in zip(terms.residuals(C), points):
+        t = np.array([p.s * mesh.T])
+        assert np.allclose(r[4], mesh.evaluate(C, t)[0], rtol=0, atol=1e-14)
+        assert np.allclose(r[5], mesh.evaluate(C, t, 1)[0], rtol=0, atol=1e-13)
+    g = problem.layout.pack(terms.evaluate(C)[1])
+    h = 1e-6
+    for j in range(x.size):
+        e = np.zeros(x.size)
+        e[j] = h
+        fd = (terms.evaluate(problem.coefficients(x + e), grad=False)[0]
+              - terms.evaluate(problem.coefficients(x - e), grad=False)[0]) / (2 * h)
+        assert abs(g[j] - fd) < 1e-6 * max(1.0, abs(fd)), j
+
+    def psi(T):
+        return GoalTerms(scaled_mesh(order, T, 5, fractions), points, lam, 2.0).evaluate(
+            rescale(C, mesh.T, T), grad=False)[0]
+
+    fd = (psi(mesh.T + h) - psi(mesh.T - h)) / (2 * h)
+    assert terms.time_derivative(C, mesh.T)[0] == pytest.approx(fd, rel=1e-6, abs=1e-6)
