@@ -124,9 +124,9 @@ def node_fractions(task: Task, goals: Goals) -> np.ndarray | None:
         raise TaskError(f"{exc} (every via time is a node of the mesh)", file=task.path, key="N") from None
 
 
-def goal_mesh(task: Task, goals: Goals, T: float | None = None) -> HermiteMesh:
-    """The mesh of a task with goals at T (default the task's, the start of a free-T search)."""
-    return scaled_mesh(task.order, task.T if T is None else T, task.N, node_fractions(task, goals))
+def goal_mesh(task: Task, goals: Goals) -> HermiteMesh:
+    """The mesh of a task with goals at the task's T (with a free T: the start of the search)."""
+    return scaled_mesh(task.order, task.T, task.N, node_fractions(task, goals))
 
 
 def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None, init=None):

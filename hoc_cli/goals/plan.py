@@ -3,9 +3,9 @@
 ``Goals`` says what is fixed and what is imposed: the final joint state (``q1``, ``dq1``) or a
 ``FrameResidual`` at T with the final q (and q̇ when it is free) released from the ``Layout``;
 via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh node, which are
-pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a node,
-and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that are not pinned enter an augmented Lagrangian
-(``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
+pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a
+node, and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that
+are not pinned enter an augmented Lagrangian (``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
 are given (which then sees the goal rows as part of its base problem). Coarse to fine as
 ``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
 Pure maths: no I/O.
@@ -58,6 +58,14 @@ class Goals:
     @property
     def free_dq1(self) -> bool:
         return self.final is not None and (self.final_dq == "free" or self.final.match_velocity)
+
+
+def node_of(s: float, N: int, tol: float = 1e-9) -> int | None:
+    """The interior node p (0 < p < N) at fraction s of a uniform mesh of N elements, or None when s·N is
+    not an integer (any mesh: ``hoc_cli.goals.mesh.node_index``).
+    """
+    p = round(s * N)
+    return p if abs(s * N - p) <= tol and 0 < p < N else None
 
 
 class GoalProblem(ControlProblem):
