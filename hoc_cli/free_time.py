@@ -240,24 +240,26 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
     return solve
 
 
-def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None,
+def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
                 **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
-    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``).
+    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``) on N elements,
+    equal or with nodes at ``fractions`` (N + 1,) of T (``hoc_cli.goals.mesh``: the vias stay nodes).
 
     Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
     from the initial guess): solves from scratch at distant T may land in other local minima, and
     J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
     measured 2-3× slower on the lbr7 catch).
     """
-    from hoc_cli.elements import HermiteMesh
     from hoc_cli.goals import plan_goals
+    from hoc_cli.goals.mesh import scaled_mesh
 
     def solve(T: float, nearest: TimePoint | None) -> TimePoint:
         warm = {}
         if nearest is not None:
             warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
                     "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
-        result = plan_goals(system, HermiteMesh(order, T, N), q0, dq0, goals, limits=limits, **warm, **plan_options)
+        result = plan_goals(system, scaled_mesh(order, T, N, fractions), q0, dq0, goals, limits=limits, **warm,
+                            **plan_options)
         d = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
         return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)
 

@@ -29,7 +29,7 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
-from hoc_cli.commands.plan_goals import goal_summary, task_goals
+from hoc_cli.commands.plan_goals import goal_mesh, goal_summary, task_goals
 from hoc_cli.commands.plan_goals import solve as solve_goals
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
 from hoc_cli.commands.workload import Heartbeat, check_workload
@@ -84,7 +84,14 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         _warn_outside_limits(console, task, model, states)
     auto = task.N is None
     mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
-    C_init = _warm_start(init, mesh, model.joint_names) if init is not None and not auto else None
+    if goals is not None and not auto:
+        mesh = goal_mesh(task, goals)  # the via times are nodes
+    C_init = warm = None
+    if init is not None and not auto:
+        if goals is not None and task.time.free is not None:  # a warm replan from the plan's T and coefficients
+            warm = _init_plan(init, model.joint_names)
+        else:
+            C_init = _warm_start(init, mesh, model.joint_names)
     if auto and init is not None:
         raise OutputError("--init needs a fixed N (the task has N: auto; give -N)", key="--init")
     if auto and starts > 1:
@@ -121,7 +128,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         extra: dict = {}
         error = None
         if goals is not None:
-            result, extra = solve_goals(task, model, states, goals, enforced, report, C_init=C_init)
+            result, extra = solve_goals(task, model, states, goals, enforced, report, C_init=C_init, init=warm)
         elif auto:
             found = plan_auto(system, task.order, task.T, states.q0, states.dq0, states.q1, states.dq1,
                               accuracy=task.accuracy, cost=task.cost, method=task.method, tol=task.tol,
@@ -331,8 +338,10 @@ def _warn_outside_limits(console, task: Task, model, states) -> None:
                               f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False, markup=False, soft_wrap=True)
 
 
-def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
-    """Coefficients (N+1, m, n) from an earlier plan's MCAP, resampled at this mesh's nodes if needed."""
+def _init_plan(path: Path, joints) -> tuple[HermiteMesh, np.ndarray, int | None]:
+    """(mesh, coefficients (N+1, m, n), Gauss points per element or None) of an earlier plan's MCAP."""
+    import json
+
     from hoc_cli.io.mcap import read_plan
 
     plan_file = read_plan(path)
@@ -343,11 +352,21 @@ def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
     if tr.mesh is None or tr.coeffs is None:
         raise InputFileError("has no Hermite coefficients (expected an MCAP written by 'hoc plan')", file=path,
                              key="--init")
-    if not math.isclose(tr.mesh.T, mesh.T, rel_tol=1e-12):
-        raise InputFileError(f"plan duration T = {tr.mesh.T:g} s differs from the task's T = {mesh.T:g} s",
+    try:
+        G = json.loads(plan_file.metadata.get("summary", "{}")).get("gauss_points")
+    except (ValueError, AttributeError):
+        G = None
+    return tr.mesh, np.array(tr.coeffs), G if isinstance(G, int) and G >= 1 else None
+
+
+def _warm_start(path: Path, mesh: HermiteMesh, joints) -> np.ndarray:
+    """Coefficients (N+1, m, n) from an earlier plan's MCAP, resampled at this mesh's nodes if needed."""
+    mesh0, C0, _ = _init_plan(path, joints)
+    if not math.isclose(mesh0.T, mesh.T, rel_tol=1e-12):
+        raise InputFileError(f"plan duration T = {mesh0.T:g} s differs from the task's T = {mesh.T:g} s",
                              file=path, key="--init")
-    if tr.mesh == mesh:  # the same order and node times
-        return np.array(tr.coeffs)
+    if mesh0 == mesh:  # the same order and node times
+        return C0
     t = mesh.nodes
-    cols = [tr.mesh.evaluate(tr.coeffs, t, r) for r in range(mesh.m)]
+    cols = [mesh0.evaluate(C0, t, r) for r in range(mesh.m)]
     return np.stack(cols, axis=1)

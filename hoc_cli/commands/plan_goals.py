@@ -1,20 +1,23 @@
 """``hoc plan``'s goals: the task's link goal, vias and free T as ``Goals``, the solve, the summary keys.
 
 The maths is in ``hoc_cli.goals`` and ``hoc_cli.free_time``; this module reads the task (link names
-against the model, joint values in model order), picks the solver and reports ``T``, ``dJ_dT``,
-``final_q``, ``reached`` (the link's pose, and velocity for a moving target) and ``vias`` (docs/goals.md).
+against the model, joint values in model order), builds the mesh with every via time a node
+(``hoc_cli.goals.mesh``), picks the solver (with ``--init`` and a free T: a warm replan) and reports ``T``,
+``dJ_dT``, ``final_q``, ``reached`` (the link's pose, and velocity for a moving target), ``vias`` and
+``warm_start`` (docs/goals.md).
 """
 from __future__ import annotations
 
 import dataclasses
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import HocError, TaskError
-from hoc_cli.free_time import goal_solver, joint_goal_solver, minimize_time
+from hoc_cli.free_time import goal_solver, joint_goal_solver, minimize_time, rescale
 from hoc_cli.goals import (
     FrameResidual,
     GoalPoint,
@@ -25,11 +28,15 @@ from hoc_cli.goals import (
     quaternion_matrix,
     rotation_angle,
 )
+from hoc_cli.goals.mesh import scaled_mesh, via_fractions
+from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.residuals import reach
+from hoc_cli.goals.warm import previous_plan
 from hoc_cli.io.task import Task
 from hoc_cli.io.task.checks import Checker
 from hoc_cli.io.task.goals import LinkGoal
 from hoc_cli.io.task.resolve import _vector
+from hoc_cli.planner import resample
 from hoc_cli.system import RobotSystem
 
 
@@ -107,9 +114,25 @@ def task_goals(task: Task, model, states) -> Goals | None:
     return Goals(final=final, final_dq=g.dq, vias=tuple(vias), q1_guess=q1, dq1_guess=dq1)
 
 
-def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None):
+def node_fractions(task: Task, goals: Goals) -> np.ndarray | None:
+    """The s-domain node fractions (N + 1,) of the plan's mesh with every via time a node
+    (``hoc_cli.goals.mesh.via_fractions``), None for N equal elements; TaskError when N is too small.
+    """
+    try:
+        return via_fractions(task.N, [gp.s for gp in goals.vias])
+    except ValueError as exc:
+        raise TaskError(f"{exc} (every via time is a node of the mesh)", file=task.path, key="N") from None
+
+
+def goal_mesh(task: Task, goals: Goals) -> HermiteMesh:
+    """The mesh of a task with goals at the task's T (with a free T: the start of the search)."""
+    return scaled_mesh(task.order, task.T, task.N, node_fractions(task, goals))
+
+
+def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None, init=None):
     """(PlanResult, summary keys) for a task with goals: ``plan_goals`` at T (from ``C_init`` when given,
-    ``--init``), or the free-T search (its first solve from the initial guess).
+    ``--init``), or the free-T search (its first solve from the initial guess), or with ``init`` (the
+    mesh and coefficients of an earlier plan, ``--init`` with a free T) a warm replan from it.
     """
     check_reach(task, model, goals)
     system = RobotSystem(model)
@@ -118,21 +141,65 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
     plain = goals.final is None and not goals.vias
     free = task.time.free
     if free is None:
-        result = plan_goals(system, HermiteMesh(task.order, task.T, task.N), states.q0, states.dq0, goals,
+        result = plan_goals(system, goal_mesh(task, goals), states.q0, states.dq0, goals,
                             limits=limits, C_init=C_init, **options)
         return result, {}
+    if init is not None:
+        return warm_replan(task, system, states, goals, limits, *init, options=options)
     if plain:
         solver = joint_goal_solver(system, task.order, task.N, states.q0, states.dq0, states.q1, states.dq1,
                                    limits=limits, **options)
     else:
-        solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits, **options)
+        solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits,
+                             fractions=node_fractions(task, goals), **options)
     start = time.perf_counter()
     ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
     result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search
+    return result, _search_summary(ft, free.weight)
+
+
+def _search_summary(ft, weight: float) -> dict:
+    """The free-T search's summary keys (``FreeTimeResult``)."""
     solves = [p.result.optimizer for p in ft.history]  # `iterations` is the last solve's; these, the search's
-    return result, {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
-                    "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged,
-                    "T_iterations": sum(o.iterations for o in solves), "T_evaluations": sum(o.n_evals for o in solves)}
+    return {"dJ_dT": ft.dJ_dT, "T_weight": weight, "T_objective": ft.objective,
+            "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged,
+            "T_iterations": sum(o.iterations for o in solves), "T_evaluations": sum(o.n_evals for o in solves)}
+
+
+def warm_replan(task: Task, system, states, goals: Goals, limits, mesh0: HermiteMesh, C0: np.ndarray,
+                G: int | None, options: dict) -> tuple:
+    """``--init`` with a free T: ``replan`` from the earlier plan (mesh0, C0 (N+1, m, n), its Gauss points G)
+    with its T (clipped to [min, max]) as the start, resampled to the task's mesh at that T; the goal
+    rows' multipliers by least squares (``previous_plan``). ``warm_start`` in the summary says "replan"
+    (with ``replan_steps``, the Newton steps, and ``replan_fallback``, whether the full search finished).
+    With vias off the uniform nodes (a non-uniform mesh, which ``replan`` does not take) it is the free-T
+    search from the earlier plan instead (``warm_start``: "search"). ``options``: ``plan_goals``'s.
+    """
+    free = task.time.free
+    fractions = node_fractions(task, goals)
+    mesh = scaled_mesh(task.order, mesh0.T, task.N, fractions)
+    C = C0 if mesh == mesh0 else resample(mesh0, C0, mesh)
+    T = min(max(mesh0.T, free.min), free.max)
+    if T != mesh0.T:
+        C, mesh = rescale(C, mesh0.T, T), scaled_mesh(task.order, T, task.N, fractions)
+    previous = previous_plan(system, mesh, C, states.q0, states.dq0, goals, cost=task.cost, G=G, limits=limits)
+    start = time.perf_counter()
+    if fractions is not None:
+        solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits,
+                             fractions=fractions, G=previous.G, **options)
+        seed = SimpleNamespace(T=T, result=previous)
+        ft = minimize_time(lambda T_, nearest: solver(T_, nearest or seed), free.min, free.max, guess=T,
+                           weight=free.weight)
+        result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)
+        return result, {**_search_summary(ft, free.weight), "warm_start": "search"}
+    done = replan(system, previous, goals, free=TimeRange(free.min, free.max, free.weight), limits=limits)
+    result = dataclasses.replace(done.plan, wall_time_s=time.perf_counter() - start)
+    slope = done.dJ_dT + free.weight
+    T = result.mesh.T
+    bound = "max" if T >= free.max and slope < 0 else "min" if T <= free.min and slope > 0 else None
+    return result, {"dJ_dT": done.dJ_dT, "T_weight": free.weight, "T_objective": result.J + free.weight * T,
+                    "T_bound": bound, "T_converged": done.converged, "warm_start": "replan",
+                    "replan_steps": done.steps, "replan_fallback": done.fallback}
 
 
 def goal_summary(model, result, goals: Goals | None) -> dict:

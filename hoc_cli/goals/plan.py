@@ -3,8 +3,9 @@
 ``Goals`` says what is fixed and what is imposed: the final joint state (``q1``, ``dq1``) or a
 ``FrameResidual`` at T with the final q (and q̇ when it is free) released from the ``Layout``;
 via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh node, which are
-pinned in the ``Layout`` (met exactly). Rows that are not pinned enter an augmented Lagrangian
-(``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
+pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a
+node, and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that
+are not pinned enter an augmented Lagrangian (``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
 are given (which then sees the goal rows as part of its base problem). Coarse to fine as
 ``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
 Pure maths: no I/O.
@@ -22,6 +23,7 @@ import numpy as np
 from hoc_cli.constraints import enforce
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
+from hoc_cli.goals.mesh import node_index, via_mesh
 from hoc_cli.goals.residuals import FrameResidual, JointResidual
 from hoc_cli.goals.terms import GoalPoint, GoalTerms
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
@@ -59,7 +61,9 @@ class Goals:
 
 
 def node_of(s: float, N: int, tol: float = 1e-9) -> int | None:
-    """The interior node p (0 < p < N) at fraction s of the duration, or None when s·N is not an integer."""
+    """The interior node p (0 < p < N) at fraction s of a uniform mesh of N elements, or None when s·N is
+    not an integer (any mesh: ``hoc_cli.goals.mesh.node_index``).
+    """
     p = round(s * N)
     return p if abs(s * N - p) <= tol and 0 < p < N else None
 
@@ -76,7 +80,7 @@ class GoalProblem(ControlProblem):
         n = system.n
         pinned, points, values = [], [], []
         for gp in goals.vias:
-            p = node_of(gp.s, mesh.N) if isinstance(gp.residual, JointResidual) else None
+            p = node_index(gp.s, mesh) if isinstance(gp.residual, JointResidual) else None
             if p is None:
                 points.append(gp)
                 continue
@@ -146,6 +150,18 @@ class GoalResult(PlanResult):
     @property
     def converged(self) -> bool:
         return PlanResult.converged.fget(self) and self.violation <= EQ_ACCEPT
+
+
+def _level_mesh(mesh: HermiteMesh, N: int, goals: Goals) -> HermiteMesh:
+    """A coarse level of ``mesh`` on N elements: uniform, or for a non-uniform mesh with the via times as
+    nodes when N has room for them (else uniform: the vias are rows there).
+    """
+    if mesh.uniform:
+        return HermiteMesh(mesh.order, mesh.T, N)
+    try:
+        return via_mesh(mesh.order, mesh.T, N, [gp.s for gp in goals.vias])
+    except ValueError:
+        return HermiteMesh(mesh.order, mesh.T, N)
 
 
 def _polish(problem, x: np.ndarray) -> np.ndarray:
@@ -249,7 +265,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     if C_init is None and continuation:
         coarse_mesh, C_coarse = None, None
         for N in continuation_levels(mesh.N)[:-1]:
-            level = HermiteMesh(mesh.order, mesh.T, N)
+            level = _level_mesh(mesh, N, goals)
             problem = build(level, G)
             x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
             x, _, _, terms = solve_level(problem, x0, max(tol, 1e-6), terms, max(eq_tol, EQ_COARSE))

@@ -35,7 +35,11 @@ class GoalPoint:
 
 def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
     """The mesh points (element, local coordinate) of the goal points' times s·T."""
-    x = np.array([p.s for p in points], float) * mesh.N
+    s = np.array([p.s for p in points], float)
+    if not mesh.uniform:  # the element holding each time (a via on a node: the element it starts)
+        e, local = mesh.element_of(s * mesh.T)
+        return PointSet.build(mesh, e, local, np.ones(len(points)))
+    x = s * mesh.N
     e = np.clip(np.floor(x).astype(int), 0, mesh.N - 1)
     return PointSet.build(mesh, e, x - e, np.ones(len(points)))
 
