@@ -77,7 +77,7 @@ def limits_time_derivative(enforced, system, limits, C: np.ndarray) -> tuple[flo
         else:
             V = rows.apply(k, loc)
             dT -= k * float(np.sum(lam * V)) / mesh.T
-            gloc += np.einsum("ra,ern->ean", rows.rows[k], lam)
+            gloc += rows.transpose(k, lam)  # (with a non-uniform mesh's element scales)
     return dT, G + rows.to_coefficients(gloc)
 
 

@@ -155,17 +155,20 @@ def test_free_time_replan_with_binding_limits_is_a_free_time_optimum(previous):
         assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T - 1e-9 * warm.plan.J
 
 
-@pytest.mark.parametrize("limits", [None, LIMITS])
-def test_free_time_by_sqp_steps_meets_the_search(limits):
+@pytest.mark.parametrize("limits, fractions", [(None, None), (LIMITS, None),
+                                               (LIMITS, [0.0, 0.1, 0.3, 0.45, 0.5, 0.6, 0.75, 0.9, 1.0])])
+def test_free_time_by_sqp_steps_meets_the_search(limits, fractions):
     """``minimize_time_sqp`` (one fixed-T solve, then Newton steps in x and T) against the search over
-    fixed-T solves (``minimize_time``): the same T (1e-6 relative) and J + weight·T (1e-9 relative)."""
+    fixed-T solves (``minimize_time``): the same T (1e-6 relative) and J + weight·T (1e-9 relative), on N
+    equal elements and on a non-uniform mesh that scales with T."""
     from hoc_cli.free_time import goal_solver, minimize_time
     from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 
     goals = goals_at(0.01)
-    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=limits)
-    search = minimize_time(solver, 0.6, 1.6, guess=0.8, weight=1.0)
-    sqp = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=0.8, weight=1.0, limits=limits)
+    fractions = None if fractions is None else np.array(fractions)
+    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=limits, fractions=fractions)
+    search = minimize_time(solver, 0.6, 1.6, guess=0.95, weight=1.0)
+    sqp = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=0.95, weight=1.0, limits=limits)
     assert sqp.converged and len(sqp.history) == 2  # the solve at the guess and the Newton steps' plan
     assert sqp.bound is None and search.bound is None
     assert sqp.T == pytest.approx(search.T, rel=1e-6)
@@ -173,3 +176,4 @@ def test_free_time_by_sqp_steps_meets_the_search(limits):
     assert abs(sqp.dJ_dT + 1.0) <= 1e-6 * (sqp.J / sqp.T + 1.0)
     if limits is not None:
         assert check_limits(SYSTEM, limits, sqp.result.mesh, sqp.result.coeffs).feasible
+    assert sqp.result.mesh.uniform == (fractions is None)

@@ -28,6 +28,7 @@ from hoc_cli.goals import (
     quaternion_matrix,
     rotation_angle,
 )
+from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.mesh import scaled_mesh, via_fractions
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.residuals import reach
@@ -131,7 +132,8 @@ def goal_mesh(task: Task, goals: Goals) -> HermiteMesh:
 
 def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None, init=None):
     """(PlanResult, summary keys) for a task with goals: ``plan_goals`` at T (from ``C_init`` when given,
-    ``--init``), or the free-T search (its first solve from the initial guess), or with ``init`` (the
+    ``--init``), or a free T (``minimize_time_sqp``: a solve at the guess, then Newton steps in x and T; the
+    search over fixed-T solves for joint goals), or with ``init`` (the
     mesh and coefficients of an earlier plan, ``--init`` with a free T) a warm replan from it.
     """
     check_reach(task, model, goals)
@@ -150,10 +152,15 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
         solver = joint_goal_solver(system, task.order, task.N, states.q0, states.dq0, states.q1, states.dq1,
                                    limits=limits, **options)
     else:
+        fractions = node_fractions(task, goals)
         solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits,
-                             fractions=node_fractions(task, goals), **options)
+                             fractions=fractions, **options)
     start = time.perf_counter()
-    ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
+    if plain:  # the replan's steps take goal plans (not the plain joint-goal solver's)
+        ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
+    else:  # one solve at the guess, then Newton steps in x and T (the search if they do not converge)
+        ft = minimize_time_sqp(solver, system, goals, free.min, free.max, guess=free.guess, weight=free.weight,
+                               limits=limits)
     result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search
     return result, _search_summary(ft, free.weight)
 

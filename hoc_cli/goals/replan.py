@@ -51,6 +51,7 @@ from hoc_cli.free_time import (
     rescale,
 )
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers, penalty_value
+from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
 from hoc_cli.goals.replan_point import evaluate_point, solve_many
 from hoc_cli.goals.replan_qp import QPReplan, qp_steps
@@ -218,6 +219,7 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    fractions = mesh_fractions(mesh0)  # a non-uniform mesh scales with T
     q0, dq0 = problem0.boundary[:2]
     T = mesh0.T
     C = np.array(plan0.coeffs)
@@ -230,7 +232,7 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
 
     def at(T_, C_, lam_):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits if limited else None,
-                      state, weight, free is not None, cache)
+                              state, weight, free is not None, cache, fractions=fractions)
 
     cache: dict = {}
     pt, fresh, updated = at(T, C, lam), False, True  # the previous plan's multipliers are its optimum's
@@ -363,7 +365,8 @@ def _finish(system, plan: GoalResult, goals: Goals, free: TimeRange | None, limi
         slope = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
         return ReplanResult(plan=result, T=mesh.T, dJ_dT=slope, curvature=d2, steps=plan.outer_iterations,
                             fallback=True, wall_time_s=time.perf_counter() - start)
-    solver = goal_solver(system, mesh.order, mesh.N, q0, dq0, goals, limits=limits, **options)
+    solver = goal_solver(system, mesh.order, mesh.N, q0, dq0, goals, limits=limits, fractions=mesh_fractions(mesh),
+                         **options)
     seed = SimpleNamespace(T=mesh.T, result=plan)
 
     def solve(T, nearest):

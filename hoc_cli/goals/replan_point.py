@@ -15,10 +15,10 @@ from scipy.linalg import cho_solve_banded
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
-from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
+from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.goals.plan import GoalProblem
 from hoc_cli.goals.terms import GoalTerms, point_set
 from hoc_cli.problem import Evaluation
@@ -49,13 +49,14 @@ class LagrangianPoint:
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
-           cache: dict, active: ActiveRows | None = None) -> LagrangianPoint:
+                   cache: dict, active: ActiveRows | None = None, fractions=None) -> LagrangianPoint:
     """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
     dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
-    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only).
+    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
+    mesh's nodes as fractions of T (None: N equal elements).
     """
     if T not in cache:
-        mesh = HermiteMesh(order, T, N)
+        mesh = scaled_mesh(order, T, N, fractions)
         problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
         problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
         rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None

@@ -19,8 +19,9 @@ own programme, a change of the active limits costs no extra rounds. The step is 
 the goal rows' violation above max(violation, 1e-3).
 
 It stops when the programme's decrease −(∇Iᵀd + ½dᵀHd) ≤ ``tol``·|J|, the goal rows are met to 1e-9
-(m, rad, m/s) and the imposed rows to 1e-9 (relative to the limit), with the exact extrema check to
-confirm. Pure maths: no I/O.
+(m, rad, m/s), the imposed rows to 1e-9 (relative to the limit) and, with a free T, |∂ℒ/∂T| ≤
+1e-7·(|J|/T + weight) or T sits at a bound it is pushed against (``minimize_time``'s test), with the
+exact extrema check to confirm. Pure maths: no I/O.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from hoc_cli.constraints.check import check_limits
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import rescale
 from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
 from hoc_cli.goals.replan_point import dense_factor, evaluate_point
@@ -44,6 +46,7 @@ from hoc_cli.optimize import Status
 _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
+SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
 LAG_RTOL = 1e-8  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s)
 
@@ -87,6 +90,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    fractions = mesh_fractions(mesh0)  # a non-uniform mesh scales with T
     q0, dq0 = problem0.boundary[:2]
     T, C = mesh0.T, np.array(plan0.coeffs)
     weight = free.weight if free is not None else 0.0
@@ -95,7 +99,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
     def at(T_, C_, lam_, active_):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
-                              free is not None, cache, active_)
+                              free is not None, cache, active_, fractions=fractions)
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
@@ -171,7 +175,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             print(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
                   + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
-        if decrement <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT:
+        t_done = free is None or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight) or (
+            (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
+        if decrement <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT and t_done:
             if check_limits(system, limits, problem.mesh, C).feasible:
                 status = Status.CONVERGED
             break
