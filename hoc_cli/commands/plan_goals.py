@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -178,9 +177,8 @@ def warm_replan(task: Task, system, states, goals: Goals, limits, mesh0: Hermite
     """``--init`` with a free T: ``replan`` from the earlier plan (mesh0, C0 (N+1, m, n), its Gauss points G)
     with its T (clipped to [min, max]) as the start, resampled to the task's mesh at that T; the goal
     rows' multipliers by least squares (``previous_plan``). ``warm_start`` in the summary says "replan"
-    (with ``replan_steps``, the Newton steps, and ``replan_fallback``, whether the full search finished).
-    With vias off the uniform nodes (a non-uniform mesh, which ``replan`` does not take) it is the free-T
-    search from the earlier plan instead (``warm_start``: "search"). ``options``: ``plan_goals``'s.
+    (with ``replan_steps``, the Newton steps, and ``replan_fallback``, whether the full search finished);
+    with vias off the uniform nodes the mesh's nodes scale with T. ``options``: ``plan_goals``'s.
     """
     free = task.time.free
     fractions = node_fractions(task, goals)
@@ -191,14 +189,6 @@ def warm_replan(task: Task, system, states, goals: Goals, limits, mesh0: Hermite
         C, mesh = rescale(C, mesh0.T, T), scaled_mesh(task.order, T, task.N, fractions)
     previous = previous_plan(system, mesh, C, states.q0, states.dq0, goals, cost=task.cost, G=G, limits=limits)
     start = time.perf_counter()
-    if fractions is not None:
-        solver = goal_solver(system, task.order, task.N, states.q0, states.dq0, goals, limits=limits,
-                             fractions=fractions, G=previous.G, **options)
-        seed = SimpleNamespace(T=T, result=previous)
-        ft = minimize_time(lambda T_, nearest: solver(T_, nearest or seed), free.min, free.max, guess=T,
-                           weight=free.weight)
-        result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)
-        return result, {**_search_summary(ft, free.weight), "warm_start": "search"}
     done = replan(system, previous, goals, free=TimeRange(free.min, free.max, free.weight), limits=limits)
     result = dataclasses.replace(done.plan, wall_time_s=time.perf_counter() - start)
     slope = done.dJ_dT + free.weight
