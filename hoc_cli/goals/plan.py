@@ -140,12 +140,16 @@ class GoalPenalized:
 
 @dataclass(eq=False)
 class GoalResult(PlanResult):
-    """A ``PlanResult`` with the goal rows: ``terms`` (their final multipliers), ``violation`` max |c|."""
+    """A ``PlanResult`` with the goal rows: ``terms`` (their final multipliers), ``violation`` max |c|;
+    ``newton_factor``: a replan's last Newton matrix (dense upper Cholesky factor on the free coefficients),
+    the first step of the next replan from this plan (``hoc_cli.goals.replan_qp``).
+    """
 
     terms: GoalTerms | None = None
     violation: float = 0.0
     outer_iterations: int = 0
     goals: Goals = field(default_factory=Goals)
+    newton_factor: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:

@@ -195,7 +195,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                                                     else f"{steps} Newton steps"))
     enforced = None
     if limited:
-        check = check_limits(system, limits, mesh, C)
+        check = out.check if out.check is not None else check_limits(system, limits, mesh, C)
         working, rho_l, penalty = (state[0], state[3], pt.pv) if active is None else _row_outcome(
             system, limits, pt.rows, C, active, lam[npts], plan0.limits)
         enforced = EnforceResult(status="converged" if status is Status.CONVERGED else "not_converged",
@@ -204,7 +204,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     used = GoalTerms(mesh, problem.points, lam[:npts], rho if rho > 0 else 10.0 * max(abs(J), 1e-6))
     plan = GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=opt, G=G, quadrature_change=math.nan,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=enforced, terms=used,
-                      violation=violation, outer_iterations=steps, goals=goals)
+                      violation=violation, outer_iterations=steps, goals=goals,
+                      newton_factor=getattr(out, "factor", None))
     if status is not Status.CONVERGED and fallback:  # from the previous plan: the steps may have wandered off
         return _finish(system, plan0 if violation > 1e-6 else plan, goals, free, limits, d2, start)
     return ReplanResult(plan=plan, T=T, dJ_dT=slope, curvature=d2, steps=steps, fallback=False,

@@ -67,7 +67,8 @@ def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray
 @dataclass(eq=False)
 class QPReplan:
     """Where the steps ended: the point (``LagrangianPoint``), T [s], the multipliers (goal rows', then the
-    working set's), the working set, status, steps, evaluations, the last decrease.
+    working set's), the working set, status, steps, evaluations, the last decrease, the last Newton matrix's
+    dense factor (x block), the exact limit check at the last point when it was made.
     """
 
     point: object
@@ -78,6 +79,8 @@ class QPReplan:
     steps: int
     evals: int
     decrement: float
+    factor: np.ndarray | None = None
+    check: object = None
 
 
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
@@ -103,7 +106,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
-    U_last = None
+    U_last = check = None
     while True:
         evals += 1
         problem, C = pt.problem, pt.C
@@ -112,7 +115,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         r = sum(v.size for v in lam[:npts])
         E, cg = pt.D[:r], pt.c[:r]
         g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
-        if U_last is not None and decrement <= LAG_RTOL * max(abs(pt.J), 1.0):
+        if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
+            U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x
+        elif U_last is not None and decrement <= LAG_RTOL * max(abs(pt.J), 1.0):
             U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
         else:
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
@@ -178,7 +183,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         t_done = free is None or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight) or (
             (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
         if decrement <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT and t_done:
-            if check_limits(system, limits, problem.mesh, C).feasible:
+            check = check_limits(system, limits, problem.mesh, C)
+            if check.feasible:
                 status = Status.CONVERGED
             break
         if steps == max_steps:
@@ -206,4 +212,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             break
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement)
+                    decrement=decrement, factor=U_last, check=check)
+
+
+def _fits(U: np.ndarray | None, P: int) -> bool:
+    return U is not None and U.shape == (P, P)
