@@ -47,7 +47,7 @@ _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
-LAG_RTOL = 1e-8  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
+LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s)
 
 
@@ -210,6 +210,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             alpha *= 0.5
         if trial is None:
             break
+        if _DEBUG:
+            print(f"  alpha {alpha} |dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
+                  f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
