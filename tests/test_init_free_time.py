@@ -161,3 +161,25 @@ def test_the_limits_state_is_estimated_with_the_goal_multipliers():
     # a replan of the same goals polishes the augmented Lagrangian's rows in at most one exact QP step
     same = replan(SYSTEM, prev, goals, limits=limits, fallback=False)
     assert same.converged and same.steps <= 1 and same.plan.J == pytest.approx(base.J, rel=1e-9)
+
+
+def test_init_on_the_lbr7_catch_with_binding_velocity_limits(tmp_path, monkeypatch):
+    """configs/catch_ball.yaml (free T, moving target, velocity limits binding): --init from its own plan is
+    accepted with no Newton step (exit 0); after the ball's start moves 3 mm the replan converges, without
+    the fallback, to the cold plan of the moved task (J to 1e-9, T to 1e-7), within the limits."""
+    from pathlib import Path
+
+    monkeypatch.chdir(tmp_path)
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "configs" / "catch_ball.yaml").read_text().replace("../robots/", f"{root}/robots/")
+    first = hoc_plan(tmp_path, "catch.yaml", text, "-o", "first.mcap")
+    assert first["converged"] and first["active_limits"]
+    same = hoc_plan(tmp_path, "catch.yaml", text, "--init", "first.mcap", "-o", "same.csv")
+    assert same["converged"] and same["replan_steps"] == 0 and same["cost"] == pytest.approx(first["cost"], rel=1e-12)
+    moved = text.replace("position: [0.6725, -0.0375, 0.1246]", "position: [0.6755, -0.0375, 0.1246]")
+    assert moved != text
+    warm = hoc_plan(tmp_path, "moved.yaml", moved, "--init", "first.mcap", "-o", "warm.csv")
+    cold = hoc_plan(tmp_path, "moved.yaml", moved, "-o", "cold.csv")
+    assert warm["converged"] and not warm["replan_fallback"] and warm["replan_steps"] <= 10
+    assert warm["cost"] == pytest.approx(cold["cost"], rel=1e-9) and warm["T"] == pytest.approx(cold["T"], rel=1e-7)
+    assert warm["limit_violations"] == [] and warm["reached"]["position_error"] <= 1e-9

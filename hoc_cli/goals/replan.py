@@ -185,7 +185,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
                              tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start)
     pt, T, lam, active, status, steps, evals, decrement = (out.point, out.T, out.lam, out.active, out.status,
                                                            out.steps, out.evals, out.decrement)
-    violation = float(np.max(np.abs(pt.c), initial=0.0))
+    rows = sum(v.size for v in lam[:npts])  # the goal rows (pt.c goes on with the limits' working set)
+    violation = float(np.max(np.abs(pt.c[:rows]), initial=0.0))
     problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
     mesh = problem.mesh
     slope = pt.F - weight
