@@ -177,3 +177,23 @@ def test_free_time_by_sqp_steps_meets_the_search(limits, fractions):
     if limits is not None:
         assert check_limits(SYSTEM, limits, sqp.result.mesh, sqp.result.coeffs).feasible
     assert sqp.result.mesh.uniform == (fractions is None)
+
+
+def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():
+    """An effort limit (90 % of the shoulder's unconstrained peak torque) binds: the limits are not linear
+    rows, so the replan keeps them as augmented-Lagrangian terms; after 2 mm and 1 cm moves it meets the
+    cold solve of the moved task (J to 1e-9) within the limits."""
+    mesh = HermiteMesh("quintic", 1.0, 8)
+    free = plan_goals(SYSTEM, mesh, Q0, Z, goals_at(0.0))
+    t = np.linspace(0.0, 1.0, 200)
+    u = SYSTEM.inverse_dynamics(*(mesh.evaluate(free.coeffs, t, d) for d in range(3)))
+    peak = np.abs(u).max(axis=0)
+    limits = JointLimits.from_arrays(MODEL.joint_names, effort=[0.9 * peak[0], 10.0 * peak[1]])
+    base = plan_goals(SYSTEM, mesh, Q0, Z, goals_at(0.0), limits=limits)
+    assert base.converged and from_multipliers(base.limits.penalty) is None  # effort multipliers: penalty steps
+    for dx in (0.002, 0.01):
+        warm = replan(SYSTEM, base, goals_at(dx), limits=limits, fallback=False)
+        cold = plan_goals(SYSTEM, mesh, Q0, Z, goals_at(dx), limits=limits)
+        assert warm.converged and not warm.fallback
+        assert warm.plan.J == pytest.approx(cold.J, rel=1e-9)
+        assert check_limits(SYSTEM, limits, warm.plan.mesh, warm.plan.coeffs).feasible
