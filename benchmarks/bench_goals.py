@@ -1,6 +1,6 @@
 """hoc's free-T and link-goal optima beside CasADi + IPOPT direct collocation of the same continuous problems.
 
-    python benchmarks/bench_goals.py [--hoc-N 8 16 32] [--ipopt-K 8 16 32 64] [--skip-catch] [--hoc-catch]
+    python benchmarks/bench_goals.py [--hoc-N 8 16 32] [--ipopt-K 8 16 32 64] [--skip-catch] [--hoc-catch [N ...]]
 
 1. Free T: the two-link arm (configs/two_link.yaml's move) with ``T: {free: true, min: 0.5, max: 4,
    weight: 1}``, J + weight·T minimised over T, URDF limits enforced. hoc (``minimize_time`` on quintic
@@ -12,7 +12,7 @@
    the CasADi transcription, checked against each other to 1e-12 first).
 3. The catch (configs/catch_ball.yaml: free T, a moving target, match_velocity) at K = N = 8: IPOPT cold,
    then warm-started (primal and dual) after the ball's initial position moves by 1 cm; then the catch
-   cold at each K (and hoc's cold free-T search at N = 8 with ``--hoc-catch``, about a minute or more).
+   cold at each K (and hoc's cold catch at N = 8, 16, 32 with ``--hoc-catch``).
    hoc's warm replan of the same change: ``python benchmarks/bench_replan.py --ipopt``.
 
 The two discretisations differ (Hermite elements with Gauss quadrature against Radau collocation), so
@@ -144,8 +144,11 @@ def main() -> None:
     ap.add_argument("--hoc-N", type=int, nargs="+", default=[8, 16, 32])
     ap.add_argument("--ipopt-K", type=int, nargs="+", default=[8, 16, 32, 64])
     ap.add_argument("--skip-catch", action="store_true")
-    ap.add_argument("--hoc-catch", action="store_true", help="also hoc's cold free-T catch at N = 8 (about a minute)")
+    ap.add_argument("--hoc-catch", type=int, nargs="*", default=None,
+                    help="also hoc's cold catch on these N (default 8 16 32; seconds to a minute each)")
     args = ap.parse_args()
+    if args.hoc_catch is not None and not args.hoc_catch:
+        args.hoc_catch = [8, 16, 32]
     _, m2, _, _ = task_from(FREE_T, 8)
     _, m7, _, _ = task_from(LINK, 8)
     print(f"CasADi dynamics vs hoc: two-link {check_dynamics(m2):.1e}, lbr7 {check_dynamics(m7):.1e} (relative); "
@@ -188,11 +191,11 @@ def main() -> None:
         print(f"{'solver':>10} {'mesh':>5} {'J':>16} {'T [s]':>12} {'wall [s]':>9}")
         if args.hoc_catch:
             from bench_replan import cold as hoc_cold
-            task = load_task(ROOT / "configs" / "catch_ball.yaml", purpose="plan")
-            model = load_model(task)
-            st = resolve(task, model.joint_names)
-            ft, wall = hoc_cold(RobotSystem(model), task, st, task_goals(task, model, st), task_limits(model, st.limits))
-            print(f"{'hoc':>10} {task.N:5d} {ft.J:16.10f} {ft.T:12.8f} {wall:9.2f}", flush=True)
+            text = (ROOT / "configs" / "catch_ball.yaml").read_text()
+            for N in args.hoc_catch:
+                task, model, st, limits = task_from(text, N)
+                ft, wall = hoc_cold(RobotSystem(model), task, st, task_goals(task, model, st), limits)
+                print(f"{'hoc':>10} {N:5d} {ft.J:16.10f} {ft.T:12.8f} {wall:9.2f}", flush=True)
         for K in args.ipopt_K:
             r = catch(moves=(), K=K)[0]
             print(f"{'IPOPT':>10} {K:5d} {r.J:16.10f} {r.T:12.8f} {r.wall:9.2f}  {'' if r.success else r.status}",
