@@ -1,10 +1,11 @@
-"""The kinematic limit rows a warm replan holds as equalities: its working set of active Bernstein rows.
+"""Sets of kinematic limit rows for a warm replan: the candidates of its QP steps and their working set.
 
 At a constrained optimum the position, velocity and acceleration limits that bind are Bernstein rows
-at their (inward-moved) bound, each with a multiplier μ ≥ 0 (``hoc_cli.constraints.penalty``). A small
-change of the goals keeps most of them binding, so a replan holds exactly those rows as linear
-equalities g = 0 in its KKT step (no penalty, hence no kink in the Newton matrix), and then corrects
-the working set: a row whose multiplier turned negative leaves it, a row outside its bound joins it.
+at their (inward-moved) bound, each with a multiplier μ ≥ 0 (``hoc_cli.constraints.penalty``). A replan
+(``hoc_cli.goals.replan_qp``) imposes the rows near their bound as linear inequalities of each step's
+quadratic programme; the rows with μ > 0 form its working set, whose μ·g enter the Lagrangian. This
+module gathers such rows, their values, Jacobians and Gram blocks, and reports them in the augmented
+Lagrangian's per-kind layout (``PenaltyValue``).
 
 Symbols: N elements, m coefficients per node, n joints, P the flattened C (N+1, m, n); a row is
 (kind k ∈ {0, 1, 2}, element e, Bernstein row r, joint j, side s = +1 upper / −1 lower), its value
@@ -53,9 +54,6 @@ class ActiveRows:
                 parts.append(np.stack([np.full(e.size, k), e, r, j, np.full(e.size, side)]))
         a = np.concatenate(parts, axis=1).astype(int)
         return cls(*a)
-
-    def union(self, other: "ActiveRows") -> "ActiveRows":
-        return ActiveRows(*(np.concatenate([a, b]) for a, b in zip(self._fields(), other._fields())))
 
     def keep(self, mask: np.ndarray) -> "ActiveRows":
         return ActiveRows(*(a[mask] for a in self._fields()))
