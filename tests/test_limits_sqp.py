@@ -111,9 +111,11 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
 
 
 
-def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement():
+@pytest.mark.parametrize("grouped", [False, True])
+def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(grouped):
     """δ = S⁺g and K⁻¹Aᵀδ for S = A K⁻¹ Aᵀ with dependent rows (repeated and combined), against dense
-    numpy (pinv and solve) on a banded SPD K with fixed coefficients."""
+    numpy (pinv and solve) on a banded SPD K with fixed coefficients; grouped: the rows split in two
+    groups touching disjoint coefficients (two joints), each with its own dependent rows."""
     rng = np.random.default_rng(7)
     N, mn = 6, 4
     L = 2 * mn
@@ -127,14 +129,19 @@ def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(
     for e in range(N):
         dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
     Kf = dense[np.ix_(free, free)]
-    A = np.zeros((9, size))
-    for i, e in enumerate([0, 1, 1, 2, 3, 3, 4, 5, 5]):
+    elements = [0, 1, 1, 2, 3, 3, 4, 5, 5, 2, 2, 4]
+    A = np.zeros((len(elements), size))
+    groups = np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1]) if grouped else None
+    for i, e in enumerate(elements):
         A[i, e * mn:e * mn + L] = rng.normal(size=L)
+        if grouped:  # group g touches the coefficients of parity g only
+            A[i, np.arange(size) % 2 != groups[i]] = 0.0
     A[2] = 2.0 * A[1]  # dependent rows, consistent targets below
     A[5] = A[4] - 0.5 * A[3]
+    A[10] = -A[9]
     A[:, ~free] = 0.0
     g = A[:, free] @ rng.normal(size=free.sum())
-    delta, step = _pseudo_solve(K, A.T.copy(), g)
+    delta, step = _pseudo_solve(K, A.T.copy(), g, groups)
     Af = A[:, free]
     S = Af @ np.linalg.solve(Kf, Af.T)
     ref = np.linalg.pinv(S, rcond=1e-12) @ g

@@ -33,6 +33,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve, qr
 from scipy.linalg.lapack import dtbtrs
 
 from hoc_cli.banded import element_blocks
@@ -54,6 +55,7 @@ STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over a
 STIFF_ITERATIONS = 3  # this many such iterations in a row
 STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
+RANK_TOL = 1e-10  # active rows whose pivoted-QR diagonal falls below this (relative) are dependent
 C1 = 1e-4
 
 
@@ -170,7 +172,7 @@ class _Model:
         """
         n, m = self.base.n, self.base.mesh.m
         _, _, sig = terms._bounds
-        cols, vals, gW, muW, where = [], [], [], [], []
+        cols, vals, gW, muW, where, joint = [], [], [], [], [], []
         count = 0
         for k in range(EFFORT):
             R = terms.rows.rows[k]
@@ -186,6 +188,7 @@ class _Model:
                 w = np.broadcast_to(terms.rows.weight(k), mu.shape)[e, r, j]  # non-uniform mesh: per row
                 muW.append(mu[e, r, j] - terms.rho * w * g[e, r, j])
                 where.append((k, side, e, r, j))
+                joint.append(j)
                 count += e.size
         if count == 0:
             return d, pv, terms
@@ -194,7 +197,7 @@ class _Model:
         AT = np.zeros((K.size, count))  # the active rows' columns, full coefficient vector (fixed rows 0)
         AT[cols, np.repeat(np.arange(count)[:, None], 2 * m, axis=1)] = vals
         AT[~K.free] = 0.0
-        delta, KAdelta = _pseudo_solve(K, AT, gW)
+        delta, KAdelta = _pseudo_solve(K, AT, gW, np.concatenate(joint))  # a row touches one joint
         if delta is None or np.any(muW + delta < 0):
             return None  # a multiplier would turn negative: that row leaves W, this step does not apply
         d = d - KAdelta
@@ -370,22 +373,59 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     return SQPResult(ok=ok, result=result, penalty=pv)
 
 
-def _pseudo_solve(K, AT: np.ndarray, gW: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+def _pseudo_solve(K, AT: np.ndarray, gW: np.ndarray,
+                  groups: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """δ = S⁺ g_W with S = A_W K⁻¹ A_Wᵀ, and K⁻¹A_Wᵀδ (on the free coefficients).
 
-    K = UᵀU (``K.factor``, upper banded): Y = U⁻ᵀA_Wᵀ by one banded triangular solve (half of a
-    Cholesky solve), S = YᵀY, its pseudo-inverse from its eigendecomposition (eigenvalues below
-    1e-12 × the largest count as zero); K⁻¹A_Wᵀδ = U⁻¹(Yδ), one more triangular solve of a vector.
-    Returns (None, ·) when a triangular solve fails.
+    ``groups`` (count,) labels the rows (columns of AT) so that rows of different groups touch
+    disjoint coefficients (the rows of one joint); None: one group.
+
+    Active rows are often linearly dependent (a limit active along a whole element makes its
+    Bernstein rows dependent; the rows at a shared node repeat), so S is singular. Per group, a
+    QR factorisation with column pivoting of A_gᵀ (rows scaled to unit norm; rank: |R_ii| above
+    ``RANK_TOL`` × the largest) picks a basis B of the rows. The system is solved on B alone:
+    K = UᵀU (``K.factor``, upper banded), Y_B = U⁻ᵀA_Bᵀ by one banded triangular solve,
+    S_B = Y_BᵀY_B (nonsingular) by Cholesky, δ_B = S_B⁻¹g_B; the dependent rows' targets are
+    consistent, so they are met too. S δ = g_W then holds for δ = δ_B on B (0 elsewhere), and for
+    every δ + z with A_Wᵀz = 0; the pseudo-inverse solution is the one in range(A_W) (S's range),
+    i.e. the orthogonal projection of that δ onto range(A_W), computed per group from the same R.
+    K⁻¹A_Wᵀδ = K⁻¹A_Bᵀδ_B = U⁻¹(Y_Bδ_B), one more triangular solve of a vector. When S_B is not
+    numerically positive definite its pseudo-inverse (eigenvalues below 1e-12 × the largest count as
+    zero) is used. Returns (None, ·) when a triangular solve fails.
     """
-    Y, info = dtbtrs(K.factor, AT, uplo="U", trans="T")
+    count = AT.shape[1]
+    groups = np.zeros(count, int) if groups is None else np.asarray(groups)
+    basis = np.zeros(count, bool)
+    projections = []  # (rows of the group in pivot order, orthonormal basis of range(A_g) in that order)
+    for label in np.unique(groups):
+        idx = np.flatnonzero(groups == label)
+        Ag = AT[:, idx]
+        Ag = Ag[np.any(Ag != 0.0, axis=1)]  # (coefficients the group touches, rows of the group)
+        norms = np.linalg.norm(Ag, axis=0)
+        norms = np.where(norms > 0, norms, 1.0)
+        R, piv = qr(Ag / norms, mode="r", pivoting=True)
+        diag = np.abs(np.diag(R))
+        rank = int(np.sum(diag > RANK_TOL * max(float(diag[0]) if diag.size else 0.0, 1e-300)))
+        basis[idx[piv[:rank]]] = True
+        if rank < idx.size:  # A_g[piv] = D_piv R̂ᵀ Q̂ᵀ: range(A_g[piv]) = range(D_piv R̂[:rank]ᵀ)
+            Q, _ = np.linalg.qr(norms[piv][:, None] * R[:rank].T)
+            projections.append((idx[piv], Q))
+    Y, info = dtbtrs(K.factor, AT[:, basis], uplo="U", trans="T")
     if info != 0:
         return None, np.zeros(int(K.free.sum()))
     S = Y.T @ Y
-    w, V = np.linalg.eigh(S)
-    keep = w > 1e-12 * max(float(w.max()), 1e-300)
-    delta = V[:, keep] @ ((V[:, keep].T @ gW) / w[keep])
-    x, info = dtbtrs(K.factor, (Y @ delta)[:, None], uplo="U", trans="N")
+    gB = gW[basis]
+    try:
+        dB = cho_solve(cho_factor(S), gB)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(S)
+        keep = w > 1e-12 * max(float(w.max()), 1e-300)
+        dB = V[:, keep] @ ((V[:, keep].T @ gB) / w[keep])
+    delta = np.zeros(count)
+    delta[basis] = dB
+    for rows, Q in projections:
+        delta[rows] = Q @ (Q.T @ delta[rows])
+    x, info = dtbtrs(K.factor, (Y @ dB)[:, None], uplo="U", trans="N")
     return delta, x[:, 0][K.free]
 
 
