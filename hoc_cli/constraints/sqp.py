@@ -21,8 +21,11 @@ constraints an SQP step keeps every linearisation exact, so each iteration is
 Stopping test: x within the imposed bounds and the Newton decrement of the limited model,
 |gᵀd + ½ dᵀHd| (= ½ dᵀHd at a fixed active set; ≥ 0 up to rounding, since d = 0 is feasible;
 reported as its absolute value), at most tol·|J| (or at most J's rounding level): the constrained analogue of the inner
-minimiser's test. Near the optimum the active set is fixed and the iteration is Newton's method
-on the equality-constrained problem: a few iterations, one Newton matrix each. Effort limits
+minimiser's test; the plan is then x + d when it is within the bounds and J does not rise. An x
+just outside the bounds (by the tolerance of the previous, inexactly solved QP) passes the test
+when x + d is within them and J rises by at most 2|gᵀd + ½ dᵀHd|: that x + d is the plan.
+Near the optimum the active set is fixed and the iteration is Newton's method on the
+equality-constrained problem: a few iterations, one Newton matrix each. Effort limits
 (nonlinear) are not imposed here: the caller checks them and falls back to the augmented
 Lagrangian when one is broken.
 """
@@ -55,6 +58,7 @@ STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over a
 STIFF_ITERATIONS = 3  # this many such iterations in a row
 STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
+NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 RANK_TOL = 1e-10  # active rows whose pivoted-QR diagonal falls below this (relative) are dependent
 C1 = 1e-4
 
@@ -297,7 +301,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         v0 = _violation_sum(at_x)
         pv = at_x
         feasible = at_x.max_violation() <= 1e-10
-        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise) and feas > QP_FEAS:
+        near = feasible or at_x.max_violation() <= NEAR_FEAS  # an inexact QP's step left x just outside
+        if near and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise) and feas > QP_FEAS:
             # the stopping test is taken only on an accurately solved QP
             feas = QP_FEAS
             d, lam, _, qp_ok = model.solve(lam, rho, d, feas)
@@ -306,18 +311,21 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
                 break
             dec = -float(ev.grad @ d + 0.5 * d @ model.Hd(d))
         # |dec|: at a feasible x the QP's minimiser has dec >= 0 up to the QP's rounding (d = 0 is feasible)
-        if feasible and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise):
-            stop, status = ("decrement" if abs(dec) <= tol * abs(J) else "rounding"), Status.CONVERGED
+        if near and (abs(dec) <= tol * abs(J) or abs(dec) <= ev.noise):
             # The last (small) step too: the QP's multipliers are exact for x + d (gradient + H d +
             # Aᵀμ = 0), to O(|d|²) at the optimum rather than O(|d|) at x; ``free_time`` uses them.
-            final = _final_step(base, x, d, J, ev.noise, probe)
-            if final is not None:
-                x, ev = final
-                n_evals += 1
-                J = ev.J
-                pv = LimitTerms(system, limits, rows, working, lam[0], lam[1], rho, margin).evaluate(
-                    base.coefficients(x), grad=False)
-            break
+            # From an x just outside the rows, the test holds only when x + d is within them.
+            final = _final_step(base, x, d, J, ev.noise, probe, rise=0.0 if feasible else 2.0 * abs(dec))
+            if feasible or final is not None:
+                stop, status = ("decrement" if abs(dec) <= tol * abs(J) else "rounding"), Status.CONVERGED
+                if final is not None:
+                    x, ev = final
+                    n_evals += 1
+                    J = ev.J
+                    pv = LimitTerms(system, limits, rows, working, lam[0], lam[1], rho, margin).evaluate(
+                        base.coefficients(x), grad=False)
+                break
+            n_evals += 1
         if it == max_iter:
             break
         stiff = stiff + 1 if model.mu >= STIFF_MU else 0
@@ -429,16 +437,18 @@ def _pseudo_solve(K, AT: np.ndarray, gW: np.ndarray,
     return delta, x[:, 0][K.free]
 
 
-def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms):
+def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms,
+                rise: float = 0.0):
     """(x + d, its evaluation) when x + d is within the imposed rows (to 1e-10) and J does not rise
-    beyond its rounding level; else None.
+    beyond its rounding level (+ ``rise``: the model's predicted rise from an x just outside the
+    rows); else None.
     """
     try:
         ev = base.evaluate(x + d)
     except NumericalError:
         return None
     feasible = probe.evaluate(base.coefficients(x + d), grad=False).max_violation() <= 1e-10
-    return (x + d, ev) if feasible and ev.J <= J + 4 * noise else None
+    return (x + d, ev) if feasible and ev.J <= J + 4 * noise + rise else None
 
 
 def _line_minimum(slope: float, curvature: float, terms: LimitTerms, at0: PenaltyValue, at1: PenaltyValue) -> float:
