@@ -142,8 +142,11 @@ class _Model:
         """Semismooth Newton on q for fixed multipliers and penalty, from d, with exact line searches.
 
         q is convex and piecewise quadratic: on a fixed set of active rows one Newton step reaches
-        that piece's minimiser; when the rows active there are the same, it is q's minimiser. Along
-        a step s, q' is piecewise linear and increasing (``_line_minimum``): its root is exact.
+        that piece's minimiser; when the rows active there are the same, it is q's minimiser. A full
+        step that changes the active rows is taken when it decreases q by the Armijo fraction C1 of
+        its slope (its rows are the next piece: few steps when many rows enter or leave at once);
+        otherwise the step goes to q's minimum along it: q' is piecewise linear and increasing
+        along a step s (``_line_minimum``), and its root is exact.
         """
         q, r, pv = self.value(d, terms)
         for _ in range(SSN_MAX):
@@ -157,6 +160,11 @@ class _Model:
             q_new, r_new, pv_new = self.value(d + step, terms)
             if np.array_equal(_pattern(pv_new), pattern):
                 return d + step, pv_new
+            if q_new <= q + C1 * slope:  # the full step decreases q enough: the rows active there are the next piece
+                if _DEBUG:
+                    print(f"      ssn: full step, active {pattern.sum()} -> {_pattern(pv_new).sum()}")
+                d, q, r, pv = d + step, q_new, r_new, pv_new
+                continue
             a = _line_minimum(slope, float(step @ self.Hd(step)), terms, pv, pv_new)
             if _DEBUG:
                 print(f"      ssn: line minimum at {a:.3e}, active {pattern.sum()} -> {_pattern(pv_new).sum()}")
