@@ -50,7 +50,9 @@ _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 RHO_QP = 1e4  # the QP's penalty per unit time, × |J|/T
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
 QP_STALL = 1e-10  # ... or at least this, when the rounding of the banded solves stops progress
-QP_LOOSE = 1e-7  # ... the loosest, far from the solution (the tolerance is 1e-2 × the last relative decrement)
+QP_LOOSE = 1e-7  # ... the loosest, far from the solution (the tolerance is min(1e-2 r, r²), r the last relative
+# decrement: the next decrement is about r² (Newton), and a step whose violation is not well below it
+# fails the merit line search)
 QP_MAX_OUTER = 40
 SSN_MAX = 30
 QP_BUDGET = 150  # semismooth Newton steps one QP may take
@@ -298,7 +300,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     stiff = 0
     for it in range(max_iter + 1):
         model = _Model(base, ev, rows, probe)
-        feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * dec / max(abs(J), 1e-300)))
+        rel = dec / max(abs(J), 1e-300)
+        feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
         d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
         if not qp_ok:
             ok, status = False, Status.LINE_SEARCH_FAILED
