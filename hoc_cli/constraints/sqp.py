@@ -5,7 +5,9 @@ The position, velocity and acceleration limits are imposed through Bernstein row
 constraints an SQP step keeps every linearisation exact, so each iteration is
 
 1. at x: the cost's gradient g and its banded Newton matrix H (made positive definite as in
-   ``ControlProblem.positive_definite``), both assembled ONCE per iteration;
+   ``ControlProblem.positive_definite``), both assembled ONCE per iteration (H is kept from the
+   previous iteration when that one's decrement was below ``REUSE_DEC``·|J|: the step since then
+   is so small that the change of H is below the rounding of J);
 2. the quadratic programme  min_d gᵀd + ½dᵀHd  subject to  a_iᵀ(x + d) ≤ b_i  for every row,
    solved to high accuracy by the method of multipliers on the QP itself: its inner problems are
    piecewise quadratic, minimised by semismooth Newton steps whose matrices H + Σ_active ρ_i a_i a_iᵀ
@@ -60,6 +62,7 @@ STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over a
 STIFF_ITERATIONS = 3  # this many such iterations in a row
 STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
+REUSE_DEC = 1e-6  # relative decrement below which the SQP keeps its last Newton matrix
 NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 RANK_TOL = 1e-10  # active rows whose pivoted-QR diagonal falls below this (relative) are dependent
 C1 = 1e-4
@@ -99,13 +102,17 @@ class SQPResult:
 class _Model:
     """The limited quadratic model at x: g, the positive-definite element blocks H, the rows."""
 
-    def __init__(self, base, ev, rows: LimitRows, terms: LimitTerms) -> None:
+    def __init__(self, base, ev, rows: LimitRows, terms: LimitTerms, previous: "_Model | None" = None) -> None:
+        """``previous``: a model whose H (its modification included) is kept instead of a new one."""
         self.base, self.x, self.g, self.rows, self.terms = base, ev.x, ev.grad, rows, terms
         self.mn = base.mesh.m * base.n
         self.free = base.layout.free
-        Hs, self._GNs = base.hessian_samples(ev)
-        self.H = element_blocks(base.op_h, Hs)
-        self.modified, self.mu = False, 0.0
+        if previous is None:
+            Hs, self._GNs = base.hessian_samples(ev)
+            self.H = element_blocks(base.op_h, Hs)
+            self.modified, self.mu = False, 0.0
+        else:
+            self.H, self._GNs, self.modified, self.mu = previous.H, previous._GNs, previous.modified, previous.mu
         self.steps = 0  # semismooth Newton steps taken
 
     def modify(self) -> None:
@@ -298,8 +305,11 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     pv = None
     dec = math.inf
     stiff = 0
+    model = None
     for it in range(max_iter + 1):
-        model = _Model(base, ev, rows, probe)
+        # within REUSE_DEC·|J| of the optimum (the last decrement), H changes by O(|step|) and its
+        # effect on the next step is below the rounding of J: the last model's H is kept
+        model = _Model(base, ev, rows, probe, previous=model if abs(dec) <= REUSE_DEC * abs(J) else None)
         rel = dec / max(abs(J), 1e-300)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
         d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
