@@ -79,6 +79,7 @@ def test_qp_model_is_the_augmented_lagrangian_of_the_penalty_terms(split):
         assert q == pytest.approx(float(ev.grad @ d + 0.5 * d @ Hd) + pv.value, rel=1e-12)
         assert np.allclose(r, ev.grad + Hd + problem.layout.pack(pv.grad), rtol=1e-12, atol=1e-12 * np.abs(r).max())
         assert np.allclose(g, qp.qrows.values(pv), rtol=1e-12, atol=1e-12)
+        assert np.allclose(qp.qrows.at(C), g, rtol=1e-12, atol=1e-12)
         assert np.allclose(mu, qp.qrows.gather(pv.mu_lo, pv.mu_hi), rtol=1e-12, atol=1e-12)
         assert (mu > 0).any() and not (mu > 0).all()
         assert not any(((lo > 0) & (hi > 0)).any() for lo, hi in zip(pv.mu_lo, pv.mu_hi))  # one side per row

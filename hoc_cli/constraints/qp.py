@@ -61,7 +61,7 @@ class QPRows:
     """The imposed kinematic rows of one SQP, explicit.
 
     vals, cols : (count, 2m) each row's coefficients and their indices in the full coefficient
-    vector (node, derivative, joint order); joint, w : (count,) each row's joint and time [s];
+    vector (node, derivative, joint order); b : (count,) so that g = vals·C[cols] − b; joint, w : (count,) each row's joint and time [s];
     A : (count, P) sparse, the rows on the design vector; parts : per (kind, side) with rows, the
     flat indices of its rows in the kind's (N, R, n) arrays; pair_at, pair_val : (count, 2m(2m+1)/2)
     the upper-banded storage position and value of each row's outer product a aᵀ (entries touching
@@ -72,6 +72,7 @@ class QPRows:
     n: int
     vals: np.ndarray
     cols: np.ndarray
+    b: np.ndarray
     joint: np.ndarray
     w: np.ndarray
     A: csr_matrix
@@ -87,7 +88,7 @@ class QPRows:
         mesh, n = rows.mesh, limits.n
         N, m = mesh.N, mesh.m
         lo, hi, sig = effective_bounds(limits, margin)
-        vals, cols, joint, w, parts = [], [], [], [], []
+        vals, cols, offset, joint, w, parts = [], [], [], [], [], []
         a = np.arange(2 * m)
         for k in range(EFFORT):
             if not working[k].any():
@@ -105,15 +106,16 @@ class QPRows:
                 Re = R[r] if rows.scale is None else R[r] * rows.scale[k][e]  # non-uniform mesh
                 vals.append(side * Re / sig[k, j][:, None])
                 cols.append((e[:, None] * m + a[None, :]) * n + j[:, None])
+                offset.append(side * bound[j] / sig[k, j])
                 joint.append(j)
                 w.append(weight[e, r, j])
                 parts.append((k, side, np.ravel_multi_index((e, r, j), shape)))
         size = (N + 1) * m * n
         if vals:
-            vals, cols = np.concatenate(vals), np.concatenate(cols)
+            vals, cols, offset = np.concatenate(vals), np.concatenate(cols), np.concatenate(offset)
             joint, w = np.concatenate(joint), np.concatenate(w)
         else:
-            vals, cols = np.zeros((0, 2 * m)), np.zeros((0, 2 * m), int)
+            vals, cols, offset = np.zeros((0, 2 * m)), np.zeros((0, 2 * m), int), np.zeros(0)
             joint, w = np.zeros(0, int), np.zeros(0)
         index = np.cumsum(free) - 1  # full index -> design index (fixed: unused)
         keep = free[cols]
@@ -125,7 +127,7 @@ class QPRows:
         ca, cb = cols[:, ia], cols[:, ib]
         pair_at = (u + ca - cb) * size + cb
         pair_val = vals[:, ia] * vals[:, ib] * (free[ca] & free[cb])
-        return cls(rows, n, vals, cols, joint, w, A, tuple(parts), pair_at, pair_val, size, free)
+        return cls(rows, n, vals, cols, offset, joint, w, A, tuple(parts), pair_at, pair_val, size, free)
 
     @property
     def count(self) -> int:
@@ -145,6 +147,10 @@ class QPRows:
             (hi if side > 0 else lo)[k].ravel()[flat] = v[start:start + flat.size]
             start += flat.size
         return tuple(lo), tuple(hi)
+
+    def at(self, C: np.ndarray) -> np.ndarray:
+        """The rows' g (count,) at coefficients C (N+1, m, n)."""
+        return np.einsum("ia,ia->i", self.vals, np.asarray(C).ravel()[self.cols]) - self.b
 
     def values(self, pv: PenaltyValue) -> np.ndarray:
         """The rows' g (count,) from ``LimitTerms.evaluate`` of the same rows."""

@@ -94,14 +94,12 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
     working = kinematic_working(limits) if working is None else working & kinematic_working(limits)
-    zeros = tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
     qrows = QPRows.build(rows, limits, working, base.layout.free, margin)
     lam = np.zeros(qrows.count)
     x = np.asarray(x0, float)
     ev = base.evaluate(x)
     J = ev.J
     rho = RHO_QP * max(abs(J), 1e-6) / mesh.T
-    probe = LimitTerms(system, limits, rows, working, zeros, zeros, rho, margin)
     history: list[IterLog] = []
     n_evals, stop, status, ok = 1, None, Status.MAX_ITER, True
     d = np.zeros_like(x)
@@ -111,7 +109,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     for it in range(max_iter + 1):
         # within REUSE_DEC·|J| of the optimum (the last decrement), H changes by O(|step|) and its
         # effect on the next step is below the rounding of J: the last model's H is kept
-        g0 = qrows.values(probe.evaluate(base.coefficients(x), grad=False))  # the rows at x
+        g0 = qrows.at(base.coefficients(x))  # the rows at x
         model = QPModel(base, ev, qrows, g0, previous=model if abs(dec) <= REUSE_DEC * abs(J) else None)
         rel = dec / max(abs(J), 1e-300)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
@@ -136,7 +134,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             # The last (small) step too: the QP's multipliers are exact for x + d (gradient + H d +
             # Aᵀμ = 0), to O(|d|²) at the optimum rather than O(|d|) at x; ``free_time`` uses them.
             # From an x just outside the rows, the test holds only when x + d is within them.
-            final = _final_step(base, x, d, J, ev.noise, probe, rise=0.0 if feasible else 2.0 * abs(dec))
+            final = _final_step(base, x, d, J, ev.noise, qrows, rise=0.0 if feasible else 2.0 * abs(dec))
             if feasible or final is not None:
                 stop, status = ("decrement" if abs(dec) <= tol * abs(J) else "rounding"), Status.CONVERGED
                 if final is not None:
@@ -165,15 +163,15 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             ok, status = False, Status.LINE_SEARCH_FAILED
             break
         phi0 = J + nu * v0
-        a, accepted = 1.0, False
+        a, accepted, trial = 1.0, False, None
         for _ in range(LS_MAX):
-            try:
-                trial = base.evaluate(x + a * d, grad=False)
+            try:  # the full step with its gradient: it is usually accepted, and then not evaluated again
+                trial = base.evaluate(x + a * d, grad=a == 1.0)
                 n_evals += 1
                 Jt = trial.J
             except NumericalError:
-                Jt = math.inf
-            vt = _violation_sum(probe.evaluate(base.coefficients(x + a * d), grad=False))
+                trial, Jt = None, math.inf
+            vt = float(np.sum(np.maximum(qrows.at(base.coefficients(x + a * d)), 0.0)))
             phi = Jt + nu * vt
             if phi <= phi0 + C1 * a * slope or (math.isfinite(phi) and abs(phi - phi0) <= 4 * ev.noise):
                 accepted = True
@@ -183,8 +181,11 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             ok, status = False, Status.LINE_SEARCH_FAILED
             break
         x = x + a * d
-        ev = base.evaluate(x)
-        n_evals += 1
+        if trial is None or trial.grad is None:
+            ev = base.evaluate(x)
+            n_evals += 1
+        else:
+            ev = trial
         J = ev.J
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
@@ -202,7 +203,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     return SQPResult(ok=ok, result=result, penalty=pv)
 
 
-def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, probe: LimitTerms,
+def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, qrows: QPRows,
                 rise: float = 0.0):
     """(x + d, its evaluation) when x + d is within the imposed rows (to 1e-10) and J does not rise
     beyond its rounding level (+ ``rise``: the model's predicted rise from an x just outside the
@@ -212,10 +213,5 @@ def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, prob
         ev = base.evaluate(x + d)
     except NumericalError:
         return None
-    feasible = probe.evaluate(base.coefficients(x + d), grad=False).max_violation() <= 1e-10
+    feasible = float(np.max(qrows.at(base.coefficients(x + d)), initial=0.0)) <= 1e-10
     return (x + d, ev) if feasible and ev.J <= J + 4 * noise + rise else None
-
-
-def _violation_sum(pv: PenaltyValue) -> float:
-    """Σ max(0, g) over every row (dimensionless)."""
-    return float(sum(np.sum(np.maximum(g, 0.0)) for g in pv.g_lo + pv.g_hi))
