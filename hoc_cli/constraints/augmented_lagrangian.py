@@ -229,10 +229,9 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     ok = s.result.converged
     message = (f"{s.result.message}; every limit holds (SQP iterations: {s.result.iterations})" if ok
                else f"every limit holds, but the SQP stopped: {s.result.message}")
-    rows = LimitRows.build(mesh, base.layout.free, n)
     return EnforceResult(status="converged" if ok else "not_converged", message=message, inner=s.result, x=x,
-                         J=base.evaluate(x, grad=False).J, outer_iterations=s.result.iterations, rho=0.0,
-                         check=check, working=working, rows=rows, penalty=s.penalty, sqp="converged"), x, working
+                         J=s.result.fun, outer_iterations=s.result.iterations, rho=0.0,
+                         check=check, working=working, rows=s.rows, penalty=s.penalty, sqp="converged"), x, working
 
 
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,

@@ -74,12 +74,14 @@ def kinematic_working(limits: JointLimits) -> np.ndarray:
 @dataclass(frozen=True, eq=False)
 class SQPResult:
     """The SQP's outcome: ok (False: the QP or the line search failed; the caller falls back),
-    result (an OptimizeResult on the cost J alone), penalty (the rows' values and multipliers μ at x).
+    result (an OptimizeResult on the cost J alone; ``result.fun`` is J at ``result.x``), penalty (the
+    rows' values and multipliers μ at x), rows (the ``LimitRows`` of the mesh).
     """
 
     ok: bool
     result: OptimizeResult
     penalty: PenaltyValue | None
+    rows: LimitRows
 
 
 def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_iter: int = 50,
@@ -200,7 +202,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     result = OptimizeResult(x=x, fun=J, grad=ev.grad, status=status, iterations=len(history), n_evals=n_evals,
                             n_precond=len(history) + 1, decrement=abs(dec), history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
-    return SQPResult(ok=ok, result=result, penalty=pv)
+    return SQPResult(ok=ok, result=result, penalty=pv, rows=rows)
 
 
 def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, qrows: QPRows,
