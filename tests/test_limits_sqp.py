@@ -11,7 +11,7 @@ from hoc_cli.constraints import JointLimits, check_limits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.constraints.qp import QPModel, QPRows, line_minimum, pseudo_solve
-from hoc_cli.constraints.sqp import block_matvec, kinematic_working
+from hoc_cli.constraints.sqp import kinematic_working
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 from hoc_cli.optimize import minimize
@@ -29,18 +29,6 @@ def _problem(N: int = 6, split: tuple[int, ...] = ()):
     mesh = HermiteMesh("quintic", 1.5, N)
     mesh = mesh.split(list(split)) if split else mesh
     return model, system, ControlProblem(system, mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
-
-
-def test_block_matvec_is_the_assembled_matrix_times_the_vector():
-    rng = np.random.default_rng(1)
-    N, mn = 5, 4
-    L = 2 * mn
-    blocks = rng.normal(size=(N, L, L))
-    dense = np.zeros(((N + 1) * mn, (N + 1) * mn))
-    for e in range(N):
-        dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
-    v = rng.normal(size=(N + 1) * mn)
-    assert np.allclose(block_matvec(blocks, v, mn), dense @ v, rtol=1e-13, atol=1e-13)
 
 
 def _qp(split: tuple[int, ...] = (), rho: float = 3000.0, seed: int = 3):
@@ -70,12 +58,19 @@ def test_qp_model_is_the_augmented_lagrangian_of_the_penalty_terms(split):
     """q(d), its gradient, the rows, μ and the Newton matrix of the explicit rows against the same
     quantities from ``LimitTerms`` (per-kind arrays, an independent assembly) at random d."""
     problem, ev, terms, qp, lam, rw, rng = _qp(split)
+    N, L, _ = qp.H.shape
+    mn = L // 2
+    dense = np.zeros(((N + 1) * mn, (N + 1) * mn))  # H assembled from its element blocks
+    for e in range(N):
+        dense[e * mn:e * mn + L, e * mn:e * mn + L] += qp.H[e]
+    free = problem.layout.free
     for _ in range(3):
         d = 0.1 * rng.normal(size=ev.x.size)
         q, r, g, mu = qp.value(d, lam, rw)
         C = problem.coefficients(ev.x + d)
         pv = terms.evaluate(C)
-        Hd = qp.Hd(d)
+        Hd = dense[np.ix_(free, free)] @ d
+        assert np.allclose(qp.Hd(d), Hd, rtol=1e-12, atol=1e-12 * np.abs(Hd).max())
         assert q == pytest.approx(float(ev.grad @ d + 0.5 * d @ Hd) + pv.value, rel=1e-12)
         assert np.allclose(r, ev.grad + Hd + problem.layout.pack(pv.grad), rtol=1e-12, atol=1e-12 * np.abs(r).max())
         assert np.allclose(g, qp.qrows.values(pv), rtol=1e-12, atol=1e-12)

@@ -26,8 +26,9 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, cholesky_banded, qr
-from scipy.linalg.lapack import dtbtrs
+from scipy.linalg import cho_factor, cho_solve, qr
+from scipy.linalg.blas import dsbmv
+from scipy.linalg.lapack import dpbtrf, dtbtrs
 from scipy.sparse import csr_matrix
 
 from hoc_cli.banded import BandedSPD, element_blocks
@@ -45,24 +46,13 @@ RANK_TOL = 1e-10  # active rows whose pivoted-QR diagonal falls below this (rela
 SHIFT = 1e-12  # the relative diagonal regularisation of ``ControlProblem.banded``
 
 
-def block_matvec(blocks: np.ndarray, v: np.ndarray, stride: int) -> np.ndarray:
-    """Σ_e (element block e) applied to the window of v (size,) at offset e·stride; (size,)."""
-    N, L, _ = blocks.shape
-    X = np.lib.stride_tricks.sliding_window_view(v, L)[::stride][:N]  # (N, L)
-    Y = np.einsum("eab,eb->ea", blocks, X)
-    out = np.zeros_like(v)
-    out[: N * stride] += Y[:, :stride].ravel()
-    out[stride:] += Y[:, stride:].ravel()
-    return out
-
-
 @dataclass(frozen=True, eq=False)
 class QPRows:
     """The imposed kinematic rows of one SQP, explicit.
 
     vals, cols : (count, 2m) each row's coefficients and their indices in the full coefficient
     vector (node, derivative, joint order); b : (count,) so that g = vals·C[cols] − b; joint, w : (count,) each row's joint and time [s];
-    A : (count, P) sparse, the rows on the design vector; parts : per (kind, side) with rows, the
+    A, AT : (count, P) sparse, the rows on the design vector, and its transpose; parts : per (kind, side) with rows, the
     flat indices of its rows in the kind's (N, R, n) arrays; pair_at, pair_val : (count, 2m(2m+1)/2)
     the upper-banded storage position and value of each row's outer product a aᵀ (entries touching
     a fixed coefficient are 0); size : the full coefficient count; free : (size,) bool.
@@ -76,6 +66,7 @@ class QPRows:
     joint: np.ndarray
     w: np.ndarray
     A: csr_matrix
+    AT: csr_matrix
     parts: tuple
     pair_at: np.ndarray
     pair_val: np.ndarray
@@ -127,7 +118,7 @@ class QPRows:
         ca, cb = cols[:, ia], cols[:, ib]
         pair_at = (u + ca - cb) * size + cb
         pair_val = vals[:, ia] * vals[:, ib] * (free[ca] & free[cb])
-        return cls(rows, n, vals, cols, offset, joint, w, A, tuple(parts), pair_at, pair_val, size, free)
+        return cls(rows, n, vals, cols, offset, joint, w, A, A.T.tocsr(), tuple(parts), pair_at, pair_val, size, free)
 
     @property
     def count(self) -> int:
@@ -196,24 +187,16 @@ class QPModel:
         self.H, self.modified, self.mu, self._ab = H + mu * GN, True, mu, None
 
     def Hd(self, d: np.ndarray) -> np.ndarray:
+        """H d (P,) for a step d (P,), from H's banded storage."""
         full = np.zeros(self.free.size)
         full[self.free] = d
-        return block_matvec(self.H, full, self.mn)[self.free]
+        return dsbmv(2 * self.mn - 1, 1.0, self.banded_H(), full, lower=0)[self.free]
 
-    def value(self, d: np.ndarray, lam: np.ndarray, rw: np.ndarray):
-        """(q(d), its gradient (P,), the rows g (count,), μ (count,)) for multipliers λ, penalties ρ_i."""
-        Hd = self.Hd(d)
-        g = self.g0 + self.qrows.A @ d
-        mu = np.maximum(0.0, lam + rw * g)
-        q = float(self.g @ d + 0.5 * d @ Hd) + float(np.sum((mu * mu - lam * lam) / rw)) / 2.0
-        return q, self.g + Hd + self.qrows.A.T @ mu, g, mu
-
-    def newton(self, active: np.ndarray, rw: np.ndarray) -> BandedSPD:
-        """The factored H + Σ_active ρ_i a_i a_iᵀ on the free coefficients (as ``ControlProblem.banded``)."""
-        qr_, size = self.qrows, self.qrows.size
-        L = 2 * self.mn
-        u = L - 1
+    def banded_H(self) -> np.ndarray:
+        """H summed into upper banded storage (2mn, size), entries touching a fixed coefficient 0."""
         if self._ab is None:
+            L, size = 2 * self.mn, self.qrows.size
+            u = L - 1
             a, b = np.triu_indices(L)
             E = self.H.shape[0]
             flat = np.tile(u + a - b, E) * size + (np.arange(E)[:, None] * self.mn + b[None, :]).ravel()
@@ -223,7 +206,22 @@ class QPModel:
             i = j - (u - d)
             keep = (i >= 0) & self.free[np.clip(i, 0, size - 1)] & self.free[j]
             self._ab = np.where(keep, ab, 0.0)
-        ab = self._ab
+        return self._ab
+
+    def value(self, d: np.ndarray, lam: np.ndarray, rw: np.ndarray):
+        """(q(d), its gradient (P,), the rows g (count,), μ (count,)) for multipliers λ, penalties ρ_i."""
+        Hd = self.Hd(d)
+        g = self.g0 + self.qrows.A @ d
+        mu = np.maximum(0.0, lam + rw * g)
+        q = float(self.g @ d + 0.5 * d @ Hd) + float(np.sum((mu * mu - lam * lam) / rw)) / 2.0
+        return q, self.g + Hd + self.qrows.AT @ mu, g, mu
+
+    def newton(self, active: np.ndarray, rw: np.ndarray) -> BandedSPD:
+        """The factored H + Σ_active ρ_i a_i a_iᵀ on the free coefficients (as ``ControlProblem.banded``)."""
+        qr_, size = self.qrows, self.qrows.size
+        L = 2 * self.mn
+        u = L - 1
+        ab = self.banded_H()
         if active.any():
             ab = ab + np.bincount(qr_.pair_at[active].ravel(), weights=(qr_.pair_val[active] * rw[active, None]).ravel(),
                                   minlength=(u + 1) * size).reshape(u + 1, size)
@@ -232,10 +230,9 @@ class QPModel:
         diag = ab[u]
         scale = float(np.mean(diag[self.free])) if self.free.any() else 1.0
         ab[u] = np.where(self.free, diag * (1.0 + SHIFT) + SHIFT * scale, scale)
-        try:
-            factor = cholesky_banded(ab, lower=False, check_finite=False)
-        except np.linalg.LinAlgError:
-            raise NumericalError("the Gauss-Newton matrix is not positive definite") from None
+        factor, info = dpbtrf(ab, lower=0)
+        if info != 0:
+            raise NumericalError("the Gauss-Newton matrix is not positive definite")
         return BandedSPD(factor=factor, free=self.free, size=size)
 
     def minimise(self, d: np.ndarray, lam: np.ndarray, rw: np.ndarray):

@@ -43,7 +43,7 @@ import numpy as np
 
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
-from hoc_cli.constraints.qp import QP_FEAS, QPModel, QPRows, block_matvec  # noqa: F401 (block_matvec: re-exported)
+from hoc_cli.constraints.qp import QP_FEAS, QPModel, QPRows
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status
 from hoc_cli.optimize.result import StopTest
