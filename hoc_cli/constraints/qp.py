@@ -408,27 +408,35 @@ def line_minimum(slope: float, curvature: float, lam: np.ndarray, rw: np.ndarray
     """
     dg = g1 - g0
     c0, c1 = lam + rw * g0, rw * dg
+    on = (c0 > 0) | (c1 > 0)  # the others are inactive for every a >= 0
+    dg, c0, c1 = dg[on], c0[on], c1[on]
     if c0.size == 0:
         return -slope / curvature
     base = slope - float(dg @ np.maximum(c0, 0.0))  # q'(a) = base + a·curvature + Σ dg max(0, c0 + a c1)
     with np.errstate(divide="ignore", invalid="ignore"):
         b = np.where(c1 != 0, -c0 / c1, -1.0)
     cross = b > 0
-    order = np.argsort(b[cross])
-    bk = b[cross][order]
-    enter = (c1[cross] > 0)[order]
-    jump = np.where(enter, 1.0, -1.0) * (dg[cross] * c1[cross])[order]  # slope change at each breakpoint
+    bc = b[cross]
+    jc = np.where(c1[cross] > 0, 1.0, -1.0) * (dg[cross] * c1[cross])  # slope change at each breakpoint
     act0 = (c0 > 0) | ((c0 == 0) & (c1 > 0))
     S0 = curvature + float(np.sum((dg * c1)[act0]))
     v0 = base + float(np.sum((dg * c0)[act0]))  # q'(0+)
-    if bk.size == 0:
+    n = bc.size
+    if n == 0:
         return -v0 / S0
-    S = S0 + np.concatenate([[0.0], np.cumsum(jump)])  # slope on [b_{k-1}, b_k], b_0 = 0
-    knots = np.concatenate([[0.0], bk])
-    vals = v0 + np.concatenate([[0.0], np.cumsum(S[:-1] * np.diff(knots))])  # q' at the knots
-    k = int(np.argmax(vals >= 0)) if (vals >= 0).any() else len(vals)
-    k = max(k, 1)
-    return float(knots[k - 1] - vals[k - 1] / S[k - 1])
+    k = min(n, 32)  # the breakpoints in increasing order, as far as the root: the first k, then more
+    while True:
+        sel = np.argpartition(bc, k - 1)[:k] if k < n else np.arange(n)
+        order = sel[np.argsort(bc[sel])]
+        S = S0 + np.concatenate([[0.0], np.cumsum(jc[order])])  # slope on [b_{i-1}, b_i], b_0 = 0
+        knots = np.concatenate([[0.0], bc[order]])
+        vals = v0 + np.concatenate([[0.0], np.cumsum(S[:-1] * np.diff(knots))])  # q' at the knots
+        if (vals >= 0).any():
+            i = max(int(np.argmax(vals >= 0)), 1)
+            return float(knots[i - 1] - vals[i - 1] / S[i - 1])
+        if k == n:  # beyond the last breakpoint
+            return float(knots[-1] - vals[-1] / S[-1])
+        k = min(n, 4 * k)
 
 
 def residuals(g: np.ndarray, mu: np.ndarray) -> tuple[float, float]:
