@@ -5,9 +5,9 @@ The position, velocity and acceleration limits are imposed through Bernstein row
 constraints an SQP step keeps every linearisation exact, so each iteration is
 
 1. at x: the cost's gradient g and its banded Newton matrix H (made positive definite as in
-   ``ControlProblem.positive_definite``), both assembled ONCE per iteration (H is kept from the
-   previous iteration when that one's decrement was below ``REUSE_DEC``·|J|: the step since then
-   is so small that the change of H is below the rounding of J);
+   ``ControlProblem.positive_definite``), both assembled ONCE per iteration (an exact H is kept
+   from the previous iteration when that one's decrement was below ``REUSE_DEC``·|J|: H changes
+   by O(|step|), the step is then a chord step, and the stopping test below is unchanged);
 2. the quadratic programme  min_d gᵀd + ½dᵀHd  subject to  a_iᵀ(x + d) ≤ b_i  for every row,
    solved to high accuracy by the method of multipliers on the QP itself: its inner problems are
    piecewise quadratic, minimised by semismooth Newton steps whose matrices H + Σ_active ρ_i a_i a_iᵀ
@@ -57,7 +57,7 @@ STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over a
 STIFF_ITERATIONS = 3  # this many such iterations in a row
 STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
-REUSE_DEC = 1e-6  # relative decrement below which the SQP keeps its last Newton matrix
+REUSE_DEC = 1e-4  # relative decrement below which the SQP keeps its last (unmodified) Newton matrix
 NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 C1 = 1e-4
 
@@ -109,10 +109,11 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     stiff = 0
     model = None
     for it in range(max_iter + 1):
-        # within REUSE_DEC·|J| of the optimum (the last decrement), H changes by O(|step|) and its
-        # effect on the next step is below the rounding of J: the last model's H is kept
+        # within REUSE_DEC·|J| of the optimum (the last decrement) the last model's exact H is kept:
+        # H changes by O(|step|), the step is a chord step, and the stopping test is unchanged
         g0 = qrows.at(base.coefficients(x))  # the rows at x
-        model = QPModel(base, ev, qrows, g0, previous=model if abs(dec) <= REUSE_DEC * abs(J) else None)
+        keep = model is not None and not model.modified and abs(dec) <= REUSE_DEC * abs(J)
+        model = QPModel(base, ev, qrows, g0, previous=model if keep else None)
         rel = dec / max(abs(J), 1e-300)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
         d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
