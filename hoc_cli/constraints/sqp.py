@@ -57,7 +57,7 @@ STIFF_MU = 10.0  # H + μ·GN with μ >= this is mostly GN: the SQP hands over a
 STIFF_ITERATIONS = 3  # this many such iterations in a row
 STRONG_MU = 100.0  # ... and at once when μ >= this (a strongly indefinite H: the torque cost far from its optimum)
 LS_MAX = 40
-REUSE_DEC = 1e-4  # relative decrement below which the SQP keeps its last (unmodified) Newton matrix
+REUSE_DEC = 1e-3  # relative decrement below which the SQP keeps its last (unmodified) Newton matrix
 NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 C1 = 1e-4
 
