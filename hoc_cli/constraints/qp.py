@@ -210,11 +210,15 @@ class QPModel:
 
     def value(self, d: np.ndarray, lam: np.ndarray, rw: np.ndarray):
         """(q(d), its gradient (P,), the rows g (count,), μ (count,)) for multipliers λ, penalties ρ_i."""
-        Hd = self.Hd(d)
         g = self.g0 + self.qrows.A @ d
+        q, r, mu = self._at(d, self.Hd(d), g, lam, rw)
+        return q, r, g, mu
+
+    def _at(self, d: np.ndarray, Hd: np.ndarray, g: np.ndarray, lam: np.ndarray, rw: np.ndarray):
+        """(q(d), its gradient, μ) from H d and the rows g at d."""
         mu = np.maximum(0.0, lam + rw * g)
         q = float(self.g @ d + 0.5 * d @ Hd) + float(np.sum((mu * mu - lam * lam) / rw)) / 2.0
-        return q, self.g + Hd + self.qrows.AT @ mu, g, mu
+        return q, self.g + Hd + self.qrows.AT @ mu, mu
 
     def newton(self, active: np.ndarray, rw: np.ndarray) -> BandedSPD:
         """The factored H + Σ_active ρ_i a_i a_iᵀ on the free coefficients (as ``ControlProblem.banded``)."""
@@ -245,7 +249,8 @@ class QPModel:
         otherwise the step goes to q's minimum along it: q' is piecewise linear and increasing
         along a step s (``line_minimum``), and its root is exact. Returns (d, g, μ).
         """
-        q, r, g, mu = self.value(d, lam, rw)
+        Hd, g = self.Hd(d), self.g0 + self.qrows.A @ d  # H d and the rows are linear in d: updated along steps
+        q, r, mu = self._at(d, Hd, g, lam, rw)
         for _ in range(SSN_MAX):
             self.steps += 1
             pattern = mu > 0
@@ -253,19 +258,20 @@ class QPModel:
             slope = float(r @ step)
             if not slope < -1e-15 * max(abs(q), 1.0):
                 break
-            q1, r1, g1, mu1 = self.value(d + step, lam, rw)
+            Hs, gs = self.Hd(step), self.qrows.A @ step
+            q1, r1, mu1 = self._at(d + step, Hd + Hs, g + gs, lam, rw)
             if np.array_equal(mu1 > 0, pattern):
-                return d + step, g1, mu1
+                return d + step, g + gs, mu1
             if q1 <= q + C1 * slope:  # the full step decreases q enough: the rows active there are the next piece
                 if _DEBUG:
                     print(f"      ssn: full step, active {pattern.sum()} -> {(mu1 > 0).sum()}")
-                d, q, r, g, mu = d + step, q1, r1, g1, mu1
+                d, Hd, g, q, r, mu = d + step, Hd + Hs, g + gs, q1, r1, mu1
                 continue
-            a = line_minimum(slope, float(step @ self.Hd(step)), lam, rw, g, g1)
+            a = line_minimum(slope, float(step @ Hs), lam, rw, g, g + gs)
             if _DEBUG:
                 print(f"      ssn: line minimum at {a:.3e}, active {pattern.sum()} -> {(mu1 > 0).sum()}")
-            d = d + a * step
-            q, r, g, mu = self.value(d, lam, rw)
+            d, Hd, g = d + a * step, Hd + a * Hs, g + a * gs
+            q, r, mu = self._at(d, Hd, g, lam, rw)
         return d, g, mu
 
     def dual_step(self, d: np.ndarray, g: np.ndarray, mu: np.ndarray, lam: np.ndarray, rw: np.ndarray):
