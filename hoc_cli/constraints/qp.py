@@ -165,6 +165,7 @@ class QPModel:
             self.H, self._GNs, self.modified, self.mu = previous.H, previous._GNs, previous.modified, previous.mu
             self._ab = previous._ab
         self.steps = 0  # semismooth Newton steps taken
+        self._last = None  # (active rows, penalties, factored Newton matrix) of the last ``newton``
 
     def modify(self) -> None:
         """H + μ·GN with μ growing until H is positive definite (as ``ControlProblem.positive_definite``).
@@ -184,7 +185,7 @@ class QPModel:
                 mu *= 10
         if _DEBUG:
             print(f"    model: indefinite, mu {mu:.2e}")
-        self.H, self.modified, self.mu, self._ab = H + mu * GN, True, mu, None
+        self.H, self.modified, self.mu, self._ab, self._last = H + mu * GN, True, mu, None, None
 
     def Hd(self, d: np.ndarray) -> np.ndarray:
         """H d (P,) for a step d (P,), from H's banded storage."""
@@ -221,7 +222,14 @@ class QPModel:
         return q, self.g + Hd + self.qrows.AT @ mu, mu
 
     def newton(self, active: np.ndarray, rw: np.ndarray) -> BandedSPD:
-        """The factored H + Σ_active ρ_i a_i a_iᵀ on the free coefficients (as ``ControlProblem.banded``)."""
+        """The factored H + Σ_active ρ_i a_i a_iᵀ on the free coefficients (as ``ControlProblem.banded``).
+
+        The last one is kept: the next multiplier update and the exact-multiplier step usually ask
+        for the same active rows and penalties again.
+        """
+        last = self._last
+        if last is not None and np.array_equal(last[0], active) and np.array_equal(last[1], rw):
+            return last[2]
         qr_, size = self.qrows, self.qrows.size
         L = 2 * self.mn
         u = L - 1
@@ -237,7 +245,9 @@ class QPModel:
         factor, info = dpbtrf(ab, lower=0)
         if info != 0:
             raise NumericalError("the Gauss-Newton matrix is not positive definite")
-        return BandedSPD(factor=factor, free=self.free, size=size)
+        K = BandedSPD(factor=factor, free=self.free, size=size)
+        self._last = (active.copy(), rw, K)
+        return K
 
     def minimise(self, d: np.ndarray, lam: np.ndarray, rw: np.ndarray):
         """Semismooth Newton on q for fixed multipliers and penalties, from d, with exact line searches.
