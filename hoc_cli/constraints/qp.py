@@ -44,6 +44,7 @@ QP_BUDGET = 150  # semismooth Newton steps one QP may take
 C1 = 1e-4
 RANK_TOL = 1e-10  # active rows whose pivoted-QR diagonal falls below this (relative) are dependent
 SHIFT = 1e-12  # the relative diagonal regularisation of ``ControlProblem.banded``
+SOFT_START = 0.1  # a QP without multipliers is first minimised with its penalties × this
 
 
 @dataclass(frozen=True, eq=False)
@@ -317,15 +318,23 @@ class QPModel:
         """The QP's step d, its multipliers λ (count,) and penalty; ok False when its rows cannot be met.
 
         ``feas``: the violation and active-row gap to reach (``QP_FEAS`` near the solution; looser
-        while the SQP is far from it: an inexact SQP).
+        while the SQP is far from it: an inexact SQP). Started without multipliers (the first QP on
+        a mesh), q is first minimised with the penalties × ``SOFT_START``: across a softer wall many
+        rows enter in one full step, where the stiff model stops at each few rows' breakpoint; that
+        minimiser starts the minimisation with the full penalties (the method of multipliers
+        accepts any start).
         """
         d, lam0 = d0, lam
         prev, prev_crit, rho0 = math.inf, math.inf, rho
         settled = None
         viol = math.inf
+        soft = not lam.any()  # no multipliers yet: a softer first minimisation (``SOFT_START``)
         for _ in range(QP_MAX_OUTER):
             rw = rho * self.qrows.w
             try:
+                if soft:
+                    d, g, mu = self.minimise(d, lam, SOFT_START * rw)
+                    soft = False
                 d, g, mu = self.minimise(d, lam, rw)
             except NumericalError:  # H + Σ ρ a aᵀ not positive definite: H's curvature is modified
                 if self.modified:
