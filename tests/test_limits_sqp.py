@@ -10,7 +10,8 @@ from hoc_cli.banded import BandedSPD
 from hoc_cli.constraints import JointLimits, check_limits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
-from hoc_cli.constraints.qp import QPModel, QPRows, line_minimum, pseudo_solve
+from hoc_cli.constraints.qp import QPModel, QPRows
+from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve
 from hoc_cli.constraints.sqp import kinematic_working
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
