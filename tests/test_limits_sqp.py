@@ -10,7 +10,9 @@ from hoc_cli.banded import BandedSPD
 from hoc_cli.constraints import JointLimits, check_limits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
-from hoc_cli.constraints.sqp import _line_minimum, _Model, _pseudo_solve, block_matvec, kinematic_working
+from hoc_cli.constraints.qp import QPModel, QPRows
+from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve
+from hoc_cli.constraints.sqp import kinematic_working
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 from hoc_cli.optimize import minimize
@@ -30,44 +32,76 @@ def _problem(N: int = 6, split: tuple[int, ...] = ()):
     return model, system, ControlProblem(system, mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
 
 
-def test_block_matvec_is_the_assembled_matrix_times_the_vector():
-    rng = np.random.default_rng(1)
-    N, mn = 5, 4
-    L = 2 * mn
-    blocks = rng.normal(size=(N, L, L))
-    dense = np.zeros(((N + 1) * mn, (N + 1) * mn))
-    for e in range(N):
-        dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
-    v = rng.normal(size=(N + 1) * mn)
-    assert np.allclose(block_matvec(blocks, v, mn), dense @ v, rtol=1e-13, atol=1e-13)
-
-
-def test_line_minimum_is_the_minimiser_of_the_piecewise_quadratic_model_along_the_step():
-    model, system, problem = _problem()
+def _qp(split: tuple[int, ...] = (), rho: float = 3000.0, seed: int = 3):
+    """A QP model on the two-link arm with position, velocity and acceleration rows, random multipliers."""
+    model, system, problem = _problem(split=split)
     limits = JointLimits.from_arrays(model.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], velocity=[1.0, 0.5],
                                      acceleration=[3.0, 2.0])
     rows = LimitRows.build(problem.mesh, problem.layout.free, 2)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     lam = tuple(tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3)
                       for k in range(4)) for _ in range(2))
-    terms = LimitTerms(system, limits, rows, kinematic_working(limits), lam[0], lam[1], rho=30.0, margin=MARGIN)
+    # a row's two sides are never active together (it would take λ of order ρ × its range): one side each
+    lam = (lam[0], tuple(np.where(lo > 0, 0.0, hi) for lo, hi in zip(*lam)))
+    working = kinematic_working(limits)
+    terms = LimitTerms(system, limits, rows, working, lam[0], lam[1], rho=rho, margin=MARGIN)
     ev = problem.evaluate(problem.initial_guess())
-    qp = _Model(problem, ev, rows, terms)
+    qrows = QPRows.build(rows, limits, working, problem.layout.free, MARGIN)
+    qp = QPModel(problem, ev, qrows, qrows.values(terms.evaluate(problem.coefficients(ev.x), grad=False)))
+    lam = qrows.gather(*lam)  # the multipliers on the rows not imposed (data rows) are dropped ...
+    lo, hi = qrows.scatter(lam)  # ... so the reference terms take them as 0 too
+    terms = LimitTerms(system, limits, rows, working, lo, hi, rho=rho, margin=MARGIN)
+    return problem, ev, terms, qp, lam, rho * qrows.w, rng
+
+
+@pytest.mark.parametrize("split", [(), (0, 3, 4)], ids=["uniform", "nonuniform"])
+def test_qp_model_is_the_augmented_lagrangian_of_the_penalty_terms(split):
+    """q(d), its gradient, the rows, μ and the Newton matrix of the explicit rows against the same
+    quantities from ``LimitTerms`` (per-kind arrays, an independent assembly) at random d."""
+    problem, ev, terms, qp, lam, rw, rng = _qp(split)
+    N, L, _ = qp.H.shape
+    mn = L // 2
+    dense = np.zeros(((N + 1) * mn, (N + 1) * mn))  # H assembled from its element blocks
+    for e in range(N):
+        dense[e * mn:e * mn + L, e * mn:e * mn + L] += qp.H[e]
+    free = problem.layout.free
+    for _ in range(3):
+        d = 0.1 * rng.normal(size=ev.x.size)
+        q, r, g, mu = qp.value(d, lam, rw)
+        C = problem.coefficients(ev.x + d)
+        pv = terms.evaluate(C)
+        Hd = dense[np.ix_(free, free)] @ d
+        assert np.allclose(qp.Hd(d), Hd, rtol=1e-12, atol=1e-12 * np.abs(Hd).max())
+        assert q == pytest.approx(float(ev.grad @ d + 0.5 * d @ Hd) + pv.value, rel=1e-12)
+        assert np.allclose(r, ev.grad + Hd + problem.layout.pack(pv.grad), rtol=1e-12, atol=1e-12 * np.abs(r).max())
+        assert np.allclose(g, qp.qrows.values(pv), rtol=1e-12, atol=1e-12)
+        assert np.allclose(qp.qrows.at(C), g, rtol=1e-12, atol=1e-12)
+        assert np.allclose(mu, qp.qrows.gather(pv.mu_lo, pv.mu_hi), rtol=1e-12, atol=1e-12)
+        assert (mu > 0).any() and not (mu > 0).all()
+        assert not any(((lo > 0) & (hi > 0)).any() for lo, hi in zip(pv.mu_lo, pv.mu_hi))  # one side per row
+        K = qp.newton(mu > 0, rw)
+        ref = problem.banded(qp.H + terms.newton_blocks(C, pv))
+        v = rng.normal(size=ev.x.size)
+        assert np.allclose(K.solve(v), ref.solve(v), rtol=1e-9, atol=1e-12 * np.abs(ref.solve(v)).max())
+
+
+def test_line_minimum_is_the_minimiser_of_the_piecewise_quadratic_model_along_the_step():
+    problem, ev, terms, qp, lam, rw, rng = _qp()
     d = 0.05 * rng.normal(size=ev.x.size)
     s = 0.3 * rng.normal(size=ev.x.size)
-    q0, r0, pv0 = qp.value(d, terms)
-    _, _, pv1 = qp.value(d + s, terms)
+    q0, r0, g0, _ = qp.value(d, lam, rw)
+    _, _, g1, _ = qp.value(d + s, lam, rw)
     slope = float(r0 @ s)
     if slope > 0:  # make s a descent direction
         s, slope = -s, -slope
-        _, _, pv1 = qp.value(d + s, terms)
-    a = _line_minimum(slope, float(s @ qp.Hd(s)), terms, pv0, pv1)
+        _, _, g1, _ = qp.value(d + s, lam, rw)
+    a = line_minimum(slope, float(s @ qp.Hd(s)), lam, rw, g0, g1)
     grid = np.linspace(0.0, 3.0 * max(a, 1e-3), 3001)
-    values = np.array([qp.value(d + t * s, terms)[0] for t in grid])
+    values = np.array([qp.value(d + t * s, lam, rw)[0] for t in grid])
     assert a > 0
-    assert qp.value(d + a * s, terms)[0] <= values.min() + 1e-12 * abs(values.min())
+    assert qp.value(d + a * s, lam, rw)[0] <= values.min() + 1e-12 * abs(values.min())
     eps = 1e-6 * a  # the directional derivative changes sign at a
-    assert float(qp.value(d + (a - eps) * s, terms)[1] @ s) < 0 < float(qp.value(d + (a + eps) * s, terms)[1] @ s)
+    assert float(qp.value(d + (a - eps) * s, lam, rw)[1] @ s) < 0 < float(qp.value(d + (a + eps) * s, lam, rw)[1] @ s)
 
 
 @pytest.mark.parametrize("split", [(), (0, 3, 4, 5, 9)], ids=["uniform", "nonuniform"])
@@ -111,9 +145,11 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
 
 
 
-def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement():
+@pytest.mark.parametrize("grouped", [False, True])
+def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(grouped):
     """δ = S⁺g and K⁻¹Aᵀδ for S = A K⁻¹ Aᵀ with dependent rows (repeated and combined), against dense
-    numpy (pinv and solve) on a banded SPD K with fixed coefficients."""
+    numpy (pinv and solve) on a banded SPD K with fixed coefficients; grouped: the rows split in two
+    groups touching disjoint coefficients (two joints), each with its own dependent rows."""
     rng = np.random.default_rng(7)
     N, mn = 6, 4
     L = 2 * mn
@@ -127,14 +163,19 @@ def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(
     for e in range(N):
         dense[e * mn:e * mn + L, e * mn:e * mn + L] += blocks[e]
     Kf = dense[np.ix_(free, free)]
-    A = np.zeros((9, size))
-    for i, e in enumerate([0, 1, 1, 2, 3, 3, 4, 5, 5]):
+    elements = [0, 1, 1, 2, 3, 3, 4, 5, 5, 2, 2, 4]
+    A = np.zeros((len(elements), size))
+    groups = np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1]) if grouped else None
+    for i, e in enumerate(elements):
         A[i, e * mn:e * mn + L] = rng.normal(size=L)
+        if grouped:  # group g touches the coefficients of parity g only
+            A[i, np.arange(size) % 2 != groups[i]] = 0.0
     A[2] = 2.0 * A[1]  # dependent rows, consistent targets below
     A[5] = A[4] - 0.5 * A[3]
+    A[10] = -A[9]
     A[:, ~free] = 0.0
     g = A[:, free] @ rng.normal(size=free.sum())
-    delta, step = _pseudo_solve(K, A.T.copy(), g)
+    delta, step = pseudo_solve(K, A.T.copy(), g, groups)
     Af = A[:, free]
     S = Af @ np.linalg.solve(Kf, Af.T)
     ref = np.linalg.pinv(S, rcond=1e-12) @ g

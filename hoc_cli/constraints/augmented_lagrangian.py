@@ -186,7 +186,8 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     is broken), with the point and working set the augmented-Lagrangian loop continues from.
     """
     mesh, n = base.mesh, limits.n
-    if not working.any():  # exactly the unconstrained solve: no price when nothing binds
+    first = not working.any()  # no pair known to bind yet (the plan's first level)
+    if first:  # exactly the unconstrained solve: no price when nothing binds
         res = inner_solve(base, x, tol)
         x = res.x
         C = base.coefficients(x)
@@ -210,7 +211,7 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         return None, x, working
     x_start = x
     for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
-        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=working)
+        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=None if first else working)
         if record is not None:
             record(s.result)
         if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
@@ -228,10 +229,9 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     ok = s.result.converged
     message = (f"{s.result.message}; every limit holds (SQP iterations: {s.result.iterations})" if ok
                else f"every limit holds, but the SQP stopped: {s.result.message}")
-    rows = LimitRows.build(mesh, base.layout.free, n)
     return EnforceResult(status="converged" if ok else "not_converged", message=message, inner=s.result, x=x,
-                         J=base.evaluate(x, grad=False).J, outer_iterations=s.result.iterations, rho=0.0,
-                         check=check, working=working, rows=rows, penalty=s.penalty, sqp="converged"), x, working
+                         J=s.result.fun, outer_iterations=s.result.iterations, rho=0.0,
+                         check=check, working=working, rows=s.rows, penalty=s.penalty, sqp="converged"), x, working
 
 
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,

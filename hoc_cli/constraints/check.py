@@ -26,7 +26,8 @@ RELATIVE_TOLERANCE = 1e-9
 class LimitCheck:
     """Per kind, element and joint: the worst value on each side and where it is.
 
-    hi_value, lo_value, hi_s, lo_s : (4, N, n) extreme values and local coordinates;
+    hi_value, lo_value, hi_s, lo_s : (4, N, n) extreme values and local coordinates (0 for a kind
+    with no bound on any joint: not computed);
     hi_excess, lo_excess : (4, N, n) value − hi and lo − value (−inf where no bound).
     """
 
@@ -92,6 +93,9 @@ def check_limits(system, limits: JointLimits, mesh: HermiteMesh, C: np.ndarray,
     N, n = mesh.N, limits.n
     hv, hs, lv, ls = (np.full((4, N, n), np.nan) for _ in range(4))
     for k, kind in enumerate(KINDS[:3]):
+        if not limits.has(kind).any():  # nothing to check (e.g. no acceleration limit): no extrema
+            hv[k] = lv[k] = hs[k] = ls[k] = 0.0
+            continue
         ex = extrema(mesh, C, DERIVATIVE[kind])
         hv[k], hs[k], lv[k], ls[k] = ex.max, ex.s_max, ex.min, ex.s_min
     k = KINDS.index("effort")

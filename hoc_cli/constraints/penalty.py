@@ -51,7 +51,8 @@ class LimitRows:
     """Where each kind is imposed on a mesh: Bernstein rows (kinematic) and torque points (effort).
 
     rows[r] : (R_r, 2m) for r = 0, 1, 2; part[r] : (R_r,) the element part of each row;
-    data[r] : (N, R_r) bool, rows fixed by x0/x1 alone (not imposed); points : effort PointSet.
+    data[r] : (N, R_r) bool, rows fixed by x0/x1 alone (not imposed); points : effort PointSet
+    (a property, made on first use).
     scale : None (uniform mesh), or per r the factors h_e^(d_a − r) (N, 2m) of a non-uniform mesh,
     whose rows are those of h = 1 applied to the scaled element coefficients.
     """
@@ -60,9 +61,13 @@ class LimitRows:
     rows: tuple[np.ndarray, ...]
     part: tuple[np.ndarray, ...]
     data: tuple[np.ndarray, ...]
-    points: PointSet
     pieces: int
     scale: tuple[np.ndarray, ...] | None = None
+
+    @cached_property
+    def points(self) -> PointSet:
+        """The effort points (made on first use: the kinematic rows do not need them)."""
+        return PointSet.uniform(self.mesh, EFFORT_POINTS_PER_ELEMENT)
 
     @classmethod
     def build(cls, mesh: HermiteMesh, free: np.ndarray, n: int) -> "LimitRows":
@@ -80,8 +85,7 @@ class LimitRows:
             parts.append(part)
             data.append(~((np.abs(R)[None, :, :] > 1e-14 * np.abs(R).max()) & free_local[:, None, :]).any(axis=2))
         scale = None if mesh.uniform else tuple(mesh.scales(r) for r in range(3))
-        return cls(mesh, tuple(rows), tuple(parts), tuple(data),
-                   PointSet.uniform(mesh, EFFORT_POINTS_PER_ELEMENT), PIECES, scale)
+        return cls(mesh, tuple(rows), tuple(parts), tuple(data), PIECES, scale)
 
     def weight(self, k: int) -> float | np.ndarray:
         """Time [s] each row of kind k stands for (non-uniform mesh: per row, broadcastable to its shape)."""
