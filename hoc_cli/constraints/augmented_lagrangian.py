@@ -20,7 +20,9 @@ LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working se
 4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
    imposed bounds are tightened by a relative margin of 1e-9, so the plan ends strictly inside),
    and the complementarity Σ μ|g| is below tol·|J|. When ρ has grown 1e8-fold and violations
-   remain, the task is infeasible; the least-violating plan found is returned.
+   remain without halving from one outer iteration to the next, the task is infeasible; the
+   least-violating plan found is returned. While they still halve, ρ stays there and the multiplier
+   updates go on (a slowly converging iteration is not an infeasible task).
 """
 from __future__ import annotations
 
@@ -298,10 +300,11 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         if _DEBUG:
             print(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
                   f"comp {pv.complementarity():.2e} rho {rho} within {within}")
-        if rho is not None and not within and excess > 0.25 * prev:
+        falling = excess <= 0.5 * prev  # the multiplier updates still make progress
+        if rho is not None and not within and excess > 0.25 * prev and not (rho >= rho0 * RHO_RANGE and falling):
             rho *= RHO_GROWTH
         prev = excess if excess > 0 else prev
-        if rho0 is not None and rho > rho0 * RHO_RANGE and not within:
+        if rho0 is not None and rho > rho0 * RHO_RANGE and not within and not falling:
             status, message = "infeasible", "no trajectory within the limits was found (the penalty grew 1e8-fold)"
             start = check_limits(system, limits, mesh, base.coefficients(x_begin))
             if not ((start.hi_excess > 0).any() or (start.lo_excess > 0).any()):
