@@ -208,3 +208,28 @@ def test_a_stalled_augmented_lagrangian_from_a_start_within_the_limits_is_not_ca
     r = enforce(problem, system, limits, solved.x, 1e-11, inner, working=solved.working)
     assert r.status == "not_converged" and "stalled" in r.message
     assert np.array_equal(r.x, solved.x) and r.check.violations() == []
+
+
+def test_an_augmented_lagrangian_still_converging_at_the_penalty_cap_goes_on(monkeypatch):
+    """At the penalty cap (made to come early here: RHO_RANGE = 1e3, where the uncapped iteration grows ρ
+    1e4-fold) an iteration whose violations still fall is not infeasible: ρ stays at the cap, the
+    multiplier updates go on, and it converges to the optimum of the uncapped iteration (J to 1e-9)."""
+    import hoc_cli.constraints.augmented_lagrangian as al
+
+    model, system, problem = _problem(N=12)
+    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
+    t = np.linspace(0, 1.5, 301)
+    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
+    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf])
+
+    def inner(p, x0, tol):
+        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
+                        method="newton", c2=0.9, tol=tol)
+
+    reference = enforce(problem, system, limits, problem.initial_guess(), 1e-11, inner)
+    assert reference.status == "converged"
+    monkeypatch.setattr(al, "RHO_RANGE", 1e3)
+    capped = enforce(problem, system, limits, problem.initial_guess(), 1e-11, inner)
+    assert capped.status == "converged" and capped.check.violations() == []
+    assert capped.J == pytest.approx(reference.J, rel=1e-9)
+    assert capped.rho <= reference.rho / 5  # the penalty stayed at the cap

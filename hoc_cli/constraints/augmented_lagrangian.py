@@ -20,9 +20,10 @@ LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working se
 4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
    imposed bounds are tightened by a relative margin of 1e-9, so the plan ends strictly inside),
    and the complementarity Σ μ|g| is below tol·|J|. When ρ has grown 1e8-fold and violations
-   remain without halving from one outer iteration to the next, the task is infeasible; the
-   least-violating plan found is returned. While they still halve, ρ stays there and the multiplier
-   updates go on (a slowly converging iteration is not an infeasible task).
+   remain without falling from one outer iteration to the next, the task is infeasible; the
+   least-violating plan found is returned. While they still fall by a tenth an outer iteration, ρ
+   stays there and the multiplier updates go on (a slowly converging iteration is not an infeasible
+   task).
 """
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at 
 RHO_GROWTH = 10.0
 SQP_ROUNDS = 4  # SQP runs, each with the pairs found broken by the previous one added
 RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
+STALL_RATIO = 0.9  # ... and the worst violation no longer falls by a tenth from one outer iteration to the next
 
 
 class PenalizedProblem:
@@ -300,7 +302,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         if _DEBUG:
             print(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
                   f"comp {pv.complementarity():.2e} rho {rho} within {within}")
-        falling = excess <= 0.5 * prev  # the multiplier updates still make progress
+        falling = excess <= STALL_RATIO * prev  # the multiplier updates still make progress
         if rho is not None and not within and excess > 0.25 * prev and not (rho >= rho0 * RHO_RANGE and falling):
             rho *= RHO_GROWTH
         prev = excess if excess > 0 else prev
