@@ -65,7 +65,7 @@ RHO_AUG = 1e3  # ρ of the KKT matrix's W + ρDᵀD per unit |J| (measured on th
 SLOPE_RTOL = 1e-7  # |F'| relative to |J|/T + weight (as ``hoc_cli.free_time.minimize_time``)
 NEWTON_SHIFT = 0.0  # no regularisation: the augmented matrix is positive definite and the last joint's
 # acceleration curvature (1e-6 of the largest entry on the lbr7) must survive
-QP_MODE = not os.environ.get("HOC_REPLAN_PENALTY")  # kinematic limits as QP rows (else penalty terms)
+QP_MODE = True  # kinematic limits as QP rows (False: penalty terms at fixed multipliers, as with effort limits)
 RELEASE_RTOL = 1e-6  # the working set's multipliers are tested once the decrement is below this·|J| ...
 RELEASE_VIOLATION = 1e-6  # ... and the rows are met to this
 VIOLATION_FLOOR = 1e-3  # a step may raise max|c| up to this (m, rad, m/s): the T steps move the rows nonlinearly
