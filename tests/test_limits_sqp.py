@@ -116,9 +116,7 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
     limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf],
                                      acceleration=[np.inf, 0.8 * ddq[1]])
 
-    def inner(p, x0, tol):
-        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
-                        method="newton", c2=0.9, tol=tol)
+    inner = _newton_inner
 
     x0 = problem.initial_guess()
     results = {use: enforce(problem, system, limits, x0, 1e-11, inner, use_sqp=use) for use in (True, False)}
@@ -184,20 +182,27 @@ def test_pseudo_solve_is_the_pseudo_inverse_of_the_active_rows_schur_complement(
     assert np.allclose(Af @ step, g, rtol=1e-9, atol=1e-12 * np.abs(g).max())  # the rows reach their targets
 
 
+def _newton_inner(p, x0, tol):
+    """The inner minimiser of the augmented Lagrangian in these tests: Newton steps on ``p``'s Newton matrix."""
+    return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
+                    method="newton", c2=0.9, tol=tol)
+
+
+def _velocity_limited():
+    """(system, problem, limits): the N = 12 problem with joint 0's velocity 10 % below its free peak."""
+    model, system, problem = _problem(N=12)
+    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
+    dq = np.abs(free.mesh.evaluate(free.coeffs, np.linspace(0, 1.5, 301), 1)).max(axis=0)
+    return system, problem, JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf])
+
+
 def test_a_stalled_augmented_lagrangian_from_a_start_within_the_limits_is_not_called_infeasible(monkeypatch):
     """A start within the limits proves the task feasible: when the penalty grows out of range anyway
     (made to happen at once here by shrinking RHO_RANGE), the result is "not_converged" and the start."""
     import hoc_cli.constraints.augmented_lagrangian as al
 
-    model, system, problem = _problem(N=12)
-    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
-    t = np.linspace(0, 1.5, 301)
-    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
-    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf])
-
-    def inner(p, x0, tol):
-        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
-                        method="newton", c2=0.9, tol=tol)
+    system, problem, limits = _velocity_limited()
+    inner = _newton_inner
 
     solved = enforce(problem, system, limits, problem.initial_guess(), 1e-11, inner)
     assert solved.status == "converged" and solved.check.violations() == []
@@ -216,15 +221,8 @@ def test_an_augmented_lagrangian_still_converging_at_the_penalty_cap_goes_on(mon
     multiplier updates go on, and it converges to the optimum of the uncapped iteration (J to 1e-9)."""
     import hoc_cli.constraints.augmented_lagrangian as al
 
-    model, system, problem = _problem(N=12)
-    free = plan(system, problem.mesh, START, [0.0, 0.0], GOAL, [0.0, 0.0])
-    t = np.linspace(0, 1.5, 301)
-    dq = np.abs(free.mesh.evaluate(free.coeffs, t, 1)).max(axis=0)
-    limits = JointLimits.from_arrays(model.joint_names, velocity=[0.9 * dq[0], np.inf])
-
-    def inner(p, x0, tol):
-        return minimize(lambda x: (lambda ev: (ev.J, ev.grad, ev))(p.evaluate(x)), x0, precondition=p.newton,
-                        method="newton", c2=0.9, tol=tol)
+    system, problem, limits = _velocity_limited()
+    inner = _newton_inner
 
     reference = enforce(problem, system, limits, problem.initial_guess(), 1e-11, inner)
     assert reference.status == "converged"

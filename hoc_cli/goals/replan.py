@@ -53,7 +53,7 @@ from hoc_cli.free_time import (
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers, penalty_value
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
-from hoc_cli.goals.replan_point import evaluate_point, solve_many
+from hoc_cli.goals.replan_point import damped_trial, evaluate_point, solve_many
 from hoc_cli.goals.replan_qp import QPReplan, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
@@ -68,7 +68,6 @@ NEWTON_SHIFT = 0.0  # no regularisation: the augmented matrix is positive defini
 QP_MODE = True  # kinematic limits as QP rows (False: penalty terms at fixed multipliers, as with effort limits)
 RELEASE_RTOL = 1e-6  # the working set's multipliers are tested once the decrement is below this·|J| ...
 RELEASE_VIOLATION = 1e-6  # ... and the rows are met to this
-VIOLATION_FLOOR = 1e-3  # a step may raise max|c| up to this (m, rad, m/s): the T steps move the rows nonlinearly
 
 
 @dataclass(frozen=True)
@@ -322,21 +321,16 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
             nu = np.linalg.lstsq(DY, pt.c - Dw, rcond=1e-12)[0] if r else np.zeros(0)  # rows may be dependent
             dx = -w - Y @ nu
         dlam = nu - rho_aug * pt.c
-        alpha = 1.0
-        while True:  # damping: a step may not raise the goal rows' violation (far steps leave the model)
-            T_try = T + alpha * dT
-            C_try = rescale(problem.coefficients(x + alpha * dx), T, T_try)
-            lam_try = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
-            try:
-                trial = at(T_try, C_try, lam_try)
-                v_try = float(np.max(np.abs(trial.c), initial=0.0))
-            except NumericalError:
-                trial, v_try = None, math.inf
-            if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
-                break
-            alpha *= 0.5
+
+        def trial_at(alpha: float):
+            T_a = T + alpha * dT
+            lam_a = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
+            return T_a, at(T_a, rescale(problem.coefficients(x + alpha * dx), T, T_a), lam_a)
+
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation)
         if trial is None:
             break
+        lam_try = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
         if _DEBUG:
             print(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
         pt, T, lam = trial, T_try, lam_try

@@ -7,6 +7,8 @@ s = t/T domain. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -22,6 +24,8 @@ from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.goals.plan import GoalProblem
 from hoc_cli.goals.terms import GoalTerms, point_set
 from hoc_cli.problem import Evaluation
+
+VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s): T moves them nonlinearly
 
 
 @dataclass(eq=False)
@@ -134,3 +138,22 @@ def dense_factor(W) -> np.ndarray:
         j = np.arange(d, n)
         U[j - d, j] = ab[u - d, d:]
     return U[np.ix_(W.free, W.free)]
+
+
+def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], goal_rows: int,
+                 violation: float) -> tuple["LagrangianPoint | None", float, float, float]:
+    """A Newton step halved (down to 1/32) while it raises the goal rows' violation above
+    max(``violation``, ``VIOLATION_FLOOR``): far steps leave the model. ``trial_at(alpha)`` gives (T, point)
+    of the step scaled by alpha; the first ``goal_rows`` entries of the point's rows are the goal rows'.
+    Returns (point or None when it could not be evaluated, T, alpha, its violation).
+    """
+    alpha = 1.0
+    while True:
+        try:
+            T_try, trial = trial_at(alpha)
+            v_try = float(np.max(np.abs(trial.c[:goal_rows]), initial=0.0))
+        except NumericalError:
+            T_try, trial, v_try = math.nan, None, math.inf
+        if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
+            return trial, T_try, alpha, v_try
+        alpha *= 0.5

@@ -39,7 +39,7 @@ from hoc_cli.goals.active_limits import ActiveRows, all_rows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
-from hoc_cli.goals.replan_point import dense_factor, evaluate_point
+from hoc_cli.goals.replan_point import damped_trial, dense_factor, evaluate_point
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
@@ -48,7 +48,6 @@ CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
 LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
-VIOLATION_FLOOR = 1e-3  # a step may raise the goal rows' violation up to this (m, rad, m/s)
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
@@ -196,18 +195,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         mu = step.mu[:cand.size]
         new_active = cand.keep(mu > 0)
         lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[mu > 0]]
-        alpha = 1.0
-        while True:  # damping: a step may not raise the goal rows' violation (far steps leave the model)
-            T_try = T + alpha * dT
-            C_try = rescale(problem.coefficients(pt.x + alpha * dx), T, T_try)
-            try:
-                trial = at(T_try, C_try, lam_new, new_active)
-                v_try = float(np.max(np.abs(trial.c[:r]), initial=0.0))
-            except NumericalError:
-                trial, v_try = None, math.inf
-            if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
-                break
-            alpha *= 0.5
+
+        def trial_at(alpha: float):
+            T_a = T + alpha * dT
+            return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
+
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation)
         if trial is None:
             break
         if _DEBUG:
