@@ -73,7 +73,7 @@ def test_free_time_replan_converges_in_a_few_steps_to_the_free_time_optimum():
             assert other.J >= warm.plan.J
 
 
-@pytest.mark.skipif(not os.environ.get("HOC_SLOW_TESTS"), reason="~5 min (the cold free-T search); HOC_SLOW_TESTS=1")
+@pytest.mark.skipif(not os.environ.get("HOC_SLOW_TESTS"), reason="~2 min (the cold free-T search over fixed-T solves); HOC_SLOW_TESTS=1")
 def test_free_time_replan_of_a_moving_target_is_a_free_time_optimum():
     """After the target moves, the replan's T makes F'(T) = dJ*/dT vanish, the link meets the
     target in position and velocity at T to 1e-9, and fixed-T plans at T ± 2 % cost no less."""
