@@ -2,13 +2,17 @@
 replans (``hoc_cli.goals.replan``) after the ball's initial position moves by a few millimetres to centimetres.
 
     python benchmarks/bench_replan.py [--task configs/catch_ball.yaml] [--moves 0.001 0.003 0.01 0.03] [--repeat 3] [--ipopt]
+                                      [--breakdown]
 
 Times the Python call alone (no process start-up, no task loading): the cold solve is ``hoc plan``'s
 free T (``minimize_time_sqp``: a fixed-T solve at the guess, then Newton steps in x and T); each replan
 starts from the cold optimum, its multipliers and T. Prints one row per move: the wall time (best of ``--repeat``), Newton steps and whether it
 converged (within 40 steps; no fallback to the full solver is timed) of a replan with T fixed at the previous
 optimum's and of one with the free T, and the free-T replan's T, J and goal rows' violation; with ``--cold-moved``
-beside the cold solve from scratch with the moved target.
+beside the cold solve from scratch with the moved target. ``--breakdown`` splits each fixed-T replan's time into
+its parts (wrapped with timers, so the total runs a little slower): the Lagrangian's evaluations (dynamics sweep
+with the gradient, goal rows, limit rows), the Newton matrices (Hessian sweep, banded assembly, dense factor), the
+dense QPs, and the rest; this is the per-step floor that sets how many steps fit in a latency budget.
 """
 from __future__ import annotations
 
@@ -55,6 +59,7 @@ def main() -> None:
     ap.add_argument("--moves", type=float, nargs="+", default=[0.001, 0.003, 0.01, 0.03])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--cold-moved", action="store_true", help="also solve each moved task cold (minutes each)")
+    ap.add_argument("--breakdown", action="store_true", help="time the parts of each fixed-T replan step")
     ap.add_argument("--ipopt", action="store_true", help="also CasADi + IPOPT cold and warm-started on the same changes")
     args = ap.parse_args()
     task = load_task(Path(args.task), purpose="plan")
@@ -92,8 +97,56 @@ def main() -> None:
             fc, wc = cold(system, task, states, g, limits)
             row += f" {wc:9.2f} {fc.J:14.9f}"
         print(row, flush=True)
+    if args.breakdown:
+        breakdown(system, ft, goals, limits, args.moves, args.repeat)
     if args.ipopt:
         ipopt_rows(Path(args.task), args.moves, args.repeat)
+
+
+def breakdown(system, ft, goals, limits, moves, repeat: int) -> None:
+    """Print, per move, a fixed-T replan's time split into evaluations, Newton matrices (the Hessian sweep and the
+    banded assembly: ``ControlProblem.newton``), their dense factors, QPs and the rest [ms]
+    (best of ``repeat``), with their counts: the parts are wrapped with ``time.perf_counter`` timers.
+    """
+    import hoc_cli.goals.replan_qp as rq
+    from hoc_cli.problem import ControlProblem
+
+    spent: dict[str, list] = {}
+
+    def timed(name, fn):
+        def wrapper(*a, **k):
+            start = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                entry = spent.setdefault(name, [0.0, 0])
+                entry[0] += time.perf_counter() - start
+                entry[1] += 1
+        return wrapper
+
+    saved = (rq.evaluate_point, rq.solve_qp, rq.dense_factor, ControlProblem.newton)
+    rq.evaluate_point, rq.solve_qp = timed("evaluation", saved[0]), timed("QP", saved[1])
+    rq.dense_factor, ControlProblem.newton = timed("factor", saved[2]), timed("Newton", saved[3])
+    parts = ("evaluation", "Newton", "factor", "QP")
+    print(f"{'move [m]':>9} {'total [ms]':>10} {'steps':>5} "
+          + " ".join(f"{p + ' [ms] (n)':>19}" for p in parts) + f" {'rest [ms]':>9}")
+    try:
+        for dx in moves:
+            best = None
+            for _ in range(repeat):
+                spent.clear()
+                start = time.perf_counter()
+                r = replan(system, ft, moved(goals, dx), limits=limits, fallback=False)
+                wall = time.perf_counter() - start
+                if best is None or wall < best[0]:
+                    best = (wall, r.steps, {k: tuple(v) for k, v in spent.items()})
+            wall, steps, got = best
+            cells = [f"{1e3 * got.get(p, (0.0, 0))[0]:13.1f} ({got.get(p, (0.0, 0))[1]:2d})" for p in parts]
+            rest = wall - sum(v[0] for v in got.values())
+            print(f"{dx:9.3f} {1e3 * wall:10.1f} {steps:5d} " + " ".join(f"{c:>19}" for c in cells) + f" {1e3 * rest:9.1f}",
+                  flush=True)
+    finally:
+        rq.evaluate_point, rq.solve_qp, rq.dense_factor, ControlProblem.newton = saved
 
 
 def ipopt_rows(path: Path, moves, repeat: int) -> None:
