@@ -240,27 +240,49 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
     return solve
 
 
-def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
-                **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
+class GoalSolver:
     """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``) on N elements,
     equal or with nodes at ``fractions`` (N + 1,) of T (``hoc_cli.goals.mesh``: the vias stay nodes).
 
     Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
     from the initial guess): solves from scratch at distant T may land in other local minima, and
     J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
-    measured 2-3× slower on the lbr7 catch).
+    measured 2-3× slower on the lbr7 catch). ``initial(T)``: the initial trajectory at T as a plan with
+    zero multipliers (``hoc_cli.goals.warm.initial_plan``), the start of Newton steps from scratch.
     """
-    from hoc_cli.goals import plan_goals
-    from hoc_cli.goals.mesh import scaled_mesh
 
-    def solve(T: float, nearest: TimePoint | None) -> TimePoint:
+    def __init__(self, system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
+                 **plan_options) -> None:
+        self.system, self.order, self.N, self.q0, self.dq0, self.goals = system, order, N, q0, dq0, goals
+        self.limits, self.fractions, self.plan_options = limits, fractions, plan_options
+
+    def mesh(self, T: float):
+        from hoc_cli.goals.mesh import scaled_mesh
+
+        return scaled_mesh(self.order, T, self.N, self.fractions)
+
+    def __call__(self, T: float, nearest: "TimePoint | None") -> "TimePoint":
+        from hoc_cli.goals import plan_goals
+
         warm = {}
         if nearest is not None:
             warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
                     "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
-        result = plan_goals(system, scaled_mesh(order, T, N, fractions), q0, dq0, goals, limits=limits, **warm,
-                            **plan_options)
-        d = plan_time_derivative(result, system, limits, goals=result.terms if result.problem.points else None)
+        result = plan_goals(self.system, self.mesh(T), self.q0, self.dq0, self.goals, limits=self.limits, **warm,
+                            **self.plan_options)
+        d = plan_time_derivative(result, self.system, self.limits,
+                                 goals=result.terms if result.problem.points else None)
         return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)
 
-    return solve
+    def initial(self, T: float):
+        """The initial trajectory on the mesh at T as a ``GoalResult`` with zero multipliers."""
+        from hoc_cli.goals.warm import initial_plan
+
+        return initial_plan(self.system, self.mesh(T), self.q0, self.dq0, self.goals,
+                            cost=self.plan_options.get("cost", "covariant"), G=self.plan_options.get("G"))
+
+
+def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
+                **plan_options) -> GoalSolver:
+    """``solve(T, nearest)`` for ``minimize_time`` with goals: a ``GoalSolver``."""
+    return GoalSolver(system, order, N, q0, dq0, goals, limits=limits, fractions=fractions, **plan_options)

@@ -19,6 +19,7 @@ from hoc_cli.dynamics import link_poses
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers
+from hoc_cli.goals.free_time_sqp import COLD_STEPS
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp, upper_factor
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.model import load_robot
@@ -155,12 +156,15 @@ def test_free_time_replan_with_binding_limits_is_a_free_time_optimum(previous):
         assert other.J + span.weight * T * factor >= warm.plan.J + span.weight * T - 1e-9 * warm.plan.J
 
 
+@pytest.mark.parametrize("cold_steps", [0, COLD_STEPS])
 @pytest.mark.parametrize("limits, fractions", [(None, None), (LIMITS, None),
                                                (LIMITS, [0.0, 0.1, 0.3, 0.45, 0.5, 0.6, 0.75, 0.9, 1.0])])
-def test_free_time_by_sqp_steps_meets_the_search(limits, fractions):
-    """``minimize_time_sqp`` (one fixed-T solve, then Newton steps in x and T) against the search over
-    fixed-T solves (``minimize_time``): the same T (1e-6 relative) and J + weight·T (1e-9 relative), on N
-    equal elements and on a non-uniform mesh that scales with T."""
+def test_free_time_by_sqp_steps_meets_the_search(limits, fractions, cold_steps):
+    """``minimize_time_sqp`` against the search over fixed-T solves (``minimize_time``): the same T (1e-6
+    relative) and J + weight·T (1e-9 relative), on N equal elements and on a non-uniform mesh that scales
+    with T; the plan at the guess both ways: with limits, by Newton steps at fixed T from the initial
+    trajectory (on the non-uniform mesh G then grows to the converged quadrature), and, without limits or with
+    ``cold_steps=0``, by one fixed-T solve (``plan_goals``)."""
     from hoc_cli.free_time import goal_solver, minimize_time
     from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 
@@ -168,8 +172,11 @@ def test_free_time_by_sqp_steps_meets_the_search(limits, fractions):
     fractions = None if fractions is None else np.array(fractions)
     solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=limits, fractions=fractions)
     search = minimize_time(solver, 0.6, 1.6, guess=0.95, weight=1.0)
-    sqp = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=0.95, weight=1.0, limits=limits)
-    assert sqp.converged and len(sqp.history) == 2  # the solve at the guess and the Newton steps' plan
+    sqp = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=0.95, weight=1.0, limits=limits,
+                            cold_steps=cold_steps)
+    assert sqp.converged and len(sqp.history) == 2  # the plan at the guess and the Newton steps' plan
+    by_steps = sqp.history[0].result.optimizer.message.startswith("warm replan")
+    assert by_steps == bool(cold_steps and limits is not None)
     assert sqp.bound is None and search.bound is None
     assert sqp.T == pytest.approx(search.T, rel=1e-6)
     assert sqp.objective == pytest.approx(search.objective, rel=1e-9)
@@ -197,3 +204,40 @@ def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():
         assert warm.converged and not warm.fallback
         assert warm.plan.J == pytest.approx(cold.J, rel=1e-9)
         assert check_limits(SYSTEM, limits, warm.plan.mesh, warm.plan.coeffs).feasible
+
+
+def test_steps_from_the_initial_trajectory_need_the_merit_test(tmp_path):
+    """The plan at a free T's guess by Newton steps from the initial trajectory (``minimize_time_sqp``'s first
+    phase): on a two-link link goal with gravity and URDF limits, the steps whose length is chosen by the ℓ1
+    merit function converge in a few steps to ``plan_goals``' optimum (J to 1e-10); steps damped by the goal
+    rows' violation alone run J up to 10⁴ and back and take over 20."""
+    import shutil
+    from pathlib import Path
+
+    from hoc_cli.commands.common import load_model
+    from hoc_cli.commands.plan_goals import task_goals
+    from hoc_cli.commands.plan_limits import task_limits
+    from hoc_cli.goals.free_time_sqp import COLD_FLOOR
+    from hoc_cli.goals.warm import initial_plan
+    from hoc_cli.io.task import load_task, resolve
+
+    shutil.copy(ROBOTS / "two_link.urdf", tmp_path / "arm.urdf")
+    (tmp_path / "t.yaml").write_text("robot: arm.urdf\ngravity: [0.0, 0.0, -9.81]\nx0: {q: [0.0, 0.0]}\n"
+                                     "x1: {link: tool, position: [0.91, 0.0, 1.3], dq: zero}\nT: 1.0\nN: 8\n"
+                                     "order: quintic\n")
+    task = load_task(Path(tmp_path / "t.yaml"), purpose="plan")
+    model = load_model(task)
+    states = resolve(task, model.joint_names)
+    goals, limits, system = task_goals(task, model, states), task_limits(model, states.limits), RobotSystem(model)
+    mesh = HermiteMesh("quintic", 1.0, 8)
+    cold = plan_goals(system, mesh, states.q0, states.dq0, goals, limits=limits)
+    steps = {}
+    for merit in (True, False):
+        start = initial_plan(system, mesh, states.q0, states.dq0, goals)
+        r = replan(system, start, goals, limits=limits, fallback=False, max_steps=80, violation_floor=COLD_FLOOR,
+                   merit=merit)
+        assert r.converged
+        assert r.plan.J == pytest.approx(cold.J, rel=1e-10)
+        assert check_limits(system, limits, r.plan.mesh, r.plan.coeffs).feasible
+        steps[merit] = r.steps
+    assert steps[True] <= 8 < 20 < steps[False]

@@ -1,43 +1,112 @@
-"""A free final time by Newton (SQP) steps in (x, T) together, from one fixed-T solve at the guess.
+"""A free final time by Newton (SQP) steps in (x, T) together.
 
 ``hoc_cli.free_time.minimize_time`` finds the optimal T by a one-dimensional search over fixed-T solves
-(each a full solve with its goal and limit loops: 7 solves and ~50 s for the lbr7 catch). Here the
-problem at the guess T is solved once, and the warm replan's SQP steps (``hoc_cli.goals.replan``: x, T
-and the multipliers together, the limits as inequality rows of each step's QP) move T to where
-F'(T) = dJ*/dT + weight vanishes or a bound holds it: the same first-order conditions as the search's
-end, at the cost of one solve and some tens of Newton steps (the catch: 5 s). When the steps do not
-converge the search runs as before, seeded with the solve at the guess. Pure maths: no I/O.
+(each a full solve with its goal and limit loops: 7 solves and ~50 s for the lbr7 catch). Here the warm
+replan's SQP steps (``hoc_cli.goals.replan``: x, T and the multipliers together, the limits as inequality
+rows of each step's QP) move x and T to where F'(T) = dJ*/dT + weight vanishes or a bound holds it: the
+same first-order conditions as the search's end.
+
+1. The plan at the guess T: with limits enforced, the same Newton steps at fixed T from the initial
+   trajectory with zero multipliers and an empty working set (``GoalSolver.initial``; the limits are the
+   steps' inequality rows), a step halved while it does not decrease the ℓ1 merit function
+   (``replan_qp.MeritTest``) or raises the goal rows' violation above ``COLD_FLOOR``; then, as
+   ``plan_goals`` does, while J with G + 4 Gauss points per element differs from J by more than 1e-12
+   relative, G grows by 4 and the steps go on from the plan (its multipliers by least squares,
+   ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within
+   ``COLD_STEPS``, and without limits, one fixed-T solve (``plan_goals``: continuation, the goal rows' and
+   the limits' augmented-Lagrangian loops). The lbr7 catch: 47 steps; a two-link link goal: 4.
+2. The steps in x and T from that plan (the same quadrature test at their end).
+3. When those do not converge, the search runs, seeded with the plan at the guess.
+
+Moving T only once the plan at the guess has converged keeps the search's local optimum: steps in x
+and T from the initial trajectory reached the catch's optimum in fewer steps, but on a two-link link
+goal they ran to T's upper bound, a local optimum of J + weight·T 40 % dearer than the interior one.
+
+Pure maths: no I/O.
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
 
-from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time
+from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time, plan_time_derivative
 from hoc_cli.goals.replan import TimeRange, replan
+from hoc_cli.planner import QUADRATURE_RTOL
 
-MAX_STEPS = 60  # Newton steps before the search takes over
+MAX_STEPS = 60  # Newton steps from the solve at the guess before the search takes over
+COLD_STEPS = 80  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over
+COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 
 def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], system, goals, T_min: float,
                       T_max: float, *, guess: float | None = None, weight: float = 0.0, limits=None,
-                      max_steps: int = MAX_STEPS) -> FreeTimeResult:
-    """The free-T optimum (module docstring); ``solve`` as ``minimize_time``'s (``goal_solver``), whose results are
-    ``GoalResult`` on uniform meshes; ``goals``: the ``Goals``; ``limits``: the enforced ``JointLimits`` or None.
+                      max_steps: int = MAX_STEPS, cold_steps: int = COLD_STEPS) -> FreeTimeResult:
+    """The free-T optimum (module docstring); ``solve`` as ``minimize_time``'s (a ``GoalSolver``, whose results
+    are ``GoalResult``; without an ``initial`` method the steps from scratch are skipped); ``goals``: the
+    ``Goals``; ``limits``: the enforced ``JointLimits`` or None; ``cold_steps`` = 0 skips the steps from scratch.
     """
     guess = math.sqrt(T_min * T_max) if guess is None else min(max(guess, T_min), T_max)
-    first = solve(guess, None)
+    span = TimeRange(T_min, T_max, weight)
+    initial = getattr(solve, "initial", None)
+    first = None
+    if initial is not None and cold_steps > 0 and limits is not None and limits.any:
+        r = replan(system, initial(guess), goals, limits=limits, fallback=False, max_steps=cold_steps,
+                   violation_floor=COLD_FLOOR, merit=True)
+        r = _with_quadrature(r, system, goals, None, limits, max_steps) if r.converged else None
+        if r is not None:
+            plan = r.plan
+            d = plan_time_derivative(plan, system, limits, goals=plan.terms if plan.problem.points else None)
+            first = TimePoint(T=guess, J=plan.J, dJ_dT=d, result=plan)
+    if first is None:
+        first = solve(guess, None)
     if getattr(first.result, "converged", False):
-        r = replan(system, first.result, goals, free=TimeRange(T_min, T_max, weight), limits=limits,
-                   fallback=False, max_steps=max_steps)
-        if r.converged:
-            J = r.plan.J
-            point = TimePoint(T=r.T, J=J, dJ_dT=r.dJ_dT, result=r.plan)
-            bound = "min" if r.T <= T_min and r.dJ_dT + weight > 0 else "max" if r.T >= T_max and r.dJ_dT + weight < 0 else None
-            return FreeTimeResult(T=r.T, J=J, dJ_dT=r.dJ_dT, objective=J + weight * r.T, weight=weight, bound=bound,
-                                  point=point, history=[first, point], converged=True)
+        r = replan(system, first.result, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+        r = _with_quadrature(r, system, goals, span, limits, max_steps) if r.converged else None
+        if r is not None:
+            point = _point(r)
+            return _result(point, [first, point], T_min, T_max, weight)
 
     def seeded(T: float, nearest: TimePoint | None) -> TimePoint:
         return first if T == first.T else solve(T, nearest)
 
     return minimize_time(seeded, T_min, T_max, guess=guess, weight=weight)
+
+
+def _point(r) -> TimePoint:
+    return TimePoint(T=r.T, J=r.plan.J, dJ_dT=r.dJ_dT, result=r.plan)
+
+
+def _result(point: TimePoint, history: list, T_min: float, T_max: float, weight: float) -> FreeTimeResult:
+    T, slope = point.T, point.dJ_dT + weight
+    bound = "min" if T <= T_min and slope > 0 else "max" if T >= T_max and slope < 0 else None
+    return FreeTimeResult(T=T, J=point.J, dJ_dT=point.dJ_dT, objective=point.J + weight * T, weight=weight,
+                          bound=bound, point=point, history=history, converged=True)
+
+
+def _with_quadrature(r, system, goals, span: TimeRange | None, limits, max_steps: int):
+    """The converged replan ``r`` with G raised by 4 (and the steps resumed) until its quadrature converges
+    (``_quadrature_converged``; G ≤ 32 as ``plan_goals``), or None when resumed steps do not converge; ``span``:
+    the free T's range, or None for a fixed T.
+    """
+    from hoc_cli.goals.warm import previous_plan
+
+    while not _quadrature_converged(r.plan) and r.plan.G < 32:
+        plan = r.plan
+        q0, dq0 = plan.problem.boundary[:2]
+        start = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G + 4,
+                              limits=limits)
+        r = replan(system, start, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+        if not r.converged:
+            return None
+    return r
+
+
+def _quadrature_converged(plan) -> bool:
+    """J of the plan with G + 4 Gauss points per element equal to its J to ``QUADRATURE_RTOL`` (or within four
+    times the cost's rounding noise), as ``plan_goals`` accepts a quadrature.
+    """
+    problem = plan.problem
+    x = problem.layout.pack(plan.coeffs)
+    ev = problem.evaluate(x)
+    J4 = problem.with_quadrature(problem.G + 4).value(x)
+    return abs(J4 - ev.J) <= max(QUADRATURE_RTOL * abs(J4), 4 * ev.noise)

@@ -53,7 +53,7 @@ from hoc_cli.free_time import (
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers, penalty_value
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
-from hoc_cli.goals.replan_point import damped_trial, evaluate_point, solve_many
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, evaluate_point, solve_many
 from hoc_cli.goals.replan_qp import QPReplan, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
@@ -122,7 +122,7 @@ def _start(previous) -> tuple[GoalResult, float | None]:
 
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
-           fallback: bool = True) -> ReplanResult:
+           fallback: bool = True, violation_floor: float = VIOLATION_FLOOR, merit: bool = False) -> ReplanResult:
     """Re-solve ``goals`` warm from ``previous`` (see the module docstring).
 
     Parameters
@@ -139,6 +139,11 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         (the steps take ∂²ℒ/∂T² from a finite difference).
     tol : the Newton decrement's tolerance relative to |J|.
     max_steps : Newton steps before the full solver takes over (``fallback``; else returned as is).
+    violation_floor : a step is halved while it raises the goal rows' violation above max(violation, this)
+        (m, rad, m/s); far from the optimum (a cold start from the initial trajectory) a larger floor lets
+        the steps follow curved rows with fewer halvings.
+    merit : with kinematic limits as the steps' rows, also halve a step while it does not decrease the ℓ1
+        merit function (``replan_qp.MeritTest``): for steps from far away (the initial trajectory).
 
     Returns
     -------
@@ -178,10 +183,10 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     rho_aug = RHO_AUG * max(abs(plan0.J), 1.0)
     if active is not None:
         out = qp_steps(system, plan0, goals, lam, active, free=free, limits=limits, tol=tol, max_steps=max_steps,
-                       rho_aug=rho_aug)
+                       rho_aug=rho_aug, floor=violation_floor, merit=merit)
     else:
         out = _penalty_steps(system, plan0, goals, lam, state, free=free, limits=limits if limited else None,
-                             tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start)
+                             tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start, floor=violation_floor)
     pt, T, lam, active, status, steps, evals, decrement = (out.point, out.T, out.lam, out.active, out.status,
                                                            out.steps, out.evals, out.decrement)
     rows = sum(v.size for v in lam[:npts])  # the goal rows (pt.c goes on with the limits' working set)
@@ -213,7 +218,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
 
 
 def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limits, tol: float, max_steps: int,
-                   rho_aug: float, start: float) -> QPReplan:
+                   rho_aug: float, start: float, floor: float = VIOLATION_FLOOR) -> QPReplan:
     """The Newton steps with the limits as augmented-Lagrangian terms at fixed multipliers (``state``:
     [working, μ_lo, μ_hi, ρ], updated in place) and their multiplier rounds at inner optima: the steps
     of plans whose effort limits bind (module docstring).
@@ -327,7 +332,7 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
             lam_a = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
             return T_a, at(T_a, rescale(problem.coefficients(x + alpha * dx), T, T_a), lam_a)
 
-        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation)
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor)
         if trial is None:
             break
         lam_try = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]

@@ -141,9 +141,11 @@ def dense_factor(W) -> np.ndarray:
 
 
 def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], goal_rows: int,
-                 violation: float) -> tuple["LagrangianPoint | None", float, float, float]:
+                 violation: float, floor: float = VIOLATION_FLOOR,
+                 accept: Callable[[float, float, "LagrangianPoint"], bool] | None = None,
+                 ) -> tuple["LagrangianPoint | None", float, float, float]:
     """A Newton step halved (down to 1/32) while it raises the goal rows' violation above
-    max(``violation``, ``VIOLATION_FLOOR``): far steps leave the model. ``trial_at(alpha)`` gives (T, point)
+    max(``violation``, ``floor``) (far steps leave the model) or ``accept(alpha, T, point)`` says no. ``trial_at(alpha)`` gives (T, point)
     of the step scaled by alpha; the first ``goal_rows`` entries of the point's rows are the goal rows'.
     Returns (point or None when it could not be evaluated, T, alpha, its violation).
     """
@@ -154,6 +156,7 @@ def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], g
             v_try = float(np.max(np.abs(trial.c[:goal_rows]), initial=0.0))
         except NumericalError:
             T_try, trial, v_try = math.nan, None, math.inf
-        if (trial is not None and v_try <= max(violation, VIOLATION_FLOOR)) or alpha < 0.05:
+        if (trial is not None and v_try <= max(violation, floor) and (accept is None or accept(alpha, T_try, trial))) \
+                or alpha < 0.05:
             return trial, T_try, alpha, v_try
         alpha *= 0.5

@@ -39,7 +39,7 @@ from hoc_cli.goals.active_limits import ActiveRows, all_rows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
-from hoc_cli.goals.replan_point import damped_trial, dense_factor, evaluate_point
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
@@ -83,12 +83,14 @@ class QPReplan:
 
 
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
-             rho_aug: float) -> QPReplan:
+             rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
     active : the working set (the previous plan's kinematic rows with μ > 0); free : ``TimeRange`` or None;
-    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD.
+    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD;
+    floor : a step is damped while it raises the goal rows' violation above max(violation, floor) (``damped_trial``);
+    merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum.
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -106,6 +108,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
+    test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     while True:
         evals += 1
         problem, C = pt.problem, pt.C
@@ -200,7 +203,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             T_a = T + alpha * dT
             return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
 
-        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation)
+        accept = None
+        if test is not None:
+            accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept)
         if trial is None:
             break
         if _DEBUG:
@@ -209,6 +215,45 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
+
+
+class MeritTest:
+    """Armijo's test on the ℓ1 merit function φ = I + weight·T + π (Σ|c| + Σ max(0, g)) over the goal rows c
+    and every kinematic Bernstein row g (Nocedal & Wright, Numerical Optimization, §18.3): a step of the
+    programme is a descent direction of φ once π exceeds its multipliers, so backtracking on φ keeps steps
+    far from the optimum from running off (the steps' own test only watches the goal rows). π = 1.1 × the
+    largest multiplier seen.
+    """
+
+    ARMIJO = 1e-4
+
+    def __init__(self, system, limits, r_goal: int, weight: float) -> None:
+        self.system, self.limits, self.r, self.weight = system, limits, r_goal, weight
+        self.pi = 0.0
+
+    def infeasibility(self, pt, everything=None) -> float:
+        """Σ|c| over the goal rows + Σ max(0, g) over every kinematic row at the point."""
+        if everything is None:
+            everything = all_rows(self.system, self.limits, pt.rows, pt.C)
+        rows = sum(float(np.sum(np.maximum(g, 0.0))) for g in everything.g_lo[:3] + everything.g_hi[:3])
+        return float(np.sum(np.abs(pt.c[:self.r]))) + rows
+
+    def prepare(self, pt, T: float, slope_I: float, multipliers: np.ndarray, everything):
+        """The acceptance test of the step from ``pt`` (at T): ``slope_I`` the derivative of I + weight·T along it,
+        ``multipliers`` its programme's, ``everything``: ``all_rows`` at ``pt``.
+        """
+        self.pi = max(self.pi, 1.1 * float(np.max(np.abs(multipliers), initial=0.0)))
+        h0 = self.infeasibility(pt, everything)
+        phi0 = pt.J + self.weight * T + self.pi * h0
+        slope = slope_I - self.pi * h0
+        if slope >= 0.0:  # not a descent direction of φ (a modified Hessian far out): the steps' own test only
+            return None
+
+        def accept(alpha: float, T_try: float, trial) -> bool:
+            phi = trial.J + self.weight * T_try + self.pi * self.infeasibility(trial)
+            return phi <= phi0 + self.ARMIJO * alpha * slope
+
+        return accept
 
 
 def _fits(U: np.ndarray | None, P: int) -> bool:

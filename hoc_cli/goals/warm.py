@@ -122,3 +122,14 @@ def previous_plan(system, mesh: HermiteMesh, C: np.ndarray, q0, dq0, goals: Goal
     return GoalResult(mesh=mesh, coeffs=C, J=ev.J, optimizer=opt, G=problem.G, quadrature_change=math.nan,
                       wall_time_s=0.0, problem=problem, limits=state, terms=terms,
                       violation=terms.violation(C) if problem.points else 0.0, goals=goals)
+
+
+def initial_plan(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = "covariant",
+                 G: int | None = None) -> GoalResult:
+    """The initial trajectory of ``plan_goals`` on ``mesh`` (minimum jerk from x0 to the goal's final state
+    or its guess, ``Goals.q1_guess``) as a ``GoalResult`` with zero multipliers and no limits' state: the
+    start of a replan's Newton steps from scratch (``hoc_cli.goals.free_time_sqp``).
+    """
+    problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+    C = problem.coefficients(problem.initial_guess())
+    return previous_plan(system, mesh, C, q0, dq0, goals, cost=cost, G=G, multipliers="zeros")
