@@ -25,7 +25,7 @@ from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.model import load_robot
 from hoc_cli.problem import Layout
 from hoc_cli.system import RobotSystem
-from tests._robots import ROBOTS
+from tests._robots import ROBOTS, ROOT
 
 MODEL = load_robot(ROBOTS / "two_link.urdf")
 SYSTEM = RobotSystem(MODEL)
@@ -206,38 +206,65 @@ def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():
         assert check_limits(SYSTEM, limits, warm.plan.mesh, warm.plan.coeffs).feasible
 
 
+def _task(path, text: str):
+    """(system, goals, limits, x0 states) of a task file written at ``path``."""
+    from hoc_cli.commands.common import load_model
+    from hoc_cli.commands.plan_goals import task_goals
+    from hoc_cli.commands.plan_limits import task_limits
+    from hoc_cli.io.task import load_task, resolve
+
+    path.write_text(text)
+    task = load_task(path, purpose="plan")
+    model = load_model(task)
+    states = resolve(task, model.joint_names)
+    return RobotSystem(model), task_goals(task, model, states), task_limits(model, states.limits), states
+
+
+def _from_initial(system, goals, limits, states, mesh, merit: bool):
+    from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
+    from hoc_cli.goals.warm import initial_plan
+
+    start = initial_plan(system, mesh, states.q0, states.dq0, goals)
+    return replan(system, start, goals, limits=limits, fallback=False, max_steps=COLD_STEPS,
+                  violation_floor=COLD_FLOOR, merit=merit)
+
+
 def test_steps_from_the_initial_trajectory_need_the_merit_test(tmp_path):
     """The plan at a free T's guess by Newton steps from the initial trajectory (``minimize_time_sqp``'s first
     phase): on a two-link link goal with gravity and URDF limits, the steps whose length is chosen by the ℓ1
     merit function converge in a few steps to ``plan_goals``' optimum (J to 1e-10); steps damped by the goal
     rows' violation alone run J up to 10⁴ and back and take over 20."""
     import shutil
-    from pathlib import Path
-
-    from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_goals import task_goals
-    from hoc_cli.commands.plan_limits import task_limits
-    from hoc_cli.goals.free_time_sqp import COLD_FLOOR
-    from hoc_cli.goals.warm import initial_plan
-    from hoc_cli.io.task import load_task, resolve
 
     shutil.copy(ROBOTS / "two_link.urdf", tmp_path / "arm.urdf")
-    (tmp_path / "t.yaml").write_text("robot: arm.urdf\ngravity: [0.0, 0.0, -9.81]\nx0: {q: [0.0, 0.0]}\n"
-                                     "x1: {link: tool, position: [0.91, 0.0, 1.3], dq: zero}\nT: 1.0\nN: 8\n"
-                                     "order: quintic\n")
-    task = load_task(Path(tmp_path / "t.yaml"), purpose="plan")
-    model = load_model(task)
-    states = resolve(task, model.joint_names)
-    goals, limits, system = task_goals(task, model, states), task_limits(model, states.limits), RobotSystem(model)
+    system, goals, limits, states = _task(tmp_path / "t.yaml", "robot: arm.urdf\ngravity: [0.0, 0.0, -9.81]\n"
+                                          "x0: {q: [0.0, 0.0]}\nx1: {link: tool, position: [0.91, 0.0, 1.3], dq: zero}\n"
+                                          "T: 1.0\nN: 8\norder: quintic\n")
     mesh = HermiteMesh("quintic", 1.0, 8)
     cold = plan_goals(system, mesh, states.q0, states.dq0, goals, limits=limits)
     steps = {}
     for merit in (True, False):
-        start = initial_plan(system, mesh, states.q0, states.dq0, goals)
-        r = replan(system, start, goals, limits=limits, fallback=False, max_steps=80, violation_floor=COLD_FLOOR,
-                   merit=merit)
+        r = _from_initial(system, goals, limits, states, mesh, merit)
         assert r.converged
         assert r.plan.J == pytest.approx(cold.J, rel=1e-10)
         assert check_limits(system, limits, r.plan.mesh, r.plan.coeffs).feasible
         steps[merit] = r.steps
     assert steps[True] <= 8 < 20 < steps[False]
+
+
+def test_steps_from_the_initial_trajectory_on_the_lbr7_converge_with_the_levenberg_marquardt_shift(tmp_path):
+    """The lbr7's flange to a point at rest (T = 1 s, URDF limits): the programme's full steps are far too long in
+    the wrist's flat directions (the merit test cut them to 1/32 for 50 steps); with the Levenberg-Marquardt
+    shift that grows while steps are cut and vanishes once full steps pass, the steps converge within
+    ``COLD_STEPS`` to ``plan_goals``' optimum (J to 1e-8: the two stopping tests differ), within the limits."""
+    catch = (ROOT / "configs" / "catch_ball.yaml").read_text()
+    text = "\n".join(line for line in catch.splitlines() if line.startswith(("x0:", "N:", "order:")))
+    text = (f"robot: {ROOT / 'robots' / 'lbr7.urdf'}\n{text}\n"
+            "x1: {link: lbr_flange, position: [0.5, 0.2, 0.6]}\nT: 1.0\n")
+    system, goals, limits, states = _task(tmp_path / "t.yaml", text)
+    mesh = HermiteMesh("quintic", 1.0, 8)
+    r = _from_initial(system, goals, limits, states, mesh, True)
+    assert r.converged
+    cold = plan_goals(system, mesh, states.q0, states.dq0, goals, limits=limits)
+    assert r.plan.J == pytest.approx(cold.J, rel=1e-8)
+    assert check_limits(system, limits, r.plan.mesh, r.plan.coeffs).feasible

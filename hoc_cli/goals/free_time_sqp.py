@@ -9,7 +9,8 @@ same first-order conditions as the search's end.
 1. The plan at the guess T: with limits enforced, the same Newton steps at fixed T from the initial
    trajectory with zero multipliers and an empty working set (``GoalSolver.initial``; the limits are the
    steps' inequality rows), a step halved while it does not decrease the ℓ1 merit function
-   (``replan_qp.MeritTest``) or raises the goal rows' violation above ``COLD_FLOOR``; then, as
+   (``replan_qp.MeritTest``; a Levenberg-Marquardt shift of the Newton matrix grows while steps are cut)
+   or raises the goal rows' violation above ``COLD_FLOOR``; then, as
    ``plan_goals`` does, while J with G + 4 Gauss points per element differs from J by more than 1e-12
    relative, G grows by 4 and the steps go on from the plan (its multipliers by least squares,
    ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within

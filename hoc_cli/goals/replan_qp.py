@@ -47,6 +47,7 @@ _DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
+LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit test cut below a quarter
 LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 
 
@@ -90,7 +91,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     active : the working set (the previous plan's kinematic rows with μ > 0); free : ``TimeRange`` or None;
     limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD;
     floor : a step is damped while it raises the goal rows' violation above max(violation, floor) (``damped_trial``);
-    merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum.
+    merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum;
+        then the Newton matrix's diagonal is raised by a relative Levenberg-Marquardt shift (``LM_START``, ×10 after
+        each step cut below a quarter, ÷10 after a full step, 0 below ``LM_START``).
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -109,6 +112,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
+    lm = 0.0  # with the merit test: a Levenberg-Marquardt shift of the Newton matrix (relative, as BandedSPD's)
     while True:
         evals += 1
         problem, C = pt.problem, pt.C
@@ -125,11 +129,11 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
             try:
                 W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, True, pt.where),
-                                   shift=0.0)
+                                   shift=lm)
             except NumericalError:  # away from the optimum: the goal rows' curvature without its negative part
                 try:
                     W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False,
-                                                            pt.where), shift=0.0)
+                                                            pt.where), shift=lm)
                 except NumericalError:
                     if _DEBUG:
                         print(f"qp step {steps}: the Newton matrix is not positive definite")
@@ -209,6 +213,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept)
         if trial is None:
             break
+        if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
+            lm = max(10.0 * lm, LM_START) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
         if _DEBUG:
             print(f"  alpha {alpha} |dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
                   f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
