@@ -15,7 +15,7 @@ same first-order conditions as the search's end.
    relative, G grows by 4 and the steps go on from the plan (its multipliers by least squares,
    ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within
    ``COLD_STEPS``, and without limits, one fixed-T solve (``plan_goals``: continuation, the goal rows' and
-   the limits' augmented-Lagrangian loops). The lbr7 catch: 47 steps; a two-link link goal: 4.
+   the limits' augmented-Lagrangian loops). The lbr7 catch: 45 steps; a two-link link goal: 4.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
