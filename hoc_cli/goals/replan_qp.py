@@ -189,6 +189,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         t_done = free is None or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight) or (
             (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
         if decrement <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT and t_done:
+            if lm > 0.0:  # a shifted matrix understates the decrease: test again with the Newton matrix itself
+                lm, decrement, U_last = 0.0, math.inf, None
+                continue
             check = check_limits(system, limits, problem.mesh, C)
             if check.feasible:
                 status = Status.CONVERGED
