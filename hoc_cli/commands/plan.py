@@ -71,9 +71,6 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
     goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
-    if goals is not None and gradient_check:
-        raise TaskError("--check-gradient checks joint goals in a fixed T (the task has goals: docs/goals.md)",
-                        file=task.path, key="x1")
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
     limits = task_limits(model, states.limits)
@@ -102,6 +99,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     if goals is not None and starts > 1:
         raise OutputError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
                           key=starts_key)
+    if gradient_check and goals is not None:
+        return _check_goal_gradient(task, model, states, goals, console, as_json)
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
     check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
@@ -225,6 +224,17 @@ def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, consol
                   f"coefficients, {where}; {'passed' if passed else 'FAILED'} (threshold {GRADIENT_RTOL:g})",
                   highlight=False, markup=False, soft_wrap=True)
     return EXIT_OK if passed else EXIT_UNMET
+
+
+def _check_goal_gradient(task: Task, model, states, goals, console, as_json: bool) -> int:
+    """``--check-gradient`` on a task with goals (``hoc_cli.commands.gradient_goals``) at the initial trajectory."""
+    from hoc_cli.commands.gradient_goals import goal_gradient_checks, report
+    from hoc_cli.commands.plan_goals import node_fractions
+
+    checks = goal_gradient_checks(model, task.order, task.T, task.N, node_fractions(task, goals), states.q0,
+                                  states.dq0, goals, cost=task.cost, free_time=task.time.free is not None,
+                                  max_coordinates=GRADIENT_MAX_COORDINATES)
+    return report(checks, GRADIENT_RTOL, console, as_json, cost=task.cost, order=task.order, N=task.N)
 
 
 def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
