@@ -5,7 +5,7 @@ replans (``hoc_cli.goals.replan``) after the ball's initial position moves by a 
                                       [--breakdown]
 
 Times the Python call alone (no process start-up, no task loading): the cold solve is ``hoc plan``'s
-free T (``minimize_time_sqp``: a fixed-T solve at the guess, then Newton steps in x and T); each replan
+free T (``minimize_time_sqp``: a plan at the guess, then Newton steps in x and T); each replan
 starts from the cold optimum, its multipliers and T. Prints one row per move: the wall time (best of ``--repeat``), Newton steps and whether it
 converged (within 40 steps; no fallback to the full solver is timed) of a replan with T fixed at the previous
 optimum's and of one with the free T, and the free-T replan's T, J and goal rows' violation; with ``--cold-moved``

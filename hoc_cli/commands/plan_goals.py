@@ -131,7 +131,7 @@ def goal_mesh(task: Task, goals: Goals) -> HermiteMesh:
 
 def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init=None, init=None):
     """(PlanResult, summary keys) for a task with goals: ``plan_goals`` at T (from ``C_init`` when given,
-    ``--init``), or a free T (``minimize_time_sqp``: a solve at the guess, then Newton steps in x and T; the
+    ``--init``), or a free T (``minimize_time_sqp``: a plan at the guess, then Newton steps in x and T; the
     search over fixed-T solves for joint goals), or with ``init`` (the
     mesh and coefficients of an earlier plan, ``--init`` with a free T) a warm replan from it.
     """
@@ -157,7 +157,7 @@ def solve(task: Task, model, states, goals: Goals, limits, callback=None, C_init
     start = time.perf_counter()
     if plain:  # the replan's steps take goal plans (not the plain joint-goal solver's)
         ft = minimize_time(solver, free.min, free.max, guess=free.guess, weight=free.weight)
-    else:  # one solve at the guess, then Newton steps in x and T (the search if they do not converge)
+    else:  # a plan at the guess, then Newton steps in x and T (the search if they do not converge)
         ft = minimize_time_sqp(solver, system, goals, free.min, free.max, guess=free.guess, weight=free.weight,
                                limits=limits)
     result = dataclasses.replace(ft.result, wall_time_s=time.perf_counter() - start)  # every solve of the search

@@ -34,7 +34,7 @@ from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time, plan_tim
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.planner import QUADRATURE_RTOL
 
-MAX_STEPS = 60  # Newton steps from the solve at the guess before the search takes over
+MAX_STEPS = 60  # Newton steps in x and T from the plan at the guess before the search takes over
 COLD_STEPS = 80  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
