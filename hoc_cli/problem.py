@@ -190,6 +190,7 @@ class ControlProblem:
         self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
         self.n_evals = 0
         self.last: Evaluation | None = None
+        self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
 
     # -- design vector ---------------------------------------------------------------------------------
     def initial_guess(self) -> np.ndarray:
@@ -352,11 +353,22 @@ class ControlProblem:
         (N, 2mn, 2mn): positive semi-definite element blocks of other terms (limit penalties),
         added to both.
         """
-        Hs, GNs = self.hessian_samples(ev)
+        Hb, GNs = self._element_hessians(ev)
         if extra is None:
-            return self.positive_definite(element_blocks(self.op_h, Hs), lambda: element_blocks(self.op_h, GNs), shift)
-        return self.positive_definite(element_blocks(self.op_h, Hs) + extra,
-                                      lambda: element_blocks(self.op_h, GNs) + extra, shift)
+            return self.positive_definite(Hb, lambda: element_blocks(self.op_h, GNs), shift)
+        return self.positive_definite(Hb + extra, lambda: element_blocks(self.op_h, GNs) + extra, shift)
+
+    def _element_hessians(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
+        """(element blocks (N, 2mn, 2mn) of the per-sample Hessians, the per-sample positive semi-definite parts)
+        at ev; those of the last ev are kept, so a second Newton matrix at the same point (other ``extra``
+        terms, another shift) costs no second Hessian sweep.
+        """
+        kept = self._kept_hessians
+        if kept is not None and kept[0] is ev:
+            return kept[1], kept[2]
+        Hs, GNs = self.hessian_samples(ev)
+        self._kept_hessians = (ev, element_blocks(self.op_h, Hs), GNs)
+        return self._kept_hessians[1], GNs
 
     def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.
