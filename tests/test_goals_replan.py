@@ -3,15 +3,15 @@ optimum as a cold solve of the moved task (J, T, the link at the target to 1e-9)
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numpy as np
 import pytest
 
 from hoc_cli.dynamics import link_poses, link_velocity
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.free_time import goal_solver, minimize_time, rescale
+from hoc_cli.free_time import goal_solver, rescale
 from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
+from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.replan import TimeRange, curvature_of, replan
 from hoc_cli.model import load_robot
 from hoc_cli.system import RobotSystem
@@ -73,14 +73,16 @@ def test_free_time_replan_converges_in_a_few_steps_to_the_free_time_optimum():
             assert other.J >= warm.plan.J
 
 
-@pytest.mark.skipif(not os.environ.get("HOC_SLOW_TESTS"), reason="~2 min (the cold free-T search over fixed-T solves); HOC_SLOW_TESTS=1")
 def test_free_time_replan_of_a_moving_target_is_a_free_time_optimum():
-    """After the target moves, the replan's T makes F'(T) = dJ*/dT vanish, the link meets the
-    target in position and velocity at T to 1e-9, and fixed-T plans at T ± 2 % cost no less."""
+    """From the free-T optimum of a moving target (``minimize_time_sqp``: a plan at the guess, then Newton steps
+    in x and T; against the search in tests/test_replan_limits.py), after the target moves, the replan's T
+    makes F'(T) = dJ*/dT + weight vanish, the link meets the target in position and velocity at T to 1e-9, and
+    fixed-T plans at T ± 2 % cost no less."""
     span = TimeRange(0.3, 1.5, weight=1.0)
     solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals_at(0.0, moving=True))
-    previous = minimize_time(solver, span.min, span.max, guess=0.6, weight=span.weight)
-    assert previous.bound is None and curvature_of(previous) > 0
+    previous = minimize_time_sqp(solver, SYSTEM, goals_at(0.0, moving=True), span.min, span.max, guess=0.6,
+                                 weight=span.weight)
+    assert previous.converged and previous.bound is None and curvature_of(previous) > 0
     same = replan(SYSTEM, previous, goals_at(0.0, moving=True), free=span, fallback=False)
     assert same.steps == 0 and same.converged  # from its own optimum: converged at once
     moved = goals_at(0.003, moving=True)
