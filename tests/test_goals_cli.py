@@ -116,3 +116,15 @@ def test_a_free_t_task_simulated_with_its_plan_s_torque_csv_runs_to_the_plan_s_t
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
     assert s["T"] == T and s["final_error"] < 1e-3
+
+
+@pytest.mark.parametrize("config, shows", [("two_link_pose.yaml", "tool: position to"),
+                                           ("two_link_free_time.yaml", "dJ_dT"),
+                                           ("two_link_via.yaml", "boundary_error")])
+def test_the_human_summary_of_a_task_with_goals(tmp_path, monkeypatch, config, shows):
+    """The table a terminal shows (here forced by --progress) for every goal kind: it has no J error estimate
+    (goals have none) and shows the reached pose or the free T's slope instead."""
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["plan", str(ROOT / "configs" / config), "--progress", "-o", "p.csv"])
+    assert r.exit_code == 0, r.output
+    assert "hoc plan" in r.output and shows in r.output and "internal error" not in r.output

@@ -1,6 +1,6 @@
-"""``hoc plan --check-gradient`` on tasks with goals (hoc_cli/commands/gradient_goals.py): the cost gradient with the
-free final state, the goal rows' Jacobian, ∂J/∂T and the rows' ∂c/∂T against central differences; each part
-catches a 0.1 % error in its own derivative."""
+"""``hoc plan --check-gradient`` on tasks with goals (hoc_cli/commands/gradient_goals.py): the cost gradient
+with the free final state, the goal rows' Jacobian, ∂J/∂T and the rows' ∂c/∂T against central differences; each
+part catches a 0.1 % error in its own derivative."""
 from __future__ import annotations
 
 import json
@@ -52,3 +52,4 @@ def test_a_wrong_derivative_fails_its_part(tmp_path, monkeypatch, part):
     code, c = check(tmp_path, monkeypatch)
     assert code == 1 and c["passed"] is False
     assert c["worst"] == part and 1e-4 < c["parts"][part]["max_rel_error"] < 1e-2
+

@@ -315,14 +315,19 @@ def summary_table(summary: dict) -> Table:
     table.add_column("key")
     table.add_column("value")
     for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
-                "N", "mesh", "order", "T", "boundary_error", "J_error_estimate"):
-        if key == "mesh" and summary[key] == "uniform":
-            continue  # shown for the non-uniform meshes of N: auto only
+                "N", "mesh", "order", "T", "dJ_dT", "T_bound", "boundary_error", "J_error_estimate"):
+        if key not in summary or (key == "mesh" and summary[key] == "uniform"):
+            continue  # goals have no error estimate, joint goals no dJ_dT; the mesh shown when non-uniform only
         v = summary[key]
         table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
     # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
     table.add_row("max |u|", Text(", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"]))))
     table.add_row("status", Text(str(summary["status"])))
+    reached = summary.get("reached")
+    if reached:
+        errors = ", ".join(f"{k.removesuffix('_error')} to {reached[k]:.2g}" for k in
+                           ("position_error", "orientation_error", "velocity_error") if reached.get(k) is not None)
+        table.add_row("reached", Text(f"{reached['link']}: {errors}"))
     table.add_row("limits", Text(str(summary.get("limits_mode", "report"))))
     active = summary.get("active_limits") or []
     table.add_row("active limits", Text("none" if not active else "; ".join(
