@@ -118,6 +118,21 @@ def test_a_free_t_task_simulated_with_its_plan_s_torque_csv_runs_to_the_plan_s_t
     assert s["T"] == T and s["final_error"] < 1e-3
 
 
+def test_a_free_t_task_simulated_with_its_plan_s_mcap_runs_to_the_plan_s_t(tmp_path, monkeypatch):
+    """The shipped free-T task replayed with its plan's MCAP as ``--torque``: the plan's T (not the task's guess),
+    and the exact Hermite torque brings the arm to x1 (1e-8)."""
+    monkeypatch.chdir(tmp_path)
+    task = ROOT / "configs" / "two_link_free_time.yaml"
+    r = CliRunner().invoke(app, ["plan", str(task), "-o", "p.mcap", "--json", "-q"])
+    assert r.exit_code == 0, r.output
+    T = json.loads(r.stdout)["T"]
+    r = CliRunner().invoke(app, ["simulate", str(task), "--torque", "p.mcap", "--json", "-q", "-o", "none",
+                                 "--check", "1e-8"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["T"] == T and s["final_error"] < 1e-8
+
+
 @pytest.mark.parametrize("config, shows", [("two_link_pose.yaml", "tool: position to"),
                                            ("two_link_free_time.yaml", "dJ_dT"),
                                            ("two_link_via.yaml", "boundary_error")])

@@ -117,9 +117,10 @@ def run(
             task = load_task(source, purpose="simulate")
             urdf_text = ""
         task = apply_overrides(task, **(overrides or {}))
-        if plan is None and task.time.free is not None and torque is not None and Path(torque).suffix.lower() == ".csv":
-            # a free-T task replayed with a plan's torque CSV: the plan's T is the CSV's last sample time
-            task = apply_overrides(task, T=_csv_duration(Path(torque)))
+        if plan is None and task.time.free is not None and torque is not None \
+                and Path(torque).suffix.lower() in (".csv", ".mcap"):
+            # a free-T task replayed with a plan's torques: the plan's T (its mesh's, or the last sample time)
+            task = apply_overrides(task, T=_torque_duration(Path(torque)))
         targets = parse_outputs(outputs, f"{source.stem}-sim")  # never a plan's <stem>.csv/.mcap
         refuse_inputs(targets, {"the simulation source": source, "the URDF": None if plan else task.robot,
                                 "--torque": torque})
@@ -269,11 +270,20 @@ def _columns(file: Path, have: tuple[str, ...], joints: tuple[str, ...]) -> list
     return [have.index(j) for j in joints]
 
 
-def _csv_duration(file: Path) -> float:
-    """The last sample time [s] of a torque CSV (a free-T task's duration when it is simulated with it)."""
-    from hoc_cli.io.csv import read_csv
+def _torque_duration(file: Path) -> float:
+    """The duration [s] of a torque CSV (its last sample time) or plan MCAP (its mesh's T, else its last sample
+    time): a free-T task's duration when it is simulated with it.
+    """
+    if file.suffix.lower() == ".mcap":
+        from hoc_cli.io.mcap import read_plan
 
-    traj = read_csv(file)
+        traj = read_plan(file).trajectory
+        if traj.mesh is not None:
+            return float(traj.mesh.T)
+    else:
+        from hoc_cli.io.csv import read_csv
+
+        traj = read_csv(file)
     if traj.K < 2 or not traj.t[-1] > 0:
         raise InputFileError("needs at least 2 samples ending at t > 0 to give a free-T task its duration", file=file,
                              key="--torque")
