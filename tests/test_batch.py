@@ -456,3 +456,24 @@ def test_a_batch_uses_each_task_s_solver_starts_unless_the_spec_sets_starts(clie
     assert rows[0]["start_costs"] == [o["cost"] for o in s["starts"]] and len(s["starts"]) == 3
     single = hoc_cli.batch.run({"base": str(base), "sweep": {"T": [1.5]}, "starts": 1}, client2).to_pylist()
     assert single[0]["id"] != rows[0]["id"] and single[0]["cost"] == s["starts"][0]["cost"]
+
+
+def test_tasks_with_goals_are_planned_as_hoc_plan_plans_them(tmp_path):
+    """A free T, a link goal and a via (the shipped goal tasks) in one batch: each row's cost equals ``hoc plan``'s
+    (1e-12), a free T's row has its optimal duration in ``T_optimal`` (the task's guess is not the plan's T)."""
+    from hoc_cli.batch import execute_batch
+    from hoc_cli.batch.engine import connect
+
+    configs = [ROOT / "configs" / f"{name}.yaml" for name in ("two_link_free_time", "two_link_pose", "two_link_via")]
+    with connect(workers=1) as client:
+        run = execute_batch([str(c) for c in configs], client, out_dir=tmp_path / "out")
+    rows = {Path(r["task"]).name: r for r in run.table.to_pylist()}
+    assert run.solved == 3 and all(r["status"] == "converged" for r in rows.values())
+    for config in configs:
+        p = invoke("plan", config, "-o", tmp_path / "single.csv", "--json", "-q")
+        assert p.exit_code == 0, p.output
+        single = json.loads(p.stdout)
+        r = rows[config.name]
+        assert abs(r["cost"] - single["cost"]) <= 1e-12 * abs(single["cost"])
+        assert r["T_optimal"] == (single["T"] if "dJ_dT" in single else None)
+    assert abs(rows["two_link_free_time.yaml"]["T_optimal"] - 1.5) > 0.1

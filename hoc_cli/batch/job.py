@@ -9,8 +9,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
+
 from hoc_cli.batch.results import column_name
 from hoc_cli.batch.spec import Job
+from hoc_cli.errors import TaskError
 
 PLANS_DIR = "plans"
 
@@ -55,6 +58,8 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
     from hoc_cli.commands.plan import _reproducible, sample_plan, solve, summarise
+    from hoc_cli.commands.plan_goals import goal_summary, task_goals
+    from hoc_cli.commands.plan_goals import solve as solve_goals
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
     from hoc_cli.commands.starts import starts_summary
     from hoc_cli.elements import HermiteMesh
@@ -68,20 +73,31 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         task = parse_task(job.doc, path=source, text=job.text, purpose="plan")
     names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
     targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
-    check_sample_times(targets, task.T, task.rate, file=task.path)
+    check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)
     model = load_model(task)
     check_columns(targets, model.joint_names)
     states = resolve(task, model.joint_names)
     limits = task_limits(model, states.limits)
     if task.limits.mode == "enforce":
         check_boundary_states(task, limits, states)
-    mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
-    result, multi = solve(task, model, states, mesh, limits, starts=starts, seed=seed)
+    goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
+    extra: dict = {}
+    if goals is not None:  # as ``hoc plan``: a link goal, vias, a free T
+        if starts > 1:
+            raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
+                            file=task.path, key="solver.starts")
+        with np.errstate(all="ignore"):
+            result, extra = solve_goals(task, model, states, goals, limits if task.limits.mode == "enforce" else None)
+        multi = None
+    else:
+        mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
+        result, multi = solve(task, model, states, mesh, limits, starts=starts, seed=seed)
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
     summary.update(starts_summary(multi, seed))
+    summary.update(extra | goal_summary(model, result, goals))
     summary = json_ready(summary)
     if targets:
         (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
@@ -89,7 +105,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
         with output_transaction():
             write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                          summary=_reproducible(summary))
+                          summary=_reproducible(summary), goals=goals)
     return row_of(job, summary, names)
 
 
@@ -107,6 +123,8 @@ def row_of(job: Job, summary: dict, outputs: list[str]) -> dict:
         "limit_violations": json.dumps(viol, sort_keys=True) if viol else None,
         "outputs": list(outputs), "error": None,
     }
+    if "dJ_dT" in summary:  # a free T: the optimal duration [s] (not "T": a sweep over T has that column)
+        row["T_optimal"] = float(summary["T"])
     if "starts" in summary:
         row["best_start"] = int(summary["best_start"])
         row["start_costs"] = [s["cost"] for s in summary["starts"]]
