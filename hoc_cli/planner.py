@@ -136,6 +136,7 @@ class _Session:
         self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
         self.limits = limits if limits is not None and limits.any else None
         self.working = working
+        self.duals = None  # the last level's multipliers (``Duals``): the next level's warm start
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
@@ -202,8 +203,9 @@ class _Session:
             return res, res.fun, None
         use_sqp = self.precondition and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
-                     max_outer=max_outer, use_sqp=use_sqp, record=self.record)
+                     max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
+        self.duals = er.duals()
         self.sqp_mesh, self.sqp_failed = problem.mesh.N, er.sqp == "handed_over" or (self.precondition and not use_sqp)
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 

@@ -60,6 +60,8 @@ LS_MAX = 40
 REUSE_DEC = 1e-3  # relative decrement below which the SQP keeps its last (unmodified) Newton matrix
 NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 C1 = 1e-4
+STALLS = 2  # iterations in a row from a feasible x whose J falls by at most tol·|J| (or whose model predicts no
+STALL_FEAS = 1e-9  # decrease): the SQP stops, not converged; feasible: Σ max(0, g) at most this
 
 
 def kinematic_working(limits: JointLimits) -> np.ndarray:
@@ -85,19 +87,25 @@ class SQPResult:
 
 
 def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_iter: int = 50,
-        margin: float = 1e-9, working: np.ndarray | None = None) -> SQPResult:
+        margin: float = 1e-9, working: np.ndarray | None = None,
+        multipliers: tuple[tuple, tuple] | None = None) -> SQPResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within the kinematic limits.
 
     Returns an ``SQPResult``; ``result.x`` is the last iterate (feasible for the kinematic rows after
     the first full step), ``result.converged`` when the stopping test held (module docstring).
     ``working`` (4, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
-    kinematic pair with a finite bound); the caller checks the others.
+    kinematic pair with a finite bound); the caller checks the others. ``multipliers`` (λ_lo, λ_hi),
+    per kind in the kinds' row shapes (e.g. a previous solve's, ``prolong``-ed to this mesh): the
+    first QP's multipliers (default 0). With the rows active at the optimum in its first Newton
+    matrix H + Σ ρ a aᵀ, that matrix is positive definite where H alone is not (the torque cost), so
+    H is used unmodified. Stops, not converged, when ``STALLS`` iterations in a row from a feasible x
+    lower J by at most tol·|J| or are predicted by the model to rise (the QP's own accuracy).
     """
     mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
     working = kinematic_working(limits) if working is None else working & kinematic_working(limits)
     qrows = QPRows.build(rows, limits, working, base.layout.free, margin)
-    lam = np.zeros(qrows.count)
+    lam = np.zeros(qrows.count) if multipliers is None else qrows.gather(*multipliers)
     x = np.asarray(x0, float)
     ev = base.evaluate(x)
     J = ev.J
@@ -106,7 +114,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     n_evals, stop, status, ok = 1, None, Status.MAX_ITER, True
     d = np.zeros_like(x)
     dec = math.inf
-    stiff = 0
+    stiff = stalls = 0
+    stalled = False
     model = None
     for it in range(max_iter + 1):
         # within REUSE_DEC·|J| of the optimum (the last decrement) the last model's exact H is kept:
@@ -189,14 +198,19 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             n_evals += 1
         else:
             ev = trial
+        stalls = stalls + 1 if (J - ev.J <= tol * abs(J) or dec <= 0) and v0 <= STALL_FEAS else 0
         J = ev.J
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
         history.append(IterLog(it + 1, J, float(np.max(np.abs(ev.grad), initial=0.0)), dec, a, n_evals))
+        if stalls >= STALLS:  # feasible, and J no longer falls: the QP's steps are at its own accuracy
+            stalled = True
+            break
     msg = {"decrement": "the SQP stopping test held: |gᵀd + ½ dᵀHd| <= tol·|J| for the limited Newton step d",
            "rounding": "the SQP rounding-level test held: |gᵀd + ½ dᵀHd| <= the rounding level of J, which exceeds "
                        "tol·|J|"}
     text = msg[stop] if stop else ("the SQP's quadratic programme or line search failed" if not ok
+                                   else "the SQP stalled (J no longer falls, the stopping test not met)" if stalled
                                    else "the SQP iteration limit was reached")
     lo, hi = qrows.scatter(lam)  # the rows and their multipliers at the last x (the last QP's λ)
     pv = LimitTerms(system, limits, rows, working, lo, hi, rho, margin).evaluate(base.coefficients(x), grad=False)
