@@ -136,7 +136,7 @@ class _Session:
         self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
         self.limits = limits if limits is not None and limits.any else None
         self.working = working
-        self.duals = None  # the last level's multipliers (``Duals``): the next level's warm start
+        self.duals = None  # the last converged level's multipliers (``Duals``): the next solve's warm start
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
@@ -205,7 +205,7 @@ class _Session:
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
                      max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
-        self.duals = er.duals()
+        self.duals = er.duals() if er.status == "converged" else None  # only a converged level's multipliers carry over
         self.sqp_mesh, self.sqp_failed = problem.mesh.N, er.sqp == "handed_over" or (self.precondition and not use_sqp)
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
