@@ -141,9 +141,10 @@ class _Session:
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
         self.current_N = 0
-        # the SQP skips the first solve on a new mesh after the previous mesh's SQP handed over (or was
-        # skipped): far from a limited optimum whose Newton matrix is strongly indefinite (torque cost)
-        # it fails again, at the cost of its attempt; a re-solve on the same mesh tries it again
+        # the SQP skips the first solve on a new mesh after the previous mesh's SQP handed over, crawled
+        # (or was skipped): far from a limited optimum whose Newton matrix is strongly indefinite (torque
+        # cost) it fails again, and where it crawled it crawls again, at the cost of its attempt; a
+        # re-solve on the same mesh tries it again
         self.sqp_mesh, self.sqp_failed = 0, False
 
     def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
@@ -206,7 +207,8 @@ class _Session:
                      max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
         self.duals = er.duals() if er.status == "converged" else None  # only a converged level's multipliers carry over
-        self.sqp_mesh, self.sqp_failed = problem.mesh.N, er.sqp == "handed_over" or (self.precondition and not use_sqp)
+        failed = er.sqp in ("handed_over", "crawled") or (self.precondition and not use_sqp)
+        self.sqp_mesh, self.sqp_failed = problem.mesh.N, failed
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
     def problem(self, mesh: HermiteMesh, G: int | None) -> ControlProblem:

@@ -7,12 +7,16 @@ infeasible task) or stalls (its QP's accuracy reached before its stopping test h
 on from the SQP's point and multipliers). Without ``use_sqp`` (goal problems) the loop below does
 everything.
 
-Warm starts (``duals``: a previous solve's multipliers, e.g. the coarser level's of a continuation
-or the same mesh's before more Gauss points). They are carried to this mesh by ``prolong`` (the
-multiplier density per unit time transfers) and start both the SQP's first QP and the loop's λ,
-with ρ = ``WARM_RHO``·ρ0. Cold, a fine level restarts from λ = 0 and its first inner solve
-leaves the limited optimum the coarse level handed over (J falls far below it), which the
-multiplier rounds, converging linearly, then have to undo.
+Warm starts (``duals``: a previous converged solve's multipliers, e.g. the coarser level's of a
+continuation or the same mesh's before more Gauss points). They are carried to this mesh by
+``prolong`` (the multiplier density per unit time transfers) and start the SQP's first QP: with the
+rows active at the optimum in its first Newton matrix, the torque cost's indefinite H needs no
+modification and the SQP converges where, started with λ = 0, it handed over. The loop below
+starts from them (with ρ = ``WARM_RHO``·ρ0) only when they are on this mesh (a re-solve with more
+Gauss points, or the SQP's own multipliers after it stalled): a coarser mesh's multipliers with a
+large ρ made the first inner solve stiff (light-wristed arms, measured), and with ρ0 that solve
+leaves the limited optimum as a cold start does. A warm loop that does not converge is run again
+cold.
 
 The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
 exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
@@ -50,7 +54,7 @@ import numpy as np
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
-from hoc_cli.constraints.prolong import Duals, prolong
+from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 from hoc_cli.constraints.sqp import kinematic_working, sqp
 from hoc_cli.errors import NumericalError
 
@@ -94,9 +98,10 @@ class EnforceResult:
     outer_iterations; rho; check : the LimitCheck of the plan; working : (4, n) pairs imposed;
     rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row);
     sqp : "converged" (the SQP decided the plan), "handed_over" (it failed and the augmented
-    Lagrangian took over), "stalled" (it stalled within the kinematic limits; the augmented
-    Lagrangian went on from its point and multipliers), or "" (not tried: no kinematic limit
-    binds, an effort limit does, or the caller did not ask for it).
+    Lagrangian took over), "stalled" or "crawled" (it stopped within the kinematic limits, at its
+    QP's accuracy or converging too slowly; the augmented Lagrangian went on from its point and
+    multipliers), or "" (not tried: no kinematic limit binds, an effort limit does, or the caller
+    did not ask for it).
     """
 
     status: str
@@ -209,9 +214,10 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
 
     ``duals`` (a previous solve's multipliers, on any mesh) start the first QP's multipliers.
     Returns (outcome, x, working): outcome an EnforceResult when the plan is decided here, else
-    "handed_over" (the SQP failed, e.g. an infeasible task), ``Duals`` (the SQP stalled within the
-    kinematic limits: its multipliers) or None (not tried, or an effort limit is broken), with the
-    point and working set the augmented-Lagrangian loop continues from.
+    "handed_over" (the SQP failed, e.g. an infeasible task), ("stalled" or "crawled", ``Duals``)
+    (the SQP stopped within the kinematic limits, not converged: its multipliers) or None (not
+    tried, or an effort limit is broken), with the point and working set the augmented-Lagrangian
+    loop continues from.
     """
     mesh, n = base.mesh, limits.n
     first = not working.any()  # no pair known to bind yet (the plan's first level)
@@ -257,7 +263,7 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     if violated.any():
         return None, x, working
     if not s.result.converged:  # stalled or out of iterations, within the kinematic limits: its multipliers go on
-        return duals, x, working
+        return ("crawled" if s.crawled else "stalled", duals), x, working
     ok = s.result.converged
     message = (f"{s.result.message}; every limit holds (SQP iterations: {s.result.iterations})" if ok
                else f"every limit holds, but the SQP stopped: {s.result.message}")
@@ -284,7 +290,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
     takes over only when an effort limit binds or the SQP fails.
     """
-    mesh, n = base.mesh, limits.n
+    n = limits.n
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
     x = np.asarray(x0, float)
     handed_over = ""
@@ -292,9 +298,24 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         done, x, working = _sqp_phase(base, system, limits, x, tol, inner_solve, working, record, duals)
         if isinstance(done, EnforceResult):
             return done
-        if isinstance(done, Duals):  # the SQP's point and multipliers start the augmented Lagrangian
-            duals, done = done, "stalled"
+        if isinstance(done, tuple):  # the SQP's point and multipliers start the augmented Lagrangian
+            done, duals = done
         handed_over = done or ""
+    if duals is not None and not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
+        duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
+    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals)
+    if result.status == "not_converged" and duals is not None:
+        # the warm start did not converge (its multipliers or penalty did not suit this solve):
+        # the cold start, λ = 0 and ρ0, from the same point
+        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None)
+    return dataclasses.replace(result, sqp=handed_over)
+
+
+def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
+            inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray, max_outer: int,
+            duals: Duals | None) -> EnforceResult:
+    """The augmented-Lagrangian loop (module docstring, steps 1 to 4) from x, λ from ``duals`` (else 0)."""
+    mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
     lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
     warm = duals is not None and working.any()
@@ -363,5 +384,4 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
                                                     "meeting the limits); the plan returned is its start, within the limits")
             break
     return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
-                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv,
-                         sqp=handed_over)
+                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv)

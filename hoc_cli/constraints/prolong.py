@@ -66,6 +66,12 @@ def _effort(old: LimitRows, mu: np.ndarray, new: LimitRows) -> np.ndarray:
     return mu[nearest] * ratio[:, None]
 
 
+def same_mesh(a: LimitRows, b: LimitRows) -> bool:
+    """Whether two row sets lie on the same mesh (element order, count and lengths)."""
+    ma, mb = a.mesh, b.mesh
+    return ma.order == mb.order and ma.N == mb.N and np.allclose(ma.hs, mb.hs, rtol=1e-12, atol=0.0)
+
+
 def prolong(duals: Duals, rows: LimitRows) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
     """(λ_lo, λ_hi) on ``rows`` (per kind, the kind's row shape) from ``duals`` on another (or the same) mesh.
 

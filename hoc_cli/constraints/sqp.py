@@ -62,6 +62,7 @@ NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensio
 C1 = 1e-4
 STALLS = 2  # iterations in a row from a feasible x whose J falls by at most tol·|J| (or whose model predicts no
 STALL_FEAS = 1e-9  # decrease): the SQP stops, not converged; feasible: Σ max(0, g) at most this
+SLOW_WINDOW, SLOW_RATE = 5, 0.5  # ... and when the decrement from feasible points does not halve in 5 iterations
 
 
 def kinematic_working(limits: JointLimits) -> np.ndarray:
@@ -77,13 +78,15 @@ def kinematic_working(limits: JointLimits) -> np.ndarray:
 class SQPResult:
     """The SQP's outcome: ok (False: the QP or the line search failed; the caller falls back),
     result (an OptimizeResult on the cost J alone; ``result.fun`` is J at ``result.x``), penalty (the
-    rows' values and multipliers μ at x), rows (the ``LimitRows`` of the mesh).
+    rows' values and multipliers μ at x), rows (the ``LimitRows`` of the mesh), crawled (it stopped
+    because its decrement no longer halved in ``SLOW_WINDOW`` iterations).
     """
 
     ok: bool
     result: OptimizeResult
     penalty: PenaltyValue | None
     rows: LimitRows
+    crawled: bool = False
 
 
 def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_iter: int = 50,
@@ -99,7 +102,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     first QP's multipliers (default 0). With the rows active at the optimum in its first Newton
     matrix H + Σ ρ a aᵀ, that matrix is positive definite where H alone is not (the torque cost), so
     H is used unmodified. Stops, not converged, when ``STALLS`` iterations in a row from a feasible x
-    lower J by at most tol·|J| or are predicted by the model to rise (the QP's own accuracy).
+    lower J by at most tol·|J| or are predicted by the model to rise (the QP's own accuracy), or when
+    the decrement from feasible points does not halve in ``SLOW_WINDOW`` iterations (a crawl, e.g.
+    the torque cost near a limited optimum whose active rows keep shifting).
     """
     mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
@@ -115,7 +120,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     d = np.zeros_like(x)
     dec = math.inf
     stiff = stalls = 0
-    stalled = False
+    stalled = crawled = False
+    decs: list[float] = []  # |decrement| per iteration (inf from an infeasible x)
     model = None
     for it in range(max_iter + 1):
         # within REUSE_DEC·|J| of the optimum (the last decrement) the last model's exact H is kept:
@@ -199,6 +205,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         else:
             ev = trial
         stalls = stalls + 1 if (J - ev.J <= tol * abs(J) or dec <= 0) and v0 <= STALL_FEAS else 0
+        decs.append(abs(dec) if v0 <= STALL_FEAS else math.inf)
+        if len(decs) > SLOW_WINDOW and decs[-1] > SLOW_RATE * decs[-1 - SLOW_WINDOW]:
+            stalls, crawled = STALLS, True  # feasible, and the decrement does not halve in SLOW_WINDOW iterations
         J = ev.J
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
@@ -210,6 +219,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
            "rounding": "the SQP rounding-level test held: |gᵀd + ½ dᵀHd| <= the rounding level of J, which exceeds "
                        "tol·|J|"}
     text = msg[stop] if stop else ("the SQP's quadratic programme or line search failed" if not ok
+                                   else "the SQP crawled (its decrement did not halve in 5 iterations)" if crawled
                                    else "the SQP stalled (J no longer falls, the stopping test not met)" if stalled
                                    else "the SQP iteration limit was reached")
     lo, hi = qrows.scatter(lam)  # the rows and their multipliers at the last x (the last QP's λ)
@@ -217,7 +227,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     result = OptimizeResult(x=x, fun=J, grad=ev.grad, status=status, iterations=len(history), n_evals=n_evals,
                             n_precond=len(history) + 1, decrement=abs(dec), history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
-    return SQPResult(ok=ok, result=result, penalty=pv, rows=rows)
+    return SQPResult(ok=ok, result=result, penalty=pv, rows=rows, crawled=crawled)
 
 
 def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, qrows: QPRows,
