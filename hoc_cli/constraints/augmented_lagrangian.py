@@ -212,7 +212,8 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                record: Callable[[object], None] | None, duals: Duals | None = None):
     """The unconstrained solve (when nothing is known to bind), then the SQP on the kinematic rows.
 
-    ``duals`` (a previous solve's multipliers, on any mesh) start the first QP's multipliers.
+    ``duals`` (a previous solve's multipliers, on any mesh) start the first QP's multipliers where,
+    started from 0, it needs H's modification (``sqp``).
     Returns (outcome, x, working): outcome an EnforceResult when the plan is decided here, else
     "handed_over" (the SQP failed, e.g. an infeasible task), ("stalled" or "crawled", ``Duals``)
     (the SQP stopped within the kinematic limits, not converged: its multipliers) or None (not
@@ -247,9 +248,9 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
         warm = None if duals is None else prolong(duals, LimitRows.build(mesh, base.layout.free, n))
         s = sqp(base, system, limits, x, tol, margin=MARGIN, working=None if first else working, multipliers=warm)
-        duals = Duals(s.rows, s.penalty.mu_lo, s.penalty.mu_hi)
         if record is not None:
             record(s.result)
+        duals = Duals(s.rows, s.penalty.mu_lo, s.penalty.mu_hi)
         if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
             return "handed_over", x_start, working
         x = s.result.x

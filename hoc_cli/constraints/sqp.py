@@ -99,9 +99,10 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     ``working`` (4, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
     kinematic pair with a finite bound); the caller checks the others. ``multipliers`` (λ_lo, λ_hi),
     per kind in the kinds' row shapes (e.g. a previous solve's, ``prolong``-ed to this mesh): the
-    first QP's multipliers (default 0). With the rows active at the optimum in its first Newton
-    matrix H + Σ ρ a aᵀ, that matrix is positive definite where H alone is not (the torque cost), so
-    H is used unmodified. Stops, not converged, when ``STALLS`` iterations in a row from a feasible x
+    first QP's multipliers when, started from 0, that QP needs H's modification (else unused). With
+    the rows active at the optimum in its first Newton matrix H + Σ ρ a aᵀ, that matrix is positive
+    definite where H + Σ ρ a aᵀ over the rows a cold start activates is not (the torque cost), so H
+    is used unmodified. Stops, not converged, when ``STALLS`` iterations in a row from a feasible x
     lower J by at most tol·|J| or are predicted by the model to rise (the QP's own accuracy), or when
     the decrement from feasible points does not halve in ``SLOW_WINDOW`` iterations (a crawl, e.g.
     the torque cost near a limited optimum whose active rows keep shifting).
@@ -110,7 +111,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     rows = LimitRows.build(mesh, base.layout.free, n)
     working = kinematic_working(limits) if working is None else working & kinematic_working(limits)
     qrows = QPRows.build(rows, limits, working, base.layout.free, margin)
-    lam = np.zeros(qrows.count) if multipliers is None else qrows.gather(*multipliers)
+    lam = np.zeros(qrows.count)
+    warm = None if multipliers is None else qrows.gather(*multipliers)
     x = np.asarray(x0, float)
     ev = base.evaluate(x)
     J = ev.J
@@ -131,7 +133,12 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         model = QPModel(base, ev, qrows, g0, previous=model if keep else None)
         rel = dec / max(abs(J), 1e-300)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
-        d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
+        H = model.H
+        d, lam_qp, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
+        if warm is not None and model.modified:  # H needed a modification: the QP again from the given multipliers
+            model.restore(H)
+            d, lam_qp, _, qp_ok = model.solve(warm, rho, np.zeros_like(x), feas)
+        warm, lam = None, lam_qp
         if not qp_ok:
             ok, status = False, Status.LINE_SEARCH_FAILED
             break
