@@ -8,6 +8,7 @@ import pytest
 from hoc_cli.constraints import JointLimits, enforce
 from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.constraints.prolong import Duals, prolong
+from hoc_cli.constraints.sqp import sqp
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.optimize import minimize
 from hoc_cli.planner import plan, resample
@@ -129,3 +130,18 @@ def test_multipliers_from_another_mesh_do_not_start_the_augmented_lagrangian():
     warm = enforce(problem, system, limits, x0, 1e-10, inner, working=coarse.limits.working,
                    duals=coarse.limits.duals())
     assert warm.J == cold.J and warm.outer_iterations == cold.outer_iterations
+
+
+def test_the_sqp_keeps_its_cold_path_where_its_first_qp_needs_no_modification():
+    """Given multipliers start the SQP's first QP only where that QP, from λ = 0, needs H's modification
+    (the torque cost); here H is positive definite and the SQP is the cold one, bit for bit."""
+    system, limits, coarse = solve(32)
+    mesh = HermiteMesh("quintic", T, 64)
+    problem = ControlProblem(system, mesh, [0.0], [0.0], [D], [0.0])
+    x0 = problem.layout.pack(resample(coarse.mesh, coarse.coeffs, mesh))
+    warm = prolong(coarse.limits.duals(), LimitRows.build(mesh, problem.layout.free, 1))
+    assert np.any(warm[1][VELOCITY] > 0)
+    cold_run = sqp(problem, system, limits, x0, 1e-10, working=coarse.limits.working)
+    warm_run = sqp(problem, system, limits, x0, 1e-10, working=coarse.limits.working, multipliers=warm)
+    assert cold_run.result.converged and warm_run.result.converged
+    np.testing.assert_array_equal(warm_run.result.x, cold_run.result.x)

@@ -9,9 +9,10 @@ everything.
 
 Warm starts (``duals``: a previous converged solve's multipliers, e.g. the coarser level's of a
 continuation or the same mesh's before more Gauss points). They are carried to this mesh by
-``prolong`` (the multiplier density per unit time transfers) and start the SQP's first QP: with the
-rows active at the optimum in its first Newton matrix, the torque cost's indefinite H needs no
-modification and the SQP converges where, started with λ = 0, it handed over. The loop below
+``prolong`` (the multiplier density per unit time transfers) and start the SQP's first QP where,
+started from λ = 0, it would need H's modification: with the rows active at the optimum in its first
+Newton matrix, the torque cost's indefinite H needs none, and the SQP gets near the optimum where,
+started with λ = 0, it handed over. The loop below
 starts from them (with ρ = ``WARM_RHO``·ρ0) only when they are on this mesh (a re-solve with more
 Gauss points, or the SQP's own multipliers after it stalled): a coarser mesh's multipliers with a
 large ρ made the first inner solve stiff (light-wristed arms, measured), and with ρ0 that solve
