@@ -136,13 +136,15 @@ class _Session:
         self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
         self.limits = limits if limits is not None and limits.any else None
         self.working = working
+        self.duals = None  # the last converged level's multipliers (``Duals``): the next solve's warm start
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
         self.current_N = 0
-        # the SQP skips the first solve on a new mesh after the previous mesh's SQP handed over (or was
-        # skipped): far from a limited optimum whose Newton matrix is strongly indefinite (torque cost)
-        # it fails again, at the cost of its attempt; a re-solve on the same mesh tries it again
+        # the SQP skips the first solve on a new mesh after the previous mesh's SQP handed over, crawled
+        # (or was skipped): far from a limited optimum whose Newton matrix is strongly indefinite (torque
+        # cost) it fails again, and where it crawled it crawls again, at the cost of its attempt; a
+        # re-solve on the same mesh tries it again
         self.sqp_mesh, self.sqp_failed = 0, False
 
     def solve(self, problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
@@ -202,9 +204,11 @@ class _Session:
             return res, res.fun, None
         use_sqp = self.precondition and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
-                     max_outer=max_outer, use_sqp=use_sqp, record=self.record)
+                     max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
-        self.sqp_mesh, self.sqp_failed = problem.mesh.N, er.sqp == "handed_over" or (self.precondition and not use_sqp)
+        self.duals = er.duals() if er.status == "converged" else None  # only a converged level's multipliers carry over
+        failed = er.sqp in ("handed_over", "crawled") or (self.precondition and not use_sqp)
+        self.sqp_mesh, self.sqp_failed = problem.mesh.N, failed
         return dataclasses.replace(er.inner, x=er.x), er.J, er
 
     def problem(self, mesh: HermiteMesh, G: int | None) -> ControlProblem:
@@ -263,7 +267,9 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
     the limits by ``hoc_cli.constraints.enforce`` (the unconstrained solve, then an SQP on the
     kinematic rows, an augmented Lagrangian for effort); the working set of limits found binding carries over from level to level, and
-    starts from ``working`` (4, n) bool when given (e.g. a coarser plan's).
+    starts from ``working`` (4, n) bool when given (e.g. a coarser plan's); so do a converged level's
+    multipliers (``Duals``, prolonged onto the next mesh: the warm start of its SQP, and of the
+    augmented Lagrangian on the same mesh).
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,

@@ -3,7 +3,21 @@
 ``enforce`` with ``use_sqp`` (the planner's default) first runs the unconstrained solve (when no
 limit is known to bind), then ``sqp.sqp`` on the linear position/velocity/acceleration rows; the
 augmented-Lagrangian loop below takes over only when an effort limit binds or the SQP fails (an
-infeasible task). Without ``use_sqp`` (goal problems) the loop below does everything.
+infeasible task) or stalls (its QP's accuracy reached before its stopping test held: the loop goes
+on from the SQP's point and multipliers). Without ``use_sqp`` (goal problems) the loop below does
+everything.
+
+Warm starts (``duals``: a previous converged solve's multipliers, e.g. the coarser level's of a
+continuation or the same mesh's before more Gauss points). They are carried to this mesh by
+``prolong`` (the multiplier density per unit time transfers) and start the SQP's first QP where,
+started from λ = 0, it would need H's modification: with the rows active at the optimum in its first
+Newton matrix, the torque cost's indefinite H needs none, and the SQP gets near the optimum where,
+started with λ = 0, it handed over. The loop below
+starts from them (with ρ = ``WARM_RHO``·ρ0) only when they are on this mesh (a re-solve with more
+Gauss points, or the SQP's own multipliers after it stalled): a coarser mesh's multipliers with a
+large ρ made the first inner solve stiff (light-wristed arms, measured), and with ρ0 that solve
+leaves the limited optimum as a cold start does. A warm loop that does not converge is run again
+cold.
 
 The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
 exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
@@ -14,7 +28,10 @@ LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working se
    coarser level found one): it IS the unconstrained solve, so a task whose optimum respects its
    limits pays nothing but the check.
 2. Check the plan (``check_limits``: exact extrema of q_h, q̇_h, q̈_h per element, u at 32 points
-   per element). (kind, joint) pairs found beyond their bounds join the working set.
+   per element). (kind, joint) pairs found beyond their bounds join the working set; an effort
+   pair without multipliers whose torques stay ``EFFORT_SLACK``·σ inside its limit leaves it (its
+   rows would cost the dynamics at 32 points per element in every evaluation and add nothing; the
+   check brings it back if broken), so a level can again go to the SQP.
 3. One full Newton step on I + Φ ("polish"; see ``_polish``), then λ ← max(0, λ + ρ_w g) and
    ρ × 10 whenever the worst violation did not fall to a quarter of the previous one.
 4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
@@ -38,16 +55,19 @@ import numpy as np
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 from hoc_cli.constraints.sqp import kinematic_working, sqp
 from hoc_cli.errors import NumericalError
 
 _DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
+WARM_RHO = 100.0  # ... and at WARM_RHO·ρ0 when the multipliers start from a previous solve's (``Duals``)
 RHO_GROWTH = 10.0
 SQP_ROUNDS = 4  # SQP runs, each with the pairs found broken by the previous one added
 RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
 STALL_RATIO = 0.9  # ... and the worst violation no longer falls by a tenth from one outer iteration to the next
+EFFORT_SLACK = 0.1  # an effort pair without multipliers whose torques stay this fraction of σ inside leaves the working set
 
 
 class PenalizedProblem:
@@ -79,8 +99,10 @@ class EnforceResult:
     outer_iterations; rho; check : the LimitCheck of the plan; working : (4, n) pairs imposed;
     rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row);
     sqp : "converged" (the SQP decided the plan), "handed_over" (it failed and the augmented
-    Lagrangian took over), or "" (not tried: no kinematic limit binds, an effort limit does, or
-    the caller did not ask for it).
+    Lagrangian took over), "stalled" or "crawled" (it stopped within the kinematic limits, at its
+    QP's accuracy or converging too slowly; the augmented Lagrangian went on from its point and
+    multipliers), or "" (not tried: no kinematic limit binds, an effort limit does, or the caller
+    did not ask for it).
     """
 
     status: str
@@ -95,6 +117,12 @@ class EnforceResult:
     rows: LimitRows
     penalty: PenaltyValue | None
     sqp: str = ""
+
+    def duals(self) -> Duals | None:
+        """The plan's multipliers on its rows: the warm start of the next solve, on this or another mesh (None: no rows)."""
+        if self.penalty is None or not self.working.any():
+            return None
+        return Duals(self.rows, self.penalty.mu_lo, self.penalty.mu_hi)
 
     def active_limits(self) -> list[dict]:
         """(joint, kind, intervals [[t0, t1], …] [s]) where a multiplier is positive at the optimum.
@@ -182,12 +210,16 @@ def _violated(check: LimitCheck) -> np.ndarray:
 
 def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray,
-               record: Callable[[object], None] | None):
+               record: Callable[[object], None] | None, duals: Duals | None = None):
     """The unconstrained solve (when nothing is known to bind), then the SQP on the kinematic rows.
 
+    ``duals`` (a previous solve's multipliers, on any mesh) start the first QP's multipliers where,
+    started from 0, it needs H's modification (``sqp``).
     Returns (outcome, x, working): outcome an EnforceResult when the plan is decided here, else
-    "handed_over" (the SQP failed, e.g. an infeasible task) or None (not tried, or an effort limit
-    is broken), with the point and working set the augmented-Lagrangian loop continues from.
+    "handed_over" (the SQP failed, e.g. an infeasible task), ("stalled" or "crawled", ``Duals``)
+    (the SQP stopped within the kinematic limits, not converged: its multipliers) or None (not
+    tried, or an effort limit is broken), with the point and working set the augmented-Lagrangian
+    loop continues from.
     """
     mesh, n = base.mesh, limits.n
     first = not working.any()  # no pair known to bind yet (the plan's first level)
@@ -215,9 +247,11 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         return None, x, working
     x_start = x
     for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
-        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=None if first else working)
+        warm = None if duals is None else prolong(duals, LimitRows.build(mesh, base.layout.free, n))
+        s = sqp(base, system, limits, x, tol, margin=MARGIN, working=None if first else working, multipliers=warm)
         if record is not None:
             record(s.result)
+        duals = Duals(s.rows, s.penalty.mu_lo, s.penalty.mu_hi)
         if not s.ok:  # the augmented Lagrangian starts where the SQP did (its steps may have been poor)
             return "handed_over", x_start, working
         x = s.result.x
@@ -230,6 +264,8 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
             break
     if violated.any():
         return None, x, working
+    if not s.result.converged:  # stalled or out of iterations, within the kinematic limits: its multipliers go on
+        return ("crawled" if s.crawled else "stalled", duals), x, working
     ok = s.result.converged
     message = (f"{s.result.message}; every limit holds (SQP iterations: {s.result.iterations})" if ok
                else f"every limit holds, but the SQP stopped: {s.result.message}")
@@ -238,10 +274,16 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                          check=check, working=working, rows=s.rows, penalty=s.penalty, sqp="converged"), x, working
 
 
+def _idle_effort(pv: PenaltyValue, check: LimitCheck) -> np.ndarray:
+    """(n,) bool: joints whose effort rows have no multiplier and whose torque is ``EFFORT_SLACK``·σ within its limit."""
+    mu = pv.mu_lo[EFFORT] + pv.mu_hi[EFFORT]  # (P, n)
+    return ~(mu > 0).any(axis=0) & (check.relative_excess()[EFFORT] < -EFFORT_SLACK)
+
+
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], *, working: np.ndarray | None = None,
             max_outer: int = 40, use_sqp: bool = False,
-            record: Callable[[object], None] | None = None) -> EnforceResult:
+            record: Callable[[object], None] | None = None, duals: Duals | None = None) -> EnforceResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
 
     inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
@@ -250,17 +292,37 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
     takes over only when an effort limit binds or the SQP fails.
     """
-    mesh, n = base.mesh, limits.n
+    n = limits.n
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
     x = np.asarray(x0, float)
     handed_over = ""
     if use_sqp:
-        done, x, working = _sqp_phase(base, system, limits, x, tol, inner_solve, working, record)
+        done, x, working = _sqp_phase(base, system, limits, x, tol, inner_solve, working, record, duals)
         if isinstance(done, EnforceResult):
             return done
+        if isinstance(done, tuple):  # the SQP's point and multipliers start the augmented Lagrangian
+            done, duals = done
         handed_over = done or ""
+    if duals is not None and not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
+        duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
+    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals)
+    if result.status == "not_converged" and duals is not None:
+        # the warm start did not converge (its multipliers or penalty did not suit this solve):
+        # the cold start, λ = 0 and ρ0, from the same point
+        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None)
+    return dataclasses.replace(result, sqp=handed_over)
+
+
+def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
+            inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray, max_outer: int,
+            duals: Duals | None) -> EnforceResult:
+    """The augmented-Lagrangian loop (module docstring, steps 1 to 4) from x, λ from ``duals`` (else 0)."""
+    mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
     lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
+    warm = duals is not None and working.any()
+    if warm:
+        lam_lo, lam_hi = prolong(duals, rows)
     x_begin = x  # a start within the limits proves the task feasible (see the "infeasible" test below)
     rho = rho0 = None
     prev = math.inf
@@ -269,6 +331,8 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     for outer in range(1, max_outer + 1):
         if working.any() and rho is None:
             rho = rho0 = RHO_START * max(abs(base.evaluate(x, grad=False).J), 1e-6) / mesh.T
+            if warm:
+                rho = WARM_RHO * rho0
         terms = LimitTerms(system, limits, rows, working, lam_lo, lam_hi, rho or 1.0, MARGIN)
         problem = base if terms.empty else PenalizedProblem(base, terms)
         res = inner_solve(problem, x, tol)
@@ -294,6 +358,10 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             message = f"the inner solve failed: {res.message}"
             break
         lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
+        idle = _idle_effort(pv, check) & working[EFFORT]
+        if idle.any():  # effort rows far from their limits cost dynamics at every point and add nothing: dropped
+            working = working.copy()
+            working[EFFORT] &= ~idle
         if newly.any():
             working = working | newly
             if rho is None:
@@ -318,5 +386,4 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
                                                     "meeting the limits); the plan returned is its start, within the limits")
             break
     return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
-                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv,
-                         sqp=handed_over)
+                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv)

@@ -188,6 +188,10 @@ class QPModel:
             print(f"    model: indefinite, mu {mu:.2e}")
         self.H, self.modified, self.mu, self._ab, self._last = H + mu * GN, True, mu, None, None
 
+    def restore(self, H: np.ndarray) -> None:
+        """Back to the unmodified element blocks H (taken before ``modify``), to solve again from other multipliers."""
+        self.H, self.modified, self.mu, self._ab, self._last, self.steps = H, False, 0.0, None, None, 0
+
     def Hd(self, d: np.ndarray) -> np.ndarray:
         """H d (P,) for a step d (P,), from H's banded storage."""
         full = np.zeros(self.free.size)

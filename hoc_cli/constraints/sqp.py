@@ -60,6 +60,9 @@ LS_MAX = 40
 REUSE_DEC = 1e-3  # relative decrement below which the SQP keeps its last (unmodified) Newton matrix
 NEAR_FEAS = 1e-6  # the stopping test from an x this close to its rows (dimensionless) looks at x + d
 C1 = 1e-4
+STALLS = 2  # iterations in a row from a feasible x whose J falls by at most tol·|J| (or whose model predicts no
+STALL_FEAS = 1e-9  # decrease): the SQP stops, not converged; feasible: Σ max(0, g) at most this
+SLOW_WINDOW, SLOW_RATE = 5, 0.5  # ... and when the decrement from feasible points does not halve in 5 iterations
 
 
 def kinematic_working(limits: JointLimits) -> np.ndarray:
@@ -75,29 +78,41 @@ def kinematic_working(limits: JointLimits) -> np.ndarray:
 class SQPResult:
     """The SQP's outcome: ok (False: the QP or the line search failed; the caller falls back),
     result (an OptimizeResult on the cost J alone; ``result.fun`` is J at ``result.x``), penalty (the
-    rows' values and multipliers μ at x), rows (the ``LimitRows`` of the mesh).
+    rows' values and multipliers μ at x), rows (the ``LimitRows`` of the mesh), crawled (it stopped
+    because its decrement no longer halved in ``SLOW_WINDOW`` iterations).
     """
 
     ok: bool
     result: OptimizeResult
     penalty: PenaltyValue | None
     rows: LimitRows
+    crawled: bool = False
 
 
 def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_iter: int = 50,
-        margin: float = 1e-9, working: np.ndarray | None = None) -> SQPResult:
+        margin: float = 1e-9, working: np.ndarray | None = None,
+        multipliers: tuple[tuple, tuple] | None = None) -> SQPResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within the kinematic limits.
 
     Returns an ``SQPResult``; ``result.x`` is the last iterate (feasible for the kinematic rows after
     the first full step), ``result.converged`` when the stopping test held (module docstring).
     ``working`` (4, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
-    kinematic pair with a finite bound); the caller checks the others.
+    kinematic pair with a finite bound); the caller checks the others. ``multipliers`` (λ_lo, λ_hi),
+    per kind in the kinds' row shapes (e.g. a previous solve's, ``prolong``-ed to this mesh): the
+    first QP's multipliers when, started from 0, that QP needs H's modification (else unused). With
+    the rows active at the optimum in its first Newton matrix H + Σ ρ a aᵀ, that matrix is positive
+    definite where H + Σ ρ a aᵀ over the rows a cold start activates is not (the torque cost), so H
+    is used unmodified. Stops, not converged, when ``STALLS`` iterations in a row from a feasible x
+    lower J by at most tol·|J| or are predicted by the model to rise (the QP's own accuracy), or when
+    the decrement from feasible points does not halve in ``SLOW_WINDOW`` iterations (a crawl, e.g.
+    the torque cost near a limited optimum whose active rows keep shifting).
     """
     mesh, n = base.mesh, limits.n
     rows = LimitRows.build(mesh, base.layout.free, n)
     working = kinematic_working(limits) if working is None else working & kinematic_working(limits)
     qrows = QPRows.build(rows, limits, working, base.layout.free, margin)
     lam = np.zeros(qrows.count)
+    warm = None if multipliers is None else qrows.gather(*multipliers)
     x = np.asarray(x0, float)
     ev = base.evaluate(x)
     J = ev.J
@@ -106,7 +121,9 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
     n_evals, stop, status, ok = 1, None, Status.MAX_ITER, True
     d = np.zeros_like(x)
     dec = math.inf
-    stiff = 0
+    stiff = stalls = 0
+    stalled = crawled = False
+    decs: list[float] = []  # |decrement| per iteration (inf from an infeasible x)
     model = None
     for it in range(max_iter + 1):
         # within REUSE_DEC·|J| of the optimum (the last decrement) the last model's exact H is kept:
@@ -116,7 +133,12 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         model = QPModel(base, ev, qrows, g0, previous=model if keep else None)
         rel = dec / max(abs(J), 1e-300)
         feas = max(QP_FEAS, min(QP_LOOSE, 1e-2 * rel, rel * rel))
-        d, lam, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
+        H = model.H
+        d, lam_qp, _, qp_ok = model.solve(lam, rho, np.zeros_like(x), feas)
+        if warm is not None and model.modified:  # H needed a modification: the QP again from the given multipliers
+            model.restore(H)
+            d, lam_qp, _, qp_ok = model.solve(warm, rho, np.zeros_like(x), feas)
+        warm, lam = None, lam_qp
         if not qp_ok:
             ok, status = False, Status.LINE_SEARCH_FAILED
             break
@@ -189,21 +211,30 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
             n_evals += 1
         else:
             ev = trial
+        stalls = stalls + 1 if (J - ev.J <= tol * abs(J) or dec <= 0) and v0 <= STALL_FEAS else 0
+        decs.append(abs(dec) if v0 <= STALL_FEAS else math.inf)
+        if len(decs) > SLOW_WINDOW and decs[-1] > SLOW_RATE * decs[-1 - SLOW_WINDOW]:
+            stalls, crawled = STALLS, True  # feasible, and the decrement does not halve in SLOW_WINDOW iterations
         J = ev.J
         if _DEBUG:
             print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
         history.append(IterLog(it + 1, J, float(np.max(np.abs(ev.grad), initial=0.0)), dec, a, n_evals))
+        if stalls >= STALLS:  # feasible, and J no longer falls: the QP's steps are at its own accuracy
+            stalled = True
+            break
     msg = {"decrement": "the SQP stopping test held: |gᵀd + ½ dᵀHd| <= tol·|J| for the limited Newton step d",
            "rounding": "the SQP rounding-level test held: |gᵀd + ½ dᵀHd| <= the rounding level of J, which exceeds "
                        "tol·|J|"}
     text = msg[stop] if stop else ("the SQP's quadratic programme or line search failed" if not ok
+                                   else "the SQP crawled (its decrement did not halve in 5 iterations)" if crawled
+                                   else "the SQP stalled (J no longer falls, the stopping test not met)" if stalled
                                    else "the SQP iteration limit was reached")
     lo, hi = qrows.scatter(lam)  # the rows and their multipliers at the last x (the last QP's λ)
     pv = LimitTerms(system, limits, rows, working, lo, hi, rho, margin).evaluate(base.coefficients(x), grad=False)
     result = OptimizeResult(x=x, fun=J, grad=ev.grad, status=status, iterations=len(history), n_evals=n_evals,
                             n_precond=len(history) + 1, decrement=abs(dec), history=tuple(history), message=text,
                             stop_test=StopTest(stop) if stop else None)
-    return SQPResult(ok=ok, result=result, penalty=pv, rows=rows)
+    return SQPResult(ok=ok, result=result, penalty=pv, rows=rows, crawled=crawled)
 
 
 def _final_step(base, x: np.ndarray, d: np.ndarray, J: float, noise: float, qrows: QPRows,
