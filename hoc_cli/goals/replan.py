@@ -194,7 +194,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     problem, x, C, J = pt.problem, pt.x, pt.C, pt.J
     mesh = problem.mesh
     slope = pt.F - weight
-    opt = OptimizeResult(x=x, fun=J, grad=np.zeros_like(x), status=status, iterations=steps, n_evals=evals,
+    opt = OptimizeResult(x=x, fun=J, grad=_reduced_gradient(pt, lam), status=status, iterations=steps,
+                         n_evals=evals,
                          n_precond=steps, decrement=decrement,
                          message="warm replan: " + ("converged" if status is Status.CONVERGED
                                                     else f"{steps} Newton steps"))
@@ -215,6 +216,19 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         return _finish(system, plan0 if violation > 1e-6 else plan, goals, free, limits, d2, start)
     return ReplanResult(plan=plan, T=T, dJ_dT=slope, curvature=d2, steps=steps, fallback=False,
                         wall_time_s=time.perf_counter() - start)
+
+
+def _reduced_gradient(pt, lam: list) -> np.ndarray:
+    """The stationarity residual (P,) reported as the plan's gradient: the gradient of the cost (with the limits'
+    penalty terms, if any) minus its least-squares fit by the rows' gradients, g − Dᵀw with w = argmin ‖g − Dᵀw‖
+    over the goal rows and the working set's rows D; zero at a constrained optimum.
+    """
+    D = pt.D
+    if not D.size:
+        return pt.g
+    g = pt.g - D.T @ np.concatenate(lam)
+    w = np.linalg.lstsq(D.T, g, rcond=None)[0]
+    return g - D.T @ w
 
 
 def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limits, tol: float, max_steps: int,
