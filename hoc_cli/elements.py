@@ -111,7 +111,7 @@ def reference_basis(order: Order, t: np.ndarray, deriv: int = 0) -> np.ndarray:
 def local_basis(order: str) -> np.ndarray:
     """Coefficients (in the local coordinate s ∈ [0, 1]) of the 2m shape functions of one element.
 
-    Returns an array of shape (3, 2m, 6): [derivative order r in s, shape function k, power of s].
+    Returns an array of shape (4, 2m, 6): [derivative order r = 0 … 3 in s, shape function k, power of s].
     Shape functions k = 0 … m−1 belong to the left node (reference functions at s),
     k = m … 2m−1 to the right node (reference functions at s − 1). They are not yet
     scaled by h^d (d = 0, 1, 2 for a, b, c); see ``scale``.
@@ -119,11 +119,11 @@ def local_basis(order: str) -> np.ndarray:
     right, left = _reference_branches(order)
     m = right.shape[0]
     shift = np.array([-1.0, 1.0])  # s − 1
-    out = np.zeros((3, 2 * m, 6))
+    out = np.zeros((4, 2 * m, 6))
     for k in range(m):
         rows = [right[k], _compose(left[k], shift)]
         for side, coeffs in enumerate(rows):
-            for r in range(3):
+            for r in range(4):
                 d = P.polyder(coeffs, r) if r else coeffs
                 out[r, side * m + k, : len(d)] = d
     return out
@@ -271,7 +271,7 @@ class HermiteMesh:
         return np.concatenate([C[:-1], C[1:]], axis=1)
 
     def evaluate(self, C: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
-        """q_h (deriv 0), q̇_h (1) or q̈_h (2) at times t [s] (K,) for coefficients C (N+1, m, n); (K, n)."""
+        """q_h (deriv 0), q̇_h (1), q̈_h (2) or the jerk (3) at times t [s] (K,) for coefficients C (N+1, m, n); (K, n)."""
         C = self.check_coefficients(C)
         e, s = self.element_of(np.atleast_1d(t))
         B = self.shape_values(s, deriv, e)  # (K, 2m)

@@ -19,13 +19,11 @@ zero by a bracketing root finder (Brent) or the bound decides. Pure maths: no I/
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import brentq
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.penalty import EFFORT, effective_bounds
@@ -51,16 +49,17 @@ def cost_time_derivative(problem, C: np.ndarray) -> tuple[float, np.ndarray]:
     return dT / problem.mesh.T, op.transpose(W * s.gq, W * s.gdq, W * s.gddq)
 
 
-def limits_time_derivative(enforced, system, limits, C: np.ndarray) -> tuple[float, np.ndarray]:
-    """(Σ μ ∂g/∂T, Σ μ ∂g/∂C (N+1, m, n)) of the limit rows of an ``EnforceResult`` at coefficients C.
+def limits_time_derivative(duals, system, limits, C: np.ndarray) -> tuple[float, np.ndarray]:
+    """(Σ μ ∂g/∂T, Σ μ ∂g/∂C (N+1, m, n)) of the limit rows at coefficients C.
 
-    μ are the multipliers of the last outer iteration (``enforced.penalty``); zero without limits.
+    ``duals``: a ``hoc_cli.constraints.prolong.Duals`` (the rows and their multipliers μ, e.g. an
+    ``EnforceResult``'s ``duals()``), or None (no limits, or none imposed): zero.
     """
-    rows, pv = enforced.rows, enforced.penalty
-    mesh = rows.mesh
     G = np.zeros_like(np.asarray(C, float))
-    if pv is None:
+    if duals is None:
         return 0.0, G
+    rows, pv = duals.rows, duals
+    mesh = rows.mesh
     _, _, sig = effective_bounds(limits, MARGIN)
     loc = mesh.local_coefficients(C)
     gloc = np.zeros_like(loc)
@@ -97,7 +96,7 @@ def plan_time_derivative(result, system, limits=None, goals=None) -> float:
     problem, C = result.problem, result.coeffs
     dT, G = cost_time_derivative(problem, C)
     if result.limits is not None and limits is not None:
-        dl, Gl = limits_time_derivative(result.limits, system, limits, C)
+        dl, Gl = limits_time_derivative(result.limits.duals(), system, limits, C)
         dT, G = dT + dl, G + Gl
     if goals is not None:
         dg, Gg = goals.time_derivative(C, result.mesh.T)
@@ -216,6 +215,8 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
         return slope(q)
 
     try:
+        from scipy.optimize import brentq  # scipy.optimize costs 0.25 s to import: only when Brent runs
+
         root = brentq(f, lo.T, hi.T, xtol=rtol * lo.T, rtol=4 * np.finfo(float).eps, maxiter=max_solves)
         best = at(root)
     except _Done as done:
@@ -238,51 +239,3 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
         return TimePoint(T=T, J=result.J, dJ_dT=plan_time_derivative(result, system, limits), result=result)
 
     return solve
-
-
-class GoalSolver:
-    """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``) on N elements,
-    equal or with nodes at ``fractions`` (N + 1,) of T (``hoc_cli.goals.mesh``: the vias stay nodes).
-
-    Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
-    from the initial guess): solves from scratch at distant T may land in other local minima, and
-    J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
-    measured 2-3× slower on the lbr7 catch). ``initial(T)``: the initial trajectory at T as a plan with
-    zero multipliers (``hoc_cli.goals.warm.initial_plan``), the start of Newton steps from scratch.
-    """
-
-    def __init__(self, system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
-                 **plan_options) -> None:
-        self.system, self.order, self.N, self.q0, self.dq0, self.goals = system, order, N, q0, dq0, goals
-        self.limits, self.fractions, self.plan_options = limits, fractions, plan_options
-
-    def mesh(self, T: float):
-        from hoc_cli.goals.mesh import scaled_mesh
-
-        return scaled_mesh(self.order, T, self.N, self.fractions)
-
-    def __call__(self, T: float, nearest: "TimePoint | None") -> "TimePoint":
-        from hoc_cli.goals import plan_goals
-
-        warm = {}
-        if nearest is not None:
-            warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
-                    "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
-        result = plan_goals(self.system, self.mesh(T), self.q0, self.dq0, self.goals, limits=self.limits, **warm,
-                            **self.plan_options)
-        d = plan_time_derivative(result, self.system, self.limits,
-                                 goals=result.terms if result.problem.points else None)
-        return TimePoint(T=T, J=result.J, dJ_dT=d, result=result)
-
-    def initial(self, T: float):
-        """The initial trajectory on the mesh at T as a ``GoalResult`` with zero multipliers."""
-        from hoc_cli.goals.warm import initial_plan
-
-        return initial_plan(self.system, self.mesh(T), self.q0, self.dq0, self.goals,
-                            cost=self.plan_options.get("cost", "covariant"), G=self.plan_options.get("G"))
-
-
-def goal_solver(system, order: str, N: int, q0, dq0, goals, *, limits=None, fractions=None,
-                **plan_options) -> GoalSolver:
-    """``solve(T, nearest)`` for ``minimize_time`` with goals: a ``GoalSolver``."""
-    return GoalSolver(system, order, N, q0, dq0, goals, limits=limits, fractions=fractions, **plan_options)

@@ -267,7 +267,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     With ``limits`` (a ``JointLimits`` with at least one finite bound) every level is solved within
     the limits by ``hoc_cli.constraints.enforce`` (the unconstrained solve, then an SQP on the
     kinematic rows, an augmented Lagrangian for effort); the working set of limits found binding carries over from level to level, and
-    starts from ``working`` (4, n) bool when given (e.g. a coarser plan's); so do a converged level's
+    starts from ``working`` (K, n) bool when given (e.g. a coarser plan's); so do a converged level's
     multipliers (``Duals``, prolonged onto the next mesh: the warm start of its SQP, and of the
     augmented Lagrangian on the same mesh).
     """

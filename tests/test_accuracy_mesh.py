@@ -16,6 +16,7 @@ from hoc_cli.accuracy import AUTO_SAFETY, correction_indicators, estimate, marke
 from hoc_cli.banded import element_blocks
 from hoc_cli.constraints import JointLimits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.bounds import KINDS
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
@@ -84,9 +85,9 @@ def test_the_limit_terms_gradient_matches_central_differences_on_a_non_uniform_m
                                      acceleration=[3.0, 2.0], effort=[20.0, 5.0])
     rows = LimitRows.build(mesh, problem.layout.free, 2)
     rng = np.random.default_rng(5)
-    lam = [tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(4))
+    lam = [tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(len(KINDS)))
            for _ in range(2)]
-    terms = LimitTerms(arm, limits, rows, np.ones((4, 2), bool), lam[0], lam[1], rho=50.0, margin=MARGIN)
+    terms = LimitTerms(arm, limits, rows, np.ones((len(KINDS), 2), bool), lam[0], lam[1], rho=50.0, margin=MARGIN)
     x = problem.initial_guess() + 0.05 * rng.normal(size=problem.layout.size)
     g = problem.layout.pack(terms.evaluate(problem.coefficients(x)).grad)
     assert np.count_nonzero(g) > 10
@@ -300,8 +301,8 @@ def test_equal_node_times_given_explicitly_give_the_uniform_meshs_operators_to_r
         x = problem.layout.pack(C)
         ev = problem.evaluate(x)
         rows = LimitRows.build(mesh, problem.layout.free, 2)
-        lam = tuple(np.full(rows.shape(k, 2), 0.1) for k in range(4))
-        terms = LimitTerms(arm, limits, rows, np.ones((4, 2), bool), lam, lam, rho=50.0, margin=MARGIN)
+        lam = tuple(np.full(rows.shape(k, 2), 0.1) for k in range(len(KINDS)))
+        terms = LimitTerms(arm, limits, rows, np.ones((len(KINDS), 2), bool), lam, lam, rho=50.0, margin=MARGIN)
         pv = terms.evaluate(C)
         out.append((ev.J, ev.grad, element_blocks(problem.op_h, problem.hessian_samples(ev)[1]), pv.value, pv.grad,
                     terms.newton_blocks(C)))

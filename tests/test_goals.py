@@ -240,7 +240,8 @@ def test_goal_envelope_derivative_against_re_solved_optima(passing_target):
 def test_catching_a_moving_target_in_a_free_final_time(passing_target):
     """With gravity the lbr7's covariant J*(T) has an interior minimum at weight 0; the link meets the
     target's position and velocity at the optimal T."""
-    from hoc_cli.free_time import goal_solver, minimize_time
+    from hoc_cli.free_time import minimize_time
+    from hoc_cli.goals.time_solver import goal_solver
 
     system = RobotSystem(LBR)
     ft = minimize_time(goal_solver(system, "quintic", 4, Q0, np.zeros(7), passing_target), 0.2, 1.2, guess=0.5,

@@ -9,10 +9,11 @@ import pytest
 
 from hoc_cli.dynamics import link_poses, link_velocity
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.free_time import goal_solver, rescale
+from hoc_cli.free_time import rescale
 from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
 from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.replan import TimeRange, curvature_of, replan
+from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.model import load_robot
 from hoc_cli.system import RobotSystem
 from tests._robots import ROBOTS

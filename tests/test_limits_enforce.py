@@ -9,6 +9,7 @@ import pytest
 from hoc_cli.constraints import JointLimits, check_limits, shortest_duration
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.bernstein import bernstein_rows
+from hoc_cli.constraints.bounds import KINDS
 from hoc_cli.constraints.extrema import element_polynomials, extrema
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
@@ -89,7 +90,7 @@ def test_when_nothing_binds_the_result_is_the_unconstrained_optimum_bit_for_bit(
 
 
 @pytest.mark.parametrize("order", ["cubic", "quintic"])
-@pytest.mark.parametrize("deriv", [0, 1, 2])
+@pytest.mark.parametrize("deriv", [0, 1, 2, 3])
 def test_exact_extrema_agree_with_numpy_roots_of_each_element_polynomial(order, deriv):
     rng = np.random.default_rng(3 + deriv)
     mesh = HermiteMesh(order, 1.7, 4)
@@ -107,7 +108,7 @@ def test_exact_extrema_agree_with_numpy_roots_of_each_element_polynomial(order, 
 
 
 @pytest.mark.parametrize("order", ["cubic", "quintic"])
-@pytest.mark.parametrize("deriv", [0, 1, 2])
+@pytest.mark.parametrize("deriv", [0, 1, 2, 3])
 def test_bernstein_rows_enclose_each_element_polynomial_and_match_it_at_the_ends(order, deriv):
     rng = np.random.default_rng(11 + deriv)
     mesh = HermiteMesh(order, 2.0, 5)
@@ -128,12 +129,12 @@ def test_limit_terms_gradient_matches_central_differences_with_every_kind_active
     mesh = HermiteMesh("quintic", 1.0, 3)
     problem = ControlProblem(system, mesh, [0.0, 0.0], [0.0, 0.0], [1.2, -0.6], [0.0, 0.0])
     limits = JointLimits.from_arrays(model.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], velocity=[1.0, 0.5],
-                                     acceleration=[3.0, 2.0], effort=[20.0, 5.0])
+                                     acceleration=[3.0, 2.0], effort=[20.0, 5.0], jerk=[10.0, 8.0])
     rows = LimitRows.build(mesh, problem.layout.free, 2)
     rng = np.random.default_rng(5)
-    lam_lo = tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(4))
-    lam_hi = tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(4))
-    terms = LimitTerms(system, limits, rows, np.ones((4, 2), bool), lam_lo, lam_hi, rho=50.0, margin=MARGIN)
+    lam_lo = tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(len(KINDS)))
+    lam_hi = tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3) for k in range(len(KINDS)))
+    terms = LimitTerms(system, limits, rows, np.ones((len(KINDS), 2), bool), lam_lo, lam_hi, rho=50.0, margin=MARGIN)
     x = problem.initial_guess() + 0.05 * rng.normal(size=problem.layout.size)
     C = problem.coefficients(x)
     g = problem.layout.pack(terms.evaluate(C).grad)

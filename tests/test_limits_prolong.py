@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hoc_cli.constraints import JointLimits, enforce
+from hoc_cli.constraints.bounds import KINDS
 from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.constraints.prolong import Duals, prolong
 from hoc_cli.constraints.sqp import sqp
@@ -85,7 +86,7 @@ def test_prolong_on_the_same_mesh_is_the_identity():
     d = r.limits.duals()
     again = LimitRows.build(d.rows.mesh, r.problem.layout.free, 1)
     lo, hi = prolong(Duals(d.rows, d.mu_lo, d.mu_hi), again)
-    for k in range(4):
+    for k in range(len(KINDS)):
         np.testing.assert_array_equal(lo[k], d.mu_lo[k])
         np.testing.assert_array_equal(hi[k], d.mu_hi[k])
 

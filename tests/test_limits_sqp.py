@@ -9,6 +9,7 @@ import pytest
 from hoc_cli.banded import BandedSPD
 from hoc_cli.constraints import JointLimits, check_limits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN, enforce
+from hoc_cli.constraints.bounds import KINDS
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.constraints.qp import QPModel, QPRows
 from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve
@@ -40,7 +41,7 @@ def _qp(split: tuple[int, ...] = (), rho: float = 3000.0, seed: int = 3):
     rows = LimitRows.build(problem.mesh, problem.layout.free, 2)
     rng = np.random.default_rng(seed)
     lam = tuple(tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3)
-                      for k in range(4)) for _ in range(2))
+                      for k in range(len(KINDS))) for _ in range(2))
     # a row's two sides are never active together (it would take λ of order ρ × its range): one side each
     lam = (lam[0], tuple(np.where(lo > 0, 0.0, hi) for lo, hi in zip(*lam)))
     working = kinematic_working(limits)
@@ -133,7 +134,7 @@ def test_sqp_and_augmented_lagrangian_agree_where_velocity_and_acceleration_limi
     # multipliers that miss the ρ·g part of an exact-multiplier step are off by 1e-3)
     r = results[True]
     pv = r.penalty
-    terms = LimitTerms(system, limits, r.rows, np.ones((4, 2), bool), pv.mu_lo, pv.mu_hi, rho=1e-30, margin=MARGIN)
+    terms = LimitTerms(system, limits, r.rows, np.ones((len(KINDS), 2), bool), pv.mu_lo, pv.mu_hi, rho=1e-30, margin=MARGIN)
     grad = problem.evaluate(r.x).grad
     stationarity = grad + problem.layout.pack(terms.evaluate(problem.coefficients(r.x)).grad)
     assert np.abs(stationarity).max() <= 2e-6 * np.abs(grad).max()

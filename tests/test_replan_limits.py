@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from hoc_cli.constraints.bounds import JointLimits
+from hoc_cli.constraints.bounds import KINEMATIC, JointLimits
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.dynamics import link_poses
@@ -108,7 +108,7 @@ def test_active_rows_values_and_jacobian_match_the_penalty_rows(uniform):
     rows = LimitRows.build(mesh, layout.free, n)
     C = rng.standard_normal((mesh.N + 1, mesh.m, n))
     pv = all_rows(SYSTEM, limits, rows, C)
-    sel = ActiveRows.where(tuple(np.isfinite(g) for g in pv.g_lo[:3]), tuple(np.isfinite(g) for g in pv.g_hi[:3]))
+    sel = ActiveRows.where(tuple(np.isfinite(g) for g in pv.g_lo[:KINEMATIC]), tuple(np.isfinite(g) for g in pv.g_hi[:KINEMATIC]))
     A, A_full = sel.jacobian(rows, limits, layout.free)
     values = A_full @ C.ravel() + sel.offsets(limits)
     assert np.allclose(values, sel.gather(pv.g_lo, pv.g_hi), rtol=1e-12, atol=1e-12)
@@ -137,7 +137,7 @@ def test_replan_with_binding_limits_meets_the_cold_optimum(previous, dx):
     assert np.max(np.abs(p - goals_at(dx).final.position)) <= 1e-9
     # the limit still binds, and the plan's multipliers say where
     assert warm.plan.limits.penalty is not None
-    assert any(np.any(m > 0) for m in warm.plan.limits.penalty.mu_hi[:3] + warm.plan.limits.penalty.mu_lo[:3])
+    assert any(np.any(m > 0) for m in warm.plan.limits.penalty.mu_hi[:KINEMATIC] + warm.plan.limits.penalty.mu_lo[:KINEMATIC])
 
 
 def test_free_time_replan_with_binding_limits_is_a_free_time_optimum(previous):
@@ -165,8 +165,9 @@ def test_free_time_by_sqp_steps_meets_the_search(limits, fractions, cold_steps):
     with T; the plan at the guess both ways: with limits, by Newton steps at fixed T from the initial
     trajectory (on the non-uniform mesh G then grows to the converged quadrature), and, without limits or with
     ``cold_steps=0``, by one fixed-T solve (``plan_goals``)."""
-    from hoc_cli.free_time import goal_solver, minimize_time
+    from hoc_cli.free_time import minimize_time
     from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
 
     goals = goals_at(0.01)
     fractions = None if fractions is None else np.array(fractions)

@@ -124,8 +124,8 @@ INVALID = [
     ("scale negative", "{scale: {acceleration: -0.5}}", "limits.scale.acceleration: expected a scale factor"),
     ("scale NaN", "{scale: {velocity: .nan}}", "limits.scale.velocity: expected a scale factor"),
     ("scale unknown kind", "{scale: {position: 0.5}}", ("limits.scale.position: unknown key 'position' "
-                                                       "(expected one of: velocity, acceleration, effort)")),
-    ("scale a number", "{scale: 0.5}", "limits.scale: expected a mapping with keys velocity, acceleration, effort"),
+                                                       "(expected one of: velocity, acceleration, jerk, effort)")),
+    ("scale a number", "{scale: 0.5}", "limits.scale: expected a mapping with keys velocity, acceleration, jerk, effort"),
 ]
 
 

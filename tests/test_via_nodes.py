@@ -17,9 +17,10 @@ from typer.testing import CliRunner
 from hoc_cli.cli import app
 from hoc_cli.dynamics import link_poses
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.free_time import goal_solver, minimize_time, plan_time_derivative
+from hoc_cli.free_time import minimize_time, plan_time_derivative
 from hoc_cli.goals import FrameResidual, GoalPoint, GoalProblem, Goals, JointResidual, plan_goals
 from hoc_cli.goals.mesh import node_index, scaled_mesh, via_fractions, via_mesh
+from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.model import load_robot
 from hoc_cli.optimize import check_gradient
 from hoc_cli.planner import plan

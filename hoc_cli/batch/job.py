@@ -57,10 +57,10 @@ def _message(exc: Exception) -> str:
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
-    from hoc_cli.commands.plan import _reproducible, sample_plan, solve, summarise
+    from hoc_cli.commands.plan import reproducible_summary, sample_plan, solve, summarise
     from hoc_cli.commands.plan_goals import goal_summary, task_goals
     from hoc_cli.commands.plan_goals import solve as solve_goals
-    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
+    from hoc_cli.commands.plan_limits import check_boundary_states, check_jerk_order, limits_summary, task_limits
     from hoc_cli.commands.starts import starts_summary
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import load_task, parse_task, resolve
@@ -78,6 +78,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     check_columns(targets, model.joint_names)
     states = resolve(task, model.joint_names)
     limits = task_limits(model, states.limits)
+    check_jerk_order(task, limits, task.order)
     if task.limits.mode == "enforce":
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
@@ -105,7 +106,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
         with output_transaction():
             write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                          summary=_reproducible(summary), goals=goals)
+                          summary=reproducible_summary(summary), goals=goals)
     return row_of(job, summary, names)
 
 

@@ -31,7 +31,7 @@ from hoc_cli.commands.common import (
 from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.commands.plan_goals import goal_mesh, goal_summary, task_goals
 from hoc_cli.commands.plan_goals import solve as solve_goals
-from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
+from hoc_cli.commands.plan_limits import check_boundary_states, check_jerk_order, limits_summary, task_limits
 from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError, TaskError
@@ -75,6 +75,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     show = not quiet and (progress or console.is_terminal)
     limits = task_limits(model, states.limits)
     mode = task.limits.mode
+    check_jerk_order(task, limits, task.order)
     if mode == "enforce":
         check_boundary_states(task, limits, states)
     else:
@@ -155,7 +156,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=_reproducible(summary), goals=goals)
+                                           summary=reproducible_summary(summary), goals=goals)
     warn_limit_violations(summary["limit_violations"])
     if as_json:
         print_json(summary)
@@ -304,7 +305,7 @@ def accuracy_summary(error: ErrorEstimate, accuracy: float | None, steps) -> dic
     return out
 
 
-def _reproducible(summary: dict) -> dict:
+def reproducible_summary(summary: dict) -> dict:
     """The summary as stored in the MCAP: without wall-clock timings, so that equal inputs give equal bytes."""
     timings = ("wall_time_s", "J_error_wall_time_s", "outputs")
     return {k: v for k, v in summary.items() if k not in timings} | {"hoc_version": __version__}

@@ -16,7 +16,7 @@ import numpy as np
 from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import HocError, TaskError
-from hoc_cli.free_time import goal_solver, joint_goal_solver, minimize_time, rescale
+from hoc_cli.free_time import joint_goal_solver, minimize_time, rescale
 from hoc_cli.goals import (
     FrameResidual,
     GoalPoint,
@@ -31,11 +31,12 @@ from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.mesh import scaled_mesh, via_fractions
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.residuals import reach
+from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.goals.warm import previous_plan
 from hoc_cli.io.task import Task
 from hoc_cli.io.task.checks import Checker
 from hoc_cli.io.task.goals import LinkGoal
-from hoc_cli.io.task.resolve import _vector
+from hoc_cli.io.task.resolve import joint_vector
 from hoc_cli.planner import resample
 from hoc_cli.system import RobotSystem
 
@@ -98,8 +99,8 @@ def task_goals(task: Task, model, states) -> Goals | None:
     for i, v in enumerate(task.via):
         s = v.s if v.s is not None else v.t / T
         if v.q is not None:
-            dq = _vector(c, v.dq, f"via[{i}].dq", joints)
-            vias.append(GoalPoint(s, JointResidual(_vector(c, v.q, f"via[{i}].q", joints), dq), f"via[{i}]"))
+            dq = joint_vector(c, v.dq, f"via[{i}].dq", joints)
+            vias.append(GoalPoint(s, JointResidual(joint_vector(c, v.q, f"via[{i}].q", joints), dq), f"via[{i}]"))
         else:
             vias.append(GoalPoint(s, _frame(task, model, v.link, f"via[{i}].link", v.position, v.orientation),
                                   f"via[{i}]"))

@@ -27,10 +27,19 @@ def task_limits(model, overrides) -> JointLimits:
         "position": {j: (overrides.lower[i], overrides.upper[i]) for i, j in enumerate(joints)
                      if np.isfinite(overrides.lower[i])},
         **{kind: {j: getattr(overrides, kind)[i] for i, j in enumerate(joints) if np.isfinite(getattr(overrides, kind)[i])}
-           for kind in ("velocity", "acceleration", "effort")},
+           for kind in ("velocity", "acceleration", "jerk", "effort")},
     }
-    scale = {k: getattr(overrides.scale, k) for k in ("velocity", "acceleration", "effort")}
+    scale = {k: getattr(overrides.scale, k) for k in ("velocity", "acceleration", "jerk", "effort")}
     return limits.with_overrides(scale=scale, **named)
+
+
+def check_jerk_order(task, limits: JointLimits, order: str) -> None:
+    """Jerk limits need quintic elements (TaskError, exit 2): a cubic plan's q̈ jumps at every node."""
+    if order != "quintic" and limits.has("jerk").any():
+        name = limits.joints[int(np.flatnonzero(limits.has("jerk"))[0])]
+        raise TaskError(f"a jerk limit needs order: quintic (a cubic plan's acceleration jumps at every node, "
+                        f"so its jerk is unbounded there; the order is {order})", file=task.path,
+                        key=f"limits.jerk.{name}")
 
 
 def check_boundary_states(task, limits: JointLimits, states) -> None:
@@ -70,7 +79,7 @@ def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, s
 
 def infeasible_message(limits: JointLimits, check, result: PlanResult, states) -> str:
     """Which joint and kind bind (the largest relative excess) and, where known, the shortest T."""
-    rel = check.relative_excess()  # (4, n)
+    rel = check.relative_excess()  # (K, n)
     k, j = np.unravel_index(int(np.nanargmax(np.where(np.isfinite(rel), rel, -np.inf))), rel.shape)
     from hoc_cli.constraints import KINDS
 

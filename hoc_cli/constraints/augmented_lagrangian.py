@@ -45,8 +45,8 @@ LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working se
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
-import os
 from dataclasses import dataclass
 from typing import Callable
 
@@ -59,7 +59,7 @@ from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 from hoc_cli.constraints.sqp import kinematic_working, sqp
 from hoc_cli.errors import NumericalError
 
-_DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
 WARM_RHO = 100.0  # ... and at WARM_RHO·ρ0 when the multipliers start from a previous solve's (``Duals``)
@@ -96,7 +96,7 @@ class EnforceResult:
 
     status : "converged" | "infeasible" | "not_converged"; message : which test held or failed;
     inner : the last inner OptimizeResult; x : the plan's design vector; J : I(q_h) without Φ;
-    outer_iterations; rho; check : the LimitCheck of the plan; working : (4, n) pairs imposed;
+    outer_iterations; rho; check : the LimitCheck of the plan; working : (K, n) pairs imposed;
     rows : the LimitRows; penalty : Φ's terms at the plan (multipliers μ per row);
     sqp : "converged" (the SQP decided the plan), "handed_over" (it failed and the augmented
     Lagrangian took over), "stalled" or "crawled" (it stopped within the kinematic limits, at its
@@ -163,8 +163,12 @@ class EnforceResult:
 
 
 def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str, str] | None:
-    """A lower bound on T from one joint: |Δq|/v (velocity) or, rest to rest, 2√(|Δq|/a) (acceleration).
+    """A lower bound on T from one joint: |Δq|/v (velocity) or, rest to rest, 2√(|Δq|/a) (acceleration)
+    or ∛(12 |Δq|/j) (jerk).
 
+    The jerk bound: with q̇(0) = q̇(T) = 0 and the end accelerations free (they are free coefficients of
+    quintic elements), Δq = ∫ (T/2 − t) q̈ dt = −∫ F q⃛ dt with F(t) = t(T − t)/2 ≥ 0 (integration by
+    parts, ∫ q̈ = 0), so |Δq| ≤ j ∫ F dt = j T³/12, with equality for q̈ falling linearly at rate j.
     Returns (T_min [s], joint, kind) for the largest such bound, or None when no joint has one.
     """
     dq = np.abs(np.asarray(q1, float) - np.asarray(q0, float))
@@ -173,7 +177,8 @@ def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str
     with np.errstate(divide="ignore", invalid="ignore"):
         bounds = (("velocity", np.where(np.isfinite(limits.velocity), dq / limits.velocity, 0.0)),
                   ("acceleration", np.where(np.isfinite(limits.acceleration) & rest,
-                                            2.0 * np.sqrt(dq / limits.acceleration), 0.0)))
+                                            2.0 * np.sqrt(dq / limits.acceleration), 0.0)),
+                  ("jerk", np.where(np.isfinite(limits.jerk) & rest, np.cbrt(12.0 * dq / limits.jerk), 0.0)))
     for kind, arr in bounds:
         j = int(np.argmax(arr)) if arr.size else 0
         if arr.size and arr[j] > 0 and (best is None or arr[j] > best[0]):
@@ -204,7 +209,7 @@ def _zeros(rows: LimitRows, n: int) -> tuple[np.ndarray, ...]:
 
 
 def _violated(check: LimitCheck) -> np.ndarray:
-    """(4, n) bool: the (kind, joint) pairs the check finds beyond their bounds."""
+    """(K, n) bool: the (kind, joint) pairs the check finds beyond their bounds."""
     return ((check.hi_excess > 0) | (check.lo_excess > 0)).any(axis=1)
 
 
@@ -287,7 +292,7 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
 
     inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
-    with ``evaluate``/``newton``/``mesh``. ``working`` (4, n) carries over from a coarser level.
+    with ``evaluate``/``newton``/``mesh``. ``working`` (K, n) carries over from a coarser level.
     With ``use_sqp`` (``base`` a ControlProblem) the kinematic limits are imposed by ``sqp`` first
     (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
     takes over only when an effort limit binds or the SQP fails.
@@ -367,8 +372,8 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
             if rho is None:
                 rho = rho0 = RHO_START * max(abs(J), 1e-6) / mesh.T
         excess = pv.max_violation()
-        if _DEBUG:
-            print(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
                   f"comp {pv.complementarity():.2e} rho {rho} within {within}")
         falling = excess <= STALL_RATIO * prev  # the multiplier updates still make progress
         if rho is not None and not within and excess > 0.25 * prev and not (rho >= rho0 * RHO_RANGE and falling):

@@ -1,15 +1,23 @@
-"""Joint limits as data: per-joint bounds on q, q̇, q̈ and u, and their resolution from URDF and task.
+"""Joint limits as data: per-joint bounds on q, q̇, q̈, the jerk and u, and their resolution from URDF and task.
 
 Symbols
 -------
 n joints. Every bound is an (n,) array; ±inf means "no limit". Units: rad or m (position),
-rad/s or m/s (velocity), rad/s² or m/s² (acceleration), N·m or N (effort).
+rad/s or m/s (velocity), rad/s² or m/s² (acceleration), rad/s³ or m/s³ (jerk), N·m or N (effort).
 
 Conventions (see docs/limits.md): a URDF ``<limit>`` gives position (revolute, prismatic),
 velocity and effort; a missing, zero or negative velocity or effort means "no limit" for that
-kind; continuous joints have no position limit; acceleration limits come only from the task.
-Scaling factors 0 < s <= 1 multiply the velocity, acceleration and effort limits (as MoveIt's
-velocity and acceleration scaling factors do).
+kind; continuous joints have no position limit; acceleration and jerk limits come only from the
+task. Scaling factors 0 < s <= 1 multiply the velocity, acceleration, jerk and effort limits (as
+MoveIt's velocity and acceleration scaling factors do).
+
+The kinds
+---------
+``KINDS`` lists every kind in a fixed order: the *kinematic* kinds first, in the order of the
+derivative of q_h they bound (``DERIVATIVE``: kind k bounds d^k q_h/dt^k, so the index of a
+kinematic kind is its derivative order), then effort, the one kind that is not linear in the
+coefficients. Every solver loops over ``range(KINEMATIC)`` for the linear (Bernstein) rows and
+treats ``EFFORT`` apart; a new kinematic kind is one more entry here (docs/adding-a-constraint.md).
 """
 from __future__ import annotations
 
@@ -18,9 +26,12 @@ from typing import Mapping
 
 import numpy as np
 
-KINDS: tuple[str, ...] = ("position", "velocity", "acceleration", "effort")
-DERIVATIVE = {"position": 0, "velocity": 1, "acceleration": 2}  # kinematic kinds: the derivative of q_h
-SCALABLE: tuple[str, ...] = ("velocity", "acceleration", "effort")
+DERIVATIVE = {"position": 0, "velocity": 1, "acceleration": 2, "jerk": 3}  # kinematic kinds: the derivative of q_h
+KINDS: tuple[str, ...] = (*DERIVATIVE, "effort")
+KINEMATIC = len(DERIVATIVE)  # kinds 0 … KINEMATIC−1 have linear (Bernstein) rows
+EFFORT = KINDS.index("effort")
+RATES: tuple[str, ...] = tuple(KINDS[1:])  # the symmetric kinds: velocity, acceleration, jerk, effort
+SCALABLE = RATES
 
 
 def _positive_or_inf(values: np.ndarray) -> np.ndarray:
@@ -38,6 +49,7 @@ class JointLimits:
     joints : joint names, in the order of the arrays
     lower, upper : position bounds [rad or m], −inf/+inf where none
     velocity, acceleration, effort : symmetric bounds (> 0) [rad/s, rad/s², N·m], +inf where none
+    jerk : symmetric bounds (> 0) [rad/s³ or m/s³], +inf where none
     """
 
     joints: tuple[str, ...]
@@ -46,10 +58,15 @@ class JointLimits:
     velocity: np.ndarray
     acceleration: np.ndarray
     effort: np.ndarray
+    jerk: np.ndarray | None = None  # None: no jerk limit on any joint (set to +inf in __post_init__)
+
+    def __post_init__(self) -> None:
+        if self.jerk is None:
+            object.__setattr__(self, "jerk", np.full(len(self.joints), np.inf))
 
     @classmethod
     def from_arrays(cls, joints, lower=None, upper=None, velocity=None, acceleration=None,
-                    effort=None) -> "JointLimits":
+                    effort=None, jerk=None) -> "JointLimits":
         """Limits from arrays (n,) (None: no limit of that kind); non-positive rates mean no limit."""
         n = len(joints)
 
@@ -59,7 +76,8 @@ class JointLimits:
         lo, hi = arr(lower, -np.inf), arr(upper, np.inf)
         lo[np.isnan(lo)], hi[np.isnan(hi)] = -np.inf, np.inf
         return cls(tuple(joints), lo, hi, _positive_or_inf(arr(velocity, np.inf)),
-                   _positive_or_inf(arr(acceleration, np.inf)), _positive_or_inf(arr(effort, np.inf)))
+                   _positive_or_inf(arr(acceleration, np.inf)), _positive_or_inf(arr(effort, np.inf)),
+                   _positive_or_inf(arr(jerk, np.inf)))
 
     @classmethod
     def from_model(cls, model) -> "JointLimits":
@@ -107,20 +125,22 @@ class JointLimits:
                        velocity: Mapping[str, float] | None = None,
                        acceleration: Mapping[str, float] | None = None,
                        effort: Mapping[str, float] | None = None,
-                       scale: Mapping[str, float] | None = None) -> "JointLimits":
+                       scale: Mapping[str, float] | None = None,
+                       jerk: Mapping[str, float] | None = None) -> "JointLimits":
         """New limits with per-joint overrides (names must be joints) and scaling factors applied."""
         idx = {name: i for i, name in enumerate(self.joints)}
         lo, hi = self.lower.copy(), self.upper.copy()
         rates = {k: getattr(self, k).copy() for k in SCALABLE}
         for name, (a, b) in (position or {}).items():
             lo[idx[name]], hi[idx[name]] = float(a), float(b)
-        for kind, over in (("velocity", velocity), ("acceleration", acceleration), ("effort", effort)):
+        for kind, over in (("velocity", velocity), ("acceleration", acceleration), ("jerk", jerk), ("effort", effort)):
             for name, v in (over or {}).items():
                 rates[kind][idx[name]] = float(v)
         for kind, s in (scale or {}).items():
             rates[kind] = rates[kind] * float(s)
         return JointLimits(self.joints, lo, hi, _positive_or_inf(rates["velocity"]),
-                           _positive_or_inf(rates["acceleration"]), _positive_or_inf(rates["effort"]))
+                           _positive_or_inf(rates["acceleration"]), _positive_or_inf(rates["effort"]),
+                           _positive_or_inf(rates["jerk"]))
 
     def as_dict(self) -> dict:
         """JSON-ready per-joint limits (None where there is no limit)."""
@@ -128,5 +148,5 @@ class JointLimits:
             return float(v) if np.isfinite(v) else None
 
         return {name: {"position": [f(self.lower[i]), f(self.upper[i])], "velocity": f(self.velocity[i]),
-                       "acceleration": f(self.acceleration[i]), "effort": f(self.effort[i])}
+                       "acceleration": f(self.acceleration[i]), "jerk": f(self.jerk[i]), "effort": f(self.effort[i])}
                 for i, name in enumerate(self.joints)}

@@ -1,8 +1,8 @@
-"""The limit check of a plan: exact extrema of q_h, q̇_h, q̈_h per element, u at 32 points per element.
+"""The limit check of a plan: exact extrema of q_h, q̇_h, q̈_h and the jerk per element, u at 32 points per element.
 
 Symbols
 -------
-N elements, n joints, kinds k = position, velocity, acceleration, effort. ``excess`` is how far a
+N elements, n joints, kinds k = position, velocity, acceleration, jerk, effort (``KINDS``, K of them). ``excess`` is how far a
 value lies beyond its bound (> 0: violated) in the bound's units. A bound b counts as violated
 when its excess exceeds ``tolerance(b) = 1e-9 · max(|b|, 1e-3 σ)`` (σ: the limit's size, see
 ``JointLimits.scale_of``), i.e. never looser than 1e-9 × the limit unless the limit is (near) 0.
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.constraints.bounds import DERIVATIVE, KINDS, JointLimits
+from hoc_cli.constraints.bounds import DERIVATIVE, EFFORT, KINDS, KINEMATIC, JointLimits
 from hoc_cli.constraints.extrema import extrema
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.elements import HermiteMesh
@@ -26,9 +26,9 @@ RELATIVE_TOLERANCE = 1e-9
 class LimitCheck:
     """Per kind, element and joint: the worst value on each side and where it is.
 
-    hi_value, lo_value, hi_s, lo_s : (4, N, n) extreme values and local coordinates (0 for a kind
+    hi_value, lo_value, hi_s, lo_s : (K, N, n) extreme values and local coordinates (0 for a kind
     with no bound on any joint: not computed);
-    hi_excess, lo_excess : (4, N, n) value − hi and lo − value (−inf where no bound).
+    hi_excess, lo_excess : (K, N, n) value − hi and lo − value (−inf where no bound).
     """
 
     mesh: HermiteMesh
@@ -41,7 +41,7 @@ class LimitCheck:
     lo_excess: np.ndarray
 
     def tolerance(self) -> tuple[np.ndarray, np.ndarray]:
-        """Tolerances (4, n) for the lower and the upper bounds."""
+        """Tolerances (K, n) for the lower and the upper bounds."""
         out = []
         for side in (0, 1):
             rows = []
@@ -53,7 +53,7 @@ class LimitCheck:
         return out[0], out[1]
 
     def relative_excess(self) -> np.ndarray:
-        """The worst excess of every (kind, joint) over its limit size σ, (4, n) (−inf: no bound)."""
+        """The worst excess of every (kind, joint) over its limit size σ, (K, n) (−inf: no bound)."""
         sig = np.stack([self.limits.scale_of(k) for k in KINDS])
         worst = np.maximum(self.hi_excess.max(axis=1), self.lo_excess.max(axis=1))
         return worst / sig
@@ -91,14 +91,14 @@ def check_limits(system, limits: JointLimits, mesh: HermiteMesh, C: np.ndarray,
                  per_element: int = CHECK_POINTS_PER_ELEMENT) -> LimitCheck:
     """Check coefficients C (N+1, m, n) against ``limits`` (exact extrema; u at ``per_element`` points + nodes)."""
     N, n = mesh.N, limits.n
-    hv, hs, lv, ls = (np.full((4, N, n), np.nan) for _ in range(4))
-    for k, kind in enumerate(KINDS[:3]):
+    hv, hs, lv, ls = (np.full((len(KINDS), N, n), np.nan) for _ in range(4))
+    for k, kind in enumerate(KINDS[:KINEMATIC]):
         if not limits.has(kind).any():  # nothing to check (e.g. no acceleration limit): no extrema
             hv[k] = lv[k] = hs[k] = ls[k] = 0.0
             continue
         ex = extrema(mesh, C, DERIVATIVE[kind])
         hv[k], hs[k], lv[k], ls[k] = ex.max, ex.s_max, ex.min, ex.s_min
-    k = KINDS.index("effort")
+    k = EFFORT
     if np.isfinite(limits.effort).any():
         pts = PointSet.build(mesh, np.repeat(np.arange(N), per_element + 1),
                              np.tile(np.linspace(0.0, 1.0, per_element + 1), N), np.ones(N * (per_element + 1)))

@@ -2,8 +2,8 @@
 
 Symbols
 -------
-N elements, n joints, m coefficients per node; kinds k = position, velocity, acceleration
-(kinematic: r = 0, 1, 2) and effort. Each kind has its own constraint rows per element:
+N elements, n joints, m coefficients per node; kinds k = position, velocity, acceleration, jerk
+(kinematic: r = k = 0 … 3, ``KINEMATIC``) and effort. Each kind has its own constraint rows per element:
 kinematic kinds the Bernstein coefficients of d^r q_h/dt^r (``bernstein_rows``; linear in the
 coefficients C, and bounding them bounds q_h^(r) everywhere), effort the torque u = ID(q, q̇, q̈)
 at 32 equally spaced points per element (``PointSet``). V_k: (N, R_k, n) or (P, n) values.
@@ -30,16 +30,15 @@ from functools import cached_property
 import numpy as np
 
 from hoc_cli.constraints.bernstein import bernstein_rows
-from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.bounds import EFFORT, KINDS, KINEMATIC, JointLimits
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.elements import HermiteMesh
 
-EFFORT = KINDS.index("effort")
 EFFORT_POINTS_PER_ELEMENT = 32
 
 
 def effective_bounds(limits: JointLimits, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(lo, hi, σ), each (4, n): the bounds moved inwards by margin·σ, and σ."""
+    """(lo, hi, σ), each (K, n) (K = len(KINDS)): the bounds moved inwards by margin·σ, and σ."""
     sig = np.stack([limits.scale_of(k) for k in KINDS])
     lo = np.stack([limits.bounds(k)[0] for k in KINDS]) + margin * sig
     hi = np.stack([limits.bounds(k)[1] for k in KINDS]) - margin * sig
@@ -50,7 +49,7 @@ def effective_bounds(limits: JointLimits, margin: float) -> tuple[np.ndarray, np
 class LimitRows:
     """Where each kind is imposed on a mesh: Bernstein rows (kinematic) and torque points (effort).
 
-    rows[r] : (R_r, 2m) for r = 0, 1, 2; part[r] : (R_r,) the element part of each row;
+    rows[r] : (R_r, 2m) for r = 0 … KINEMATIC − 1; part[r] : (R_r,) the element part of each row;
     data[r] : (N, R_r) bool, rows fixed by x0/x1 alone (not imposed); points : effort PointSet
     (a property, made on first use).
     scale : None (uniform mesh), or per r the factors h_e^(d_a − r) (N, 2m) of a non-uniform mesh,
@@ -79,12 +78,12 @@ class LimitRows:
         free_local = np.concatenate([free_nodes[:-1], free_nodes[1:]], axis=1)  # (N, 2m)
         rows, parts, data = [], [], []
         unit = mesh if mesh.uniform else HermiteMesh(mesh.order, 1.0, 1)  # non-uniform: h = 1 rows, scaled
-        for r in range(3):
+        for r in range(KINEMATIC):
             R, part = bernstein_rows(unit, r, PIECES)
             rows.append(R)
             parts.append(part)
             data.append(~((np.abs(R)[None, :, :] > 1e-14 * np.abs(R).max()) & free_local[:, None, :]).any(axis=2))
-        scale = None if mesh.uniform else tuple(mesh.scales(r) for r in range(3))
+        scale = None if mesh.uniform else tuple(mesh.scales(r) for r in range(KINEMATIC))
         return cls(mesh, tuple(rows), tuple(parts), tuple(data), PIECES, scale)
 
     def weight(self, k: int) -> float | np.ndarray:
@@ -154,7 +153,7 @@ class LimitTerms:
     """The augmented-Lagrangian terms for one inner minimisation (fixed λ, ρ, rows, working set).
 
     system : the dynamics (for effort); limits : JointLimits; rows : LimitRows;
-    working : (4, n) bool; lam_lo, lam_hi : per kind ≥ 0, the kind's row shape;
+    working : (K, n) bool; lam_lo, lam_hi : per kind ≥ 0, the kind's row shape;
     rho : penalty per unit time [cost units / s]; margin : δ.
     """
 
@@ -178,7 +177,7 @@ class LimitTerms:
     def _values(self, C: np.ndarray):
         mesh = self.rows.mesh
         loc = mesh.local_coefficients(C)
-        V = [self.rows.apply(k, loc) if self.working[k].any() else None for k in range(3)]
+        V = [self.rows.apply(k, loc) if self.working[k].any() else None for k in range(KINEMATIC)]
         X = None
         if self.working[EFFORT].any():
             X = self.rows.points.apply(C)
@@ -223,7 +222,7 @@ class LimitTerms:
             g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
             if grad and V[k] is not None:
                 dV = (mh - ml) / sig[k]
-                if k < 3:
+                if k < KINEMATIC:
                     gloc += self.rows.transpose(k, dV)
                 elif np.any(dV):
                     _, gq, gdq, gddq = self.system.id_vjp(X[0], X[1], X[2], dV)
@@ -247,7 +246,7 @@ class LimitTerms:
             if not active.any():
                 continue
             c = np.where(active, rw / sig[k] ** 2, 0.0)
-            if k < 3:
+            if k < KINEMATIC:
                 R = self.rows.rows[k]
                 W = np.einsum("erj,ra,rb->ejab", c, R, R)  # (N, n, 2m, 2m)
                 if self.rows.scale is not None:

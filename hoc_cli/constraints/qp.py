@@ -22,8 +22,8 @@ outer products, then one banded Cholesky. The iteration (``QPModel.solve``) is d
 """
 from __future__ import annotations
 
+import logging
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +36,7 @@ from hoc_cli.constraints.penalty import EFFORT, LimitRows, PenaltyValue, effecti
 from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve, residuals
 from hoc_cli.errors import NumericalError
 
-_DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
 QP_STALL = 1e-10  # ... or at least this, when the rounding of the banded solves stops progress
 QP_MAX_OUTER = 40
@@ -76,7 +76,7 @@ class QPRows:
 
     @classmethod
     def build(cls, rows: LimitRows, limits, working: np.ndarray, free: np.ndarray, margin: float) -> "QPRows":
-        """The rows ``LimitTerms`` imposes for ``working`` (4, n) (kinematic kinds only), margin δ."""
+        """The rows ``LimitTerms`` imposes for ``working`` (K, n) (kinematic kinds only), margin δ."""
         mesh, n = rows.mesh, limits.n
         N, m = mesh.N, mesh.m
         lo, hi, sig = effective_bounds(limits, margin)
@@ -184,8 +184,8 @@ class QPModel:
                 break
             except NumericalError:
                 mu *= 10
-        if _DEBUG:
-            print(f"    model: indefinite, mu {mu:.2e}")
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"    model: indefinite, mu {mu:.2e}")
         self.H, self.modified, self.mu, self._ab, self._last = H + mu * GN, True, mu, None, None
 
     def restore(self, H: np.ndarray) -> None:
@@ -278,13 +278,13 @@ class QPModel:
             if np.array_equal(mu1 > 0, pattern):
                 return d + step, g + gs, mu1
             if q1 <= q + C1 * slope:  # the full step decreases q enough: the rows active there are the next piece
-                if _DEBUG:
-                    print(f"      ssn: full step, active {pattern.sum()} -> {(mu1 > 0).sum()}")
+                if _log.isEnabledFor(logging.DEBUG):
+                    _log.debug(f"      ssn: full step, active {pattern.sum()} -> {(mu1 > 0).sum()}")
                 d, Hd, g, q, r, mu = d + step, Hd + Hs, g + gs, q1, r1, mu1
                 continue
             a = line_minimum(slope, float(step @ Hs), lam, rw, g, g + gs)
-            if _DEBUG:
-                print(f"      ssn: line minimum at {a:.3e}, active {pattern.sum()} -> {(mu1 > 0).sum()}")
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"      ssn: line minimum at {a:.3e}, active {pattern.sum()} -> {(mu1 > 0).sum()}")
             d, Hd, g = d + a * step, Hd + a * Hs, g + a * gs
             q, r, mu = self._at(d, Hd, g, lam, rw)
         return d, g, mu
@@ -358,8 +358,8 @@ class QPModel:
                         d, g, mu, viol, gap = step[0], step[1], step[2], viol2, gap2
             settled = pattern
             lam = mu
-            if _DEBUG:
-                print(f"    qp: viol {viol:.2e} gap {gap:.2e} rho {rho:.3g} active {pattern.sum()}")
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"    qp: viol {viol:.2e} gap {gap:.2e} rho {rho:.3g} active {pattern.sum()}")
             crit = max(viol, gap)
             if crit <= feas or (crit <= max(QP_STALL, feas) and crit > 0.5 * prev_crit):
                 return d, lam, rho, True

@@ -35,8 +35,8 @@ Lagrangian when one is broken.
 """
 from __future__ import annotations
 
+import logging
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +48,7 @@ from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status
 from hoc_cli.optimize.result import StopTest
 
-_DEBUG = bool(os.environ.get("HOC_DEBUG_AL"))
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 RHO_QP = 1e4  # the QP's penalty per unit time, × |J|/T
 QP_LOOSE = 1e-7  # the QP's loosest tolerance, far from the solution (it is min(1e-2 r, r²), r the last relative
 # decrement: the next decrement is about r² (Newton), and a step whose violation is not well below it
@@ -66,7 +66,7 @@ SLOW_WINDOW, SLOW_RATE = 5, 0.5  # ... and when the decrement from feasible poin
 
 
 def kinematic_working(limits: JointLimits) -> np.ndarray:
-    """(4, n) bool: every (kinematic kind, joint) pair with a finite bound; effort excluded."""
+    """(K, n) bool: every (kinematic kind, joint) pair with a finite bound; effort excluded."""
     working = np.zeros((len(KINDS), limits.n), bool)
     for k in range(EFFORT):
         lo, hi = limits.bounds(KINDS[k])
@@ -96,7 +96,7 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
 
     Returns an ``SQPResult``; ``result.x`` is the last iterate (feasible for the kinematic rows after
     the first full step), ``result.converged`` when the stopping test held (module docstring).
-    ``working`` (4, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
+    ``working`` (K, n) bool: the (kind, joint) pairs whose rows are imposed (default: every
     kinematic pair with a finite bound); the caller checks the others. ``multipliers`` (λ_lo, λ_hi),
     per kind in the kinds' row shapes (e.g. a previous solve's, ``prolong``-ed to this mesh): the
     first QP's multipliers when, started from 0, that QP needs H's modification (else unused). With
@@ -216,8 +216,8 @@ def sqp(base, system, limits: JointLimits, x0: np.ndarray, tol: float, *, max_it
         if len(decs) > SLOW_WINDOW and decs[-1] > SLOW_RATE * decs[-1 - SLOW_WINDOW]:
             stalls, crawled = STALLS, True  # feasible, and the decrement does not halve in SLOW_WINDOW iterations
         J = ev.J
-        if _DEBUG:
-            print(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"  sqp {it}: J {J:.12g} dec {dec:.2e} alpha {a} viol {v0:.2e}")
         history.append(IterLog(it + 1, J, float(np.max(np.abs(ev.grad), initial=0.0)), dec, a, n_evals))
         if stalls >= STALLS:  # feasible, and J no longer falls: the QP's steps are at its own accuracy
             stalled = True

@@ -27,7 +27,7 @@ from ..model.tree import RobotModel
 from ._layout import _cos_sin, _inputs, _shape_out
 
 
-def _body_poses(model: RobotModel, qT: np.ndarray, bodies) -> dict[int, np.ndarray]:
+def body_poses(model: RobotModel, qT: np.ndarray, bodies) -> dict[int, np.ndarray]:
     """Pose (K, 4, 4) in the root frame of each body in ``bodies`` (parents listed before their
     children, every ancestor of a listed body listed too), from positions qT (n, K).
     """
@@ -52,7 +52,7 @@ def _body_poses(model: RobotModel, qT: np.ndarray, bodies) -> dict[int, np.ndarr
     return body
 
 
-def _link(model: RobotModel, link: str) -> tuple[int, np.ndarray]:
+def link_body(model: RobotModel, link: str) -> tuple[int, np.ndarray]:
     """(body carrying ``link`` or -1 for the fixed base, (4, 4) link pose in that body frame)."""
     try:
         k = model.link_names.index(link)
@@ -61,7 +61,7 @@ def _link(model: RobotModel, link: str) -> tuple[int, np.ndarray]:
     return int(model.link_body[k]), model.link_offset[k]
 
 
-def _chain(model: RobotModel, b: int) -> list[int]:
+def chain_to_root(model: RobotModel, b: int) -> list[int]:
     """Bodies from the root to body b (b included), parents first."""
     chain = []
     while b >= 0:
@@ -74,12 +74,12 @@ def _chain_jacobian(model: RobotModel, qT: np.ndarray, link: str):
     """(chain, Jc (K, 6, m)): the root-to-link chain of bodies and the Jacobian's columns for
     them (the other columns are zero); m = 0 for a link on the fixed base.
     """
-    b, offset = _link(model, link)
+    b, offset = link_body(model, link)
     K = qT.shape[1]
     if b < 0:
         return [], np.zeros((K, 6, 0))
-    chain = _chain(model, b)
-    poses = _body_poses(model, qT, chain)
+    chain = chain_to_root(model, b)
+    poses = body_poses(model, qT, chain)
     p = (poses[b] @ offset)[:, :3, 3]                              # (K, 3) link origin
     Z = np.stack([poses[j][:, :3, 2] for j in chain], axis=2)       # (K, 3, m) joint axes
     O = np.stack([poses[j][:, :3, 3] for j in chain], axis=2)       # (K, 3, m) points on them
@@ -104,7 +104,7 @@ def link_poses(model: RobotModel, q) -> dict[str, np.ndarray]:
         link name → (K, 4, 4) pose (or (4, 4) for 1-D ``q``); translations in m.
     """
     (qT,), K, one_d = _inputs(model, q=q)
-    body = _body_poses(model, qT, model.order)
+    body = body_poses(model, qT, model.order)
     out = {}
     for name, b, offset in zip(model.link_names, model.link_body, model.link_offset):
         T = np.broadcast_to(offset, (K, 4, 4)).copy() if b < 0 else body[b] @ offset

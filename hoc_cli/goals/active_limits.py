@@ -19,10 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
-from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.bounds import KINDS, KINEMATIC, JointLimits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue, effective_bounds
-
-KINEMATIC = 3  # position, velocity, acceleration: the kinds with linear rows
 
 
 @dataclass(frozen=True, eq=False)

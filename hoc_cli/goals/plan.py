@@ -301,14 +301,14 @@ def _pose_rows(residual: FrameResidual, q: np.ndarray, T: float) -> tuple[np.nda
     and with a nonzero Jacobian even half a turn away (where any function of the angle is stationary).
     """
     from hoc_cli.dynamics import frame_jacobian
-    from hoc_cli.goals.residuals import _GENERATORS
+    from hoc_cli.goals.residuals import GENERATORS
 
     p, R = residual.pose(q)
     J = frame_jacobian(residual.model, q, residual.link)
     rows, jac = [p - residual.target(T)[0]], [J[:3]]
     if residual.orientation is not None:
         rows.append((R - residual.orientation).ravel())
-        dR = np.einsum("kij,jl->kil", _GENERATORS, R).reshape(3, 9)  # vec([e_k]× R)
+        dR = np.einsum("kij,jl->kil", GENERATORS, R).reshape(3, 9)  # vec([e_k]× R)
         jac.append(dR.T @ J[3:])
     return np.concatenate(rows), np.vstack(jac)
 

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
-from scipy.optimize import nnls
 
 from hoc_cli.errors import NumericalError
 
@@ -95,6 +94,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         M = np.vstack([Gs.T, hs[None, :]])
         f = np.zeros(M.shape[0])
         f[-1] = 1.0
+        from scipy.optimize import nnls  # imported on first use (0.25 s)
+
         w, _ = nnls(M, f, maxiter=50 * M.shape[1])
         r = M @ w - f
         if abs(r[-1]) < 1e-12:

@@ -35,30 +35,29 @@ from the previous plan when the steps wandered off. Measured in docs/goals.md. P
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
-import os
 import time
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
 from hoc_cli.constraints.augmented_lagrangian import EnforceResult
+from hoc_cli.constraints.bounds import KINDS, KINEMATIC
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.errors import NumericalError
-from hoc_cli.free_time import (
-    rescale,
-)
+from hoc_cli.free_time import TimePoint, minimize_time, plan_time_derivative, rescale
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers, penalty_value
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT, GoalProblem, GoalResult, Goals, plan_goals
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, evaluate_point, solve_many
 from hoc_cli.goals.replan_qp import QPReplan, qp_steps
 from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.optimize import OptimizeResult, Status
 
-_DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
 RHO_AUG = 1e3  # ρ of the KKT matrix's W + ρDᵀD per unit |J| (measured on the lbr7 catch: 1e1 leaves W + ρDᵀD
 # indefinite, 1e6 too ill-conditioned for the banded Cholesky factorisation)
@@ -165,9 +164,9 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     state = None
     if limited:
         lr = plan0.limits
-        working = np.zeros((4, limits.n), bool) if lr is None else lr.working.copy()
+        working = np.zeros((len(KINDS), limits.n), bool) if lr is None else lr.working.copy()
         rows0 = LimitRows.build(mesh0, problem0.layout.free, limits.n)
-        zeros = tuple(np.zeros(rows0.shape(k, limits.n)) for k in range(4))
+        zeros = tuple(np.zeros(rows0.shape(k, limits.n)) for k in range(len(KINDS)))
         if lr is not None and lr.penalty is not None:
             state = [working, lr.penalty.mu_lo, lr.penalty.mu_hi, lr.rho or 1.0]
         else:
@@ -284,8 +283,8 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
         at_bound = free is not None and ((T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
         t_done = free is None or at_bound or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight)
         x_done = decrement <= tol * max(abs(pt.J), 1.0)
-        if _DEBUG:
-            print(f"step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"F' {pt.F:.2e} t {1e3 * (time.perf_counter() - start):.1f} ms")
         if x_done and violation <= EQ_ACCEPT and t_done and not fresh:
             newly = None
@@ -350,8 +349,8 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
         if trial is None:
             break
         lam_try = [lv + alpha * d for lv, d in zip(lam, np.split(dlam, split))]
-        if _DEBUG:
-            print(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"  dT {dT:.3e} alpha {alpha} |dx| {np.max(np.abs(dx)):.1e} v_try {v_try:.1e}")
         pt, T, lam = trial, T_try, lam_try
     return QPReplan(point=pt, T=T, lam=lam, active=None, status=status, steps=steps, evals=evals,
                     decrement=decrement)
@@ -360,16 +359,14 @@ def _penalty_steps(system, plan0, goals: Goals, lam: list, state, *, free, limit
 def _row_outcome(system, limits, rows: LimitRows, C: np.ndarray, active: ActiveRows, mu: np.ndarray, previous):
     """(working pairs, ρ, ``PenaltyValue``) of a replan that held the limit rows as equalities."""
     pen = penalty_value(active, mu, all_rows(system, limits, rows, C), rows, limits.n)
-    working = np.zeros((4, limits.n), bool) if previous is None else previous.working.copy()
-    for k in range(3):
+    working = np.zeros((len(KINDS), limits.n), bool) if previous is None else previous.working.copy()
+    for k in range(KINEMATIC):
         working[k] |= ((pen.mu_lo[k] > 0) | (pen.mu_hi[k] > 0)).reshape(-1, limits.n).any(axis=0)
     return working, (previous.rho if previous is not None and previous.rho else 1.0), pen
 
 
 def _finish(system, plan: GoalResult, goals: Goals, free: TimeRange | None, limits, d2, start: float) -> ReplanResult:
     """The full solver from where the Newton steps got (``plan_goals``; the free-T search with a free T)."""
-    from hoc_cli.free_time import goal_solver, minimize_time, plan_time_derivative
-
     mesh = plan.mesh
     q0, dq0 = plan.problem.boundary[:2]
     options = {"cost": plan.problem.cost, "G": plan.G}
@@ -382,7 +379,7 @@ def _finish(system, plan: GoalResult, goals: Goals, free: TimeRange | None, limi
                             fallback=True, wall_time_s=time.perf_counter() - start)
     solver = goal_solver(system, mesh.order, mesh.N, q0, dq0, goals, limits=limits, fractions=mesh_fractions(mesh),
                          **options)
-    seed = SimpleNamespace(T=mesh.T, result=plan)
+    seed = TimePoint(T=mesh.T, J=plan.J, dJ_dT=math.nan, result=plan)  # the warm start of the first solve
 
     def solve(T, nearest):
         return solver(T, nearest if nearest is not None else seed)

@@ -10,13 +10,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 from scipy.linalg import cho_solve_banded
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.constraints.prolong import Duals
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
@@ -92,7 +92,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         G_all = G_all + pv.grad
         value += pv.value
         if slope:
-            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=pv), system, limits, C)
+            dl, Gl = limits_time_derivative(Duals(rows, pv.mu_lo, pv.mu_hi), system, limits, C)
             dT, Gc = dT + dl, Gc + Gl
     c, D = np.zeros(0), np.zeros((0, x.size))
     res = None
@@ -110,7 +110,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         D = np.vstack([D, A])
         if slope and active.size:
             lo, hi = active.scatter(lam[npts], rows, limits.n)
-            dl, Gl = limits_time_derivative(SimpleNamespace(rows=rows, penalty=SimpleNamespace(mu_lo=lo, mu_hi=hi)),
+            dl, Gl = limits_time_derivative(Duals(rows, lo, hi),
                                             system, limits, C)
             dT, Gc = dT + dl, Gc + Gl
     g = problem.layout.pack(G_all)

@@ -25,13 +25,14 @@ exact extrema check to confirm. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import logging
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from hoc_cli.constraints.bounds import KINEMATIC
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import rescale
@@ -43,7 +44,7 @@ from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_fact
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
-_DEBUG = bool(os.environ.get("HOC_DEBUG_REPLAN"))
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
@@ -135,14 +136,14 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                     W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False,
                                                             pt.where), shift=lm)
                 except NumericalError:
-                    if _DEBUG:
-                        print(f"qp step {steps}: the Newton matrix is not positive definite")
+                    if _log.isEnabledFor(logging.DEBUG):
+                        _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
                     break
             U = dense_factor(W)
         U_last = U
         everything = all_rows(system, limits, pt.rows, C)
-        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo[:3]),
-                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi[:3]))
+        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo[:KINEMATIC]),
+                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi[:KINEMATIC]))
         A, A_full = cand.jacobian(pt.rows, limits, layout.free)
         gA = A_full @ C.ravel() + cand.offsets(limits)
         violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
@@ -178,12 +179,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         try:
             step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
         except NumericalError as exc:
-            if _DEBUG:
-                print(f"qp step {steps}: {exc}")
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"qp step {steps}: {exc}")
             break
         decrement = step.decrease
-        if _DEBUG:
-            print(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
                   + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
         t_done = free is None or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight) or (
@@ -218,8 +219,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             break
         if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
             lm = max(10.0 * lm, LM_START) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
-        if _DEBUG:
-            print(f"  alpha {alpha} |dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"  alpha {alpha} |dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
                   f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
@@ -244,7 +245,7 @@ class MeritTest:
         """Σ|c| over the goal rows + Σ max(0, g) over every kinematic row at the point."""
         if everything is None:
             everything = all_rows(self.system, self.limits, pt.rows, pt.C)
-        rows = sum(float(np.sum(np.maximum(g, 0.0))) for g in everything.g_lo[:3] + everything.g_hi[:3])
+        rows = sum(float(np.sum(np.maximum(g, 0.0))) for g in everything.g_lo[:KINEMATIC] + everything.g_hi[:KINEMATIC])
         return float(np.sum(np.abs(pt.c[:self.r]))) + rows
 
     def prepare(self, pt, T: float, slope_I: float, multipliers: np.ndarray, everything):

@@ -43,7 +43,7 @@ def rotation_angle(R: np.ndarray, R_goal: np.ndarray) -> float:
     return float(np.arctan2(s, c))
 
 
-_GENERATORS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+GENERATORS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
                         [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
                         [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], float)  # [e_k]×
 
@@ -59,7 +59,7 @@ def orientation_residual(R: np.ndarray, R_goal: np.ndarray) -> tuple[np.ndarray,
     f = np.array([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1]])
     tr = np.trace(A)
     g = np.sqrt(max(1.0 + tr, 1e-12))
-    t = np.einsum("kij,ji->k", _GENERATORS, A)
+    t = np.einsum("kij,ji->k", GENERATORS, A)
     return f / g, (tr * np.eye(3) - A) / g - np.outer(f, t) / (2 * g**3)
 
 
@@ -161,14 +161,14 @@ def reach(model, link: str) -> tuple[np.ndarray, float] | None:
     distances |o_{k+1} − o_k| (and from the last one to the link origin) do not depend on q:
     |p(q) − o| ≤ Σ_k |o_{k+1} − o_k| + |p − o_last| (the triangle inequality along the chain).
     """
-    from hoc_cli.dynamics.kinematics import _body_poses, _chain, _link
+    from hoc_cli.dynamics.kinematics import body_poses, chain_to_root, link_body
 
-    b, offset = _link(model, link)
+    b, offset = link_body(model, link)
     if b < 0:
         return None
-    chain = _chain(model, b)
+    chain = chain_to_root(model, b)
     if any(model.joint_types[j] == "prismatic" for j in chain):
         return None
-    poses = _body_poses(model, np.zeros((model.n, 1)), chain)
+    poses = body_poses(model, np.zeros((model.n, 1)), chain)
     points = [poses[j][0, :3, 3] for j in chain] + [(poses[b][0] @ offset)[:3, 3]]
     return points[0], float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:])))

@@ -10,6 +10,7 @@ working set and multipliers, which the plan file does not store either). Pure ma
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,6 +18,19 @@ from hoc_cli.elements import HermiteMesh
 from hoc_cli.goals.plan import RHO0, GoalProblem, GoalResult, Goals
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import OptimizeResult, Status
+
+
+@dataclass(frozen=True, eq=False)
+class EstimatedLimits:
+    """The limits' state of a plan estimated from its coefficients, read by ``replan`` as it reads an
+    ``EnforceResult``: ``working`` (K, n) the (kind, joint) pairs with rows near their bound, ``penalty``
+    their multipliers μ ≥ 0 (a ``Duals``), ``rho`` the penalty to continue with, ``status``.
+    """
+
+    working: np.ndarray
+    penalty: object
+    rho: float
+    status: str = "converged"
 
 
 def _limit_columns(system, limits, rows, C: np.ndarray, free: np.ndarray, near: float):
@@ -57,15 +71,14 @@ def estimate_state(system, problem: GoalProblem, C: np.ndarray, grad: np.ndarray
 
     Least squares on the stationarity ∇ₓJ + Dᵀλ + Σ μ ∂(±V/σ)/∂x = 0 over the goal rows (λ free) and the
     limit rows within ``near`` of their bound (μ ≥ 0; ``scipy.optimize.lsq_linear``). The limits' state is
-    what ``replan`` reads from a plan's ``limits``: ``working`` (4, n) the kinds and joints of those rows,
+    what ``replan`` reads from a plan's ``limits``: ``working`` (K, n) the kinds and joints of those rows,
     ``penalty.mu_lo``/``mu_hi`` the multipliers, ``rho`` the penalty's start (ρ0 of the limits' loop).
     """
-    from types import SimpleNamespace
-
     from scipy.optimize import lsq_linear
 
     from hoc_cli.constraints.augmented_lagrangian import RHO_START
     from hoc_cli.constraints.penalty import KINDS, LimitRows
+    from hoc_cli.constraints.prolong import Duals
 
     free = problem.layout.free
     D = np.zeros((0, int(free.sum())))
@@ -93,8 +106,7 @@ def estimate_state(system, problem: GoalProblem, C: np.ndarray, grad: np.ndarray
         mu[side][k][idx] = value
         working[k, idx[-1]] = True
     rho = RHO_START * max(abs(problem.value(problem.layout.pack(C))), 1e-6) / problem.mesh.T
-    return lam, SimpleNamespace(working=working, penalty=SimpleNamespace(mu_lo=tuple(mu[-1.0]), mu_hi=tuple(mu[1.0])),
-                                rho=rho, status="converged")
+    return lam, EstimatedLimits(working=working, penalty=Duals(rows, tuple(mu[-1.0]), tuple(mu[1.0])), rho=rho)
 
 
 def previous_plan(system, mesh: HermiteMesh, C: np.ndarray, q0, dq0, goals: Goals, *, cost: str = "covariant",

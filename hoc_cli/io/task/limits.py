@@ -7,11 +7,12 @@
       position: {joint_a: [-1.0, 1.0]}      # rad (m for a prismatic joint), lower < upper
       velocity: {joint_a: 1.5}              # rad/s (m/s), > 0
       acceleration: {joint_a: 10.0}         # rad/s² (m/s²), > 0; the URDF has none
+      jerk: {joint_a: 200.0}                # rad/s³ (m/s³), > 0; the URDF has none; quintic elements only
       effort: {joint_a: 50.0}               # N·m (N), > 0
-      scale: {velocity: 0.9, acceleration: 1.0, effort: 0.8}   # 0 < s <= 1, default 1
+      scale: {velocity: 0.9, acceleration: 1.0, jerk: 1.0, effort: 0.8}   # 0 < s <= 1, default 1
 
 Every key is optional. The values here replace or add to the URDF's ``<limit>`` for the joints
-named; the scale factors multiply the velocity, acceleration and effort limits of every joint.
+named; the scale factors multiply the velocity, acceleration, jerk and effort limits of every joint.
 A joint named must be one of the task's joints: checked at parse time when ``joints:`` is given,
 otherwise by ``resolve_limits`` against the model's joints.
 
@@ -31,10 +32,10 @@ import numpy as np
 from hoc_cli.io.task.checks import Checker, join, show
 
 LIMIT_MODES = ("enforce", "report")
-LIMIT_KINDS = ("position", "velocity", "acceleration", "effort")
-SCALE_KEYS = ("velocity", "acceleration", "effort")
+LIMIT_KINDS = ("position", "velocity", "acceleration", "jerk", "effort")
+SCALE_KEYS = ("velocity", "acceleration", "jerk", "effort")
 LIMITS_KEYS = ("mode",) + LIMIT_KINDS + ("scale",)
-UNITS = {"velocity": "rad/s or m/s", "acceleration": "rad/s² or m/s²", "effort": "N·m or N"}
+UNITS = {"velocity": "rad/s or m/s", "acceleration": "rad/s² or m/s²", "jerk": "rad/s³ or m/s³", "effort": "N·m or N"}
 
 
 def _frozen(mapping: dict | None = None) -> Mapping:
@@ -43,11 +44,12 @@ def _frozen(mapping: dict | None = None) -> Mapping:
 
 @dataclass(frozen=True)
 class LimitScale:
-    """Factors 0 < s <= 1 on every joint's velocity, acceleration and effort limits (MoveIt's scaling)."""
+    """Factors 0 < s <= 1 on every joint's velocity, acceleration, jerk and effort limits (MoveIt's scaling)."""
 
     velocity: float = 1.0
     acceleration: float = 1.0
     effort: float = 1.0
+    jerk: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -60,16 +62,17 @@ class LimitsSpec:
         ``enforce`` (the plan must respect the limits) or ``report`` (violations are reported).
     position : Mapping[str, tuple[float, float]]
         (lower, upper), rad or m, lower < upper.
-    velocity, acceleration, effort : Mapping[str, float]
-        Magnitude limits > 0: rad/s (m/s), rad/s² (m/s²), N·m (N).
+    velocity, acceleration, jerk, effort : Mapping[str, float]
+        Magnitude limits > 0: rad/s (m/s), rad/s² (m/s²), rad/s³ (m/s³), N·m (N).
     scale : LimitScale
-        Factors on the velocity, acceleration and effort limits.
+        Factors on the velocity, acceleration, jerk and effort limits.
     """
 
     mode: str = "enforce"
     position: Mapping[str, tuple[float, float]] = field(default_factory=_frozen)
     velocity: Mapping[str, float] = field(default_factory=_frozen)
     acceleration: Mapping[str, float] = field(default_factory=_frozen)
+    jerk: Mapping[str, float] = field(default_factory=_frozen)
     effort: Mapping[str, float] = field(default_factory=_frozen)
     scale: LimitScale = field(default_factory=LimitScale)
 
@@ -144,7 +147,8 @@ def parse_limits(c: Checker, top: dict, parsed: dict) -> LimitsSpec:
 class LimitOverrides:
     """The task's limit overrides as arrays in a joint order; shapes (n,), NaN where none is given.
 
-    Units: rad or m (lower, upper), rad/s or m/s (velocity), rad/s² or m/s² (acceleration), N·m or N (effort).
+    Units: rad or m (lower, upper), rad/s or m/s (velocity), rad/s² or m/s² (acceleration), rad/s³ or
+    m/s³ (jerk), N·m or N (effort).
     """
 
     mode: str
@@ -154,6 +158,7 @@ class LimitOverrides:
     acceleration: np.ndarray
     effort: np.ndarray
     scale: LimitScale
+    jerk: np.ndarray
 
 
 def resolve_limits(c: Checker, spec: LimitsSpec, joints: tuple[str, ...],
@@ -173,4 +178,5 @@ def resolve_limits(c: Checker, spec: LimitsSpec, joints: tuple[str, ...],
     lower = column({j: lo for j, (lo, _) in spec.position.items()})
     upper = column({j: hi for j, (_, hi) in spec.position.items()})
     return LimitOverrides(mode=spec.mode, lower=lower, upper=upper, velocity=column(spec.velocity),
-                          acceleration=column(spec.acceleration), effort=column(spec.effort), scale=spec.scale)
+                          acceleration=column(spec.acceleration), effort=column(spec.effort), scale=spec.scale,
+                          jerk=column(spec.jerk))

@@ -28,7 +28,7 @@ class ResolvedStates:
     limits: LimitOverrides | None = None
 
 
-def _vector(c: Checker, values: Values | None, key: str, joints: tuple[str, ...]) -> np.ndarray | None:
+def joint_vector(c: Checker, values: Values | None, key: str, joints: tuple[str, ...]) -> np.ndarray | None:
     n = len(joints)
     if values is None:
         return None
@@ -56,18 +56,18 @@ def resolve(task: Task, joints: tuple[str, ...] | list[str]) -> ResolvedStates:
     joints = tuple(joints)
     c = Checker(task.path)
     zeros = np.zeros(len(joints))
-    q0 = _vector(c, task.x0.q, "x0.q", joints)
-    dq0 = _vector(c, task.x0.dq, "x0.dq", joints)
+    q0 = joint_vector(c, task.x0.q, "x0.q", joints)
+    dq0 = joint_vector(c, task.x0.dq, "x0.dq", joints)
     q1 = dq1 = None
     if task.x1 is not None and not isinstance(task.x1, LinkGoal):  # a link goal leaves the final state free
-        q1 = _vector(c, task.x1.q, "x1.q", joints)
-        dq1 = _vector(c, task.x1.dq, "x1.dq", joints)
+        q1 = joint_vector(c, task.x1.q, "x1.q", joints)
+        dq1 = joint_vector(c, task.x1.dq, "x1.dq", joints)
         dq1 = zeros.copy() if dq1 is None else dq1
     torque = None
     if task.torque == "zero":
         torque = zeros.copy()
     elif task.torque is not None:
-        torque = _vector(c, task.torque, "torque", joints)  # type: ignore[arg-type]
+        torque = joint_vector(c, task.torque, "torque", joints)  # type: ignore[arg-type]
     limits = resolve_limits(c, task.limits, joints, task.locked)
     return ResolvedStates(q0=q0, dq0=zeros.copy() if dq0 is None else dq0, q1=q1, dq1=dq1, torque=torque,
                           limits=limits)

@@ -1,0 +1,113 @@
+"""The package's layers, read from the source (docs/design.md, "Layers").
+
+Maths modules (elements, dynamics, problem, constraints, solvers, drivers, goals, simulator) never
+import the CLI, the terminal or file formats (``commands/``, ``io/``, ``batch/``, ``cli``,
+``plotting``), not even inside a function; no module imports another module's private name (the
+private modules of a package, such as ``dynamics/_passes``, share theirs within it); maths
+modules do not print and build no ``SimpleNamespace`` stand-ins; and a plain ``hoc plan`` loads
+nothing it does not use (scipy.optimize, Dask, pyarrow, matplotlib).
+"""
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "hoc_cli"
+OUTER = ("hoc_cli.commands", "hoc_cli.io", "hoc_cli.batch", "hoc_cli.cli", "hoc_cli.plotting", "hoc_cli.examples")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def is_outer(name: str) -> bool:
+    return any(name == o or name.startswith(o + ".") for o in OUTER)
+
+
+MODULES = {module_name(p): ast.parse(p.read_text(encoding="utf-8")) for p in sorted(PACKAGE.rglob("*.py"))}
+PACKAGES = {module_name(p) for p in PACKAGE.rglob("__init__.py")}
+MATHS = sorted(m for m in MODULES if not is_outer(m) and m != "hoc_cli")
+
+
+def imports(tree: ast.AST, here: str):
+    """(module imported, names taken) for every import statement, module level or inside functions."""
+    package = here if here in PACKAGES else here.rsplit(".", 1)[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, ()
+        elif isinstance(node, ast.ImportFrom):
+            mod = node.module or ""
+            if node.level:  # relative: resolve against this module's package
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                mod = f"{base}.{mod}" if mod else base
+            yield mod, tuple(a.name for a in node.names)
+
+
+def test_the_layer_checks_see_the_modules_they_are_about():
+    assert {"hoc_cli.planner", "hoc_cli.constraints.penalty", "hoc_cli.goals.replan"} <= set(MATHS)
+    assert "hoc_cli.commands.plan" in MODULES and not set(MATHS) & {"hoc_cli.commands.plan", "hoc_cli.io.mcap"}
+
+
+@pytest.mark.parametrize("module", MATHS)
+def test_a_maths_module_imports_nothing_from_the_cli_or_file_layers(module):
+    bad = [mod for mod, _ in imports(MODULES[module], module) if is_outer(mod)]
+    assert bad == [], f"{module} imports {bad}"
+
+
+def package_internal(importer: str, source: str) -> bool:
+    """A private module's names belong to its package: ``dynamics/_passes`` may take ``_layout._consts``."""
+    if "." not in source:
+        return False
+    package, leaf = source.rsplit(".", 1)
+    own = importer if importer in PACKAGES else importer.rsplit(".", 1)[0]
+    return leaf.startswith("_") and own == package
+
+
+def test_no_module_imports_a_private_name_of_another_module():
+    bad = []
+    for module, tree in MODULES.items():
+        for mod, names in imports(tree, module):
+            if mod.startswith("hoc_cli") and mod != module and not package_internal(module, mod):
+                bad += [f"{module}: {mod}.{n}" for n in names if n.startswith("_") and not n.startswith("__")]
+    assert bad == []
+
+
+def test_maths_modules_do_not_print_and_build_no_simple_namespaces():
+    bad = []
+    for module in MATHS:
+        for node in ast.walk(MODULES[module]):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print":
+                bad.append(f"{module}:{node.lineno} print")
+            if isinstance(node, (ast.Name, ast.Attribute)) and getattr(node, "id", getattr(node, "attr", "")) == "SimpleNamespace":
+                bad.append(f"{module}:{node.lineno} SimpleNamespace")
+    assert bad == []
+
+
+def test_the_layer_test_catches_a_maths_module_that_reaches_up():
+    tree = ast.parse("def f():\n    from hoc_cli.commands.common import load_model\n")
+    assert [m for m, _ in imports(tree, "hoc_cli.planner") if is_outer(m)] == ["hoc_cli.commands.common"]
+    tree = ast.parse("from ..io import mcap\n")
+    assert [m for m, _ in imports(tree, "hoc_cli.goals.plan") if is_outer(m)] == ["hoc_cli.io"]
+
+
+def test_a_fixed_time_plan_loads_no_module_it_does_not_use(tmp_path):
+    root = PACKAGE.parent
+    code = (
+        "import sys\n"
+        "from hoc_cli.cli import app\n"
+        "try:\n"
+        f"    app(['plan', {str(root / 'configs' / 'lbr7_reach.yaml')!r}, '-o', 'none', '-q'])\n"
+        "except SystemExit as e:\n"
+        "    assert e.code == 0, e.code\n"
+        "heavy = ('scipy.optimize', 'dask', 'distributed', 'pyarrow', 'matplotlib', 'yourdfpy', 'pinocchio')\n"
+        "print(sorted(m for m in heavy if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
