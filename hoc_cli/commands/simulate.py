@@ -369,7 +369,7 @@ def _write_outputs(targets: list[OutputTarget], traj, model, urdf_text: str, tas
             meta = {"simulation": json.dumps(stored, allow_nan=False)}
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task.text, metadata=meta,
-                           link_poses=lambda q: dynamics.link_poses(model, q))
+                           link_poses=lambda q: dynamics.link_poses(model, q), locked=model.locked)
 
 
 class _progress:
