@@ -466,6 +466,10 @@ def _human(console, s: dict) -> None:
     say(f"final dq = {s['final_state']['dq']}")
     if s["final_error"] is not None:
         say(f"final error against x1: {s['final_error']:.3g}")
+    c = s.get("check")
+    if c and c.get("explained") is not None:
+        say(f"check: miss {c['miss']:.3g} {'<=' if c['miss'] <= c['bound'] else '>'} {c['tol']:g} + {c['explained']:.3g} explained by the replay's own errors "
+            f"(amplified up to {c['amplification']:.3g} times by the dynamics): {'passed' if c['passed'] else 'failed'}")
     for path in s["outputs"]:
         if path != "-":
             say(f"wrote {path}")
