@@ -82,7 +82,7 @@ T: 2.0
 N: 24
 output: {{rate: 50}}
 """)
-    r = CliRunner().invoke(app, ["plan", str(task), "-o", str(d / "plan.mcap"), "-q"])
+    r = CliRunner().invoke(app, ["plan", str(task), "-o", str(d / "plan.mcap"), "-o", str(d / "plan.csv"), "-q"])
     assert r.exit_code == 0, r.output
     return d / "plan.mcap"
 
@@ -115,3 +115,17 @@ def test_the_same_plans_torque_perturbed_by_1e_6_relative_fails_the_check(xarm_p
     check = doc["check"]
     assert not check["passed"] and check["miss"] > 100 * check["bound"]
     assert "check failed" in r.stderr
+
+
+def test_a_sampled_torque_the_replay_cannot_resolve_fails_saying_so(xarm_plan):
+    """The plan's 50 Hz CSV torque: its interpolation error, amplified 1e10 times, is beyond what an
+    open-loop replay can resolve; the check fails and says why instead of passing on a vacuous bound."""
+    task, csv = xarm_plan.with_name("xarm_via.yaml"), xarm_plan.with_suffix(".csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = CliRunner().invoke(app, ["simulate", str(task), "--torque", str(csv), "-o", "none", "--check", "1e-8", "--json"])
+    assert r.exit_code == 1
+    check = json.loads(r.stdout)["check"]
+    assert check["resolved"] is False and check["passed"] is False
+    assert check["explained_parts"]["torque_representation"] > check["explained_parts"]["rounding"]
+    assert "cannot resolve x1" in r.stderr

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import io
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -176,7 +175,6 @@ def test_joint_states_name_every_non_fixed_joint_the_held_ones_at_their_values(p
 
 
 def test_a_plan_replays_with_hoc_simulate_when_joint_states_carry_held_joints(plans, tmp_path):
-    shutil.copy(ROOT / "robots" / "two_link.urdf", tmp_path / "unused.urdf")
     path = tmp_path / "locked.mcap"
     path.write_bytes(plans["locked"])
     r = CliRunner().invoke(app, ["simulate", str(path), "--check", "1e-6", "-q"])
