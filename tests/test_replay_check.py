@@ -24,9 +24,10 @@ from hoc_cli.torque import PlannedTorque, SampledTorque
 XARM = ERD / "xarm_description" / "urdf" / "xarm7.urdf"
 
 
-def swing(system, T=1.6, N=16):
-    """A smooth two-link swing as Hermite coefficients and its exact torque."""
-    mesh = HermiteMesh("quintic", T, N)
+def swing(system, T=1.6, N=16, uniform=True):
+    """A smooth two-link swing as Hermite coefficients and its exact torque (on N equal elements, or on
+    a graded mesh as ``N: auto`` makes)."""
+    mesh = HermiteMesh("quintic", T, N) if uniform else HermiteMesh.from_nodes("quintic", T * np.linspace(0, 1, N + 1) ** 1.5)
     w = np.pi / T
     amp = np.array([1.1, -0.7])
     C = mesh.interpolate(lambda t: np.outer(np.sin(w * t) ** 2, amp), lambda t: np.outer(w * np.sin(2 * w * t), amp),
@@ -34,9 +35,10 @@ def swing(system, T=1.6, N=16):
     return mesh, C, PlannedTorque(system, mesh, C)
 
 
-def test_the_replays_state_transition_matrix_agrees_with_finite_differences_of_the_replay():
+@pytest.mark.parametrize("uniform", [True, False], ids=["uniform", "graded"])
+def test_the_replays_state_transition_matrix_agrees_with_finite_differences_of_the_replay(uniform):
     system = RobotSystem(load_robot(ROBOTS / "two_link.urdf"))
-    mesh, C, torque = swing(system)
+    mesh, C, torque = swing(system, uniform=uniform)
     x0 = np.concatenate([C[0, 0], C[0, 1]])
     base = sim.simulate_hermite(system, C[0, 0], C[0, 1], torque, mesh)
     sens = replay_sensitivity(system, mesh, base.coeffs, base.points, torque)
