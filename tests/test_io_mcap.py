@@ -67,12 +67,37 @@ def decoded(data: bytes, topic: str) -> list:
     return [(m.log_time, m.publish_time, msg) for _, _, m, msg in reader.iter_decoded_messages(topics=[topic])]
 
 
+def rigidly_attached(poses: dict, rng: np.random.Generator) -> dict:
+    """``poses`` with the links of URDF's fixed joints (l3 on base, tool on l2) at a constant random
+    offset from their parents, as forward kinematics gives them."""
+    out = dict(poses)
+    for child, parent in (("l3", "base"), ("tool", "l2")):
+        A = np.eye(4)
+        A[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        A[:3, 3] = rng.standard_normal(3)
+        out[child] = poses[parent] @ A
+    return out
+
+
 @pytest.fixture(scope="module")
 def plan():
     rng = np.random.default_rng(7)
     traj = synthetic(rng)
-    poses = random_poses(rng, traj.K)
+    poses = rigidly_attached(random_poses(rng, traj.K), rng)
     return traj, poses, write(traj, link_poses=poses)
+
+
+def tf_edges(message) -> dict:
+    """child → (parent, parent_T_child (4, 4)) of a decoded TFMessage."""
+    edges = {}
+    for ts in message.transforms:
+        r, p = ts.transform.rotation, ts.transform.translation
+        assert r.w >= 0 and abs(r.x**2 + r.y**2 + r.z**2 + r.w**2 - 1) < 1e-15
+        A = np.eye(4)
+        A[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+        A[:3, 3] = [p.x, p.y, p.z]
+        edges[ts.child_frame_id] = (ts.header.frame_id, A)
+    return edges
 
 
 def test_there_is_one_joint_state_per_csv_row_with_bit_equal_values_and_stamps_equal_to_t(plan):
@@ -112,24 +137,22 @@ def test_the_urdf_is_published_once_on_robot_description_at_t_zero(plan):
     assert msg.data == URDF
 
 
-def test_tf_composes_back_to_every_links_pose_along_the_urdf_tree(plan):
+def test_tf_and_tf_static_compose_back_to_every_links_pose_along_the_urdf_tree(plan):
     traj, poses, data = plan
     msgs = decoded(data, "/tf")
+    (static_time, _, static), = decoded(data, "/tf_static")  # the fixed joints, once, at t = 0
+    assert static_time == 0
+    static_edges = tf_edges(static)
+    assert {c: p for c, (p, _) in static_edges.items()} == {"l3": "base", "tool": "l2"}
     assert len(msgs) == traj.K
     assert urdf_tf_parents(URDF) == {"l1": "base", "l2": "l1", "l3": "base", "tool": "l2"}
     for k in (0, 17, traj.K - 1):
         log_time, _, tf = msgs[k]
         assert log_time == time_ns(traj.t)[k]
-        edges = {}
-        for ts in tf.transforms:
-            assert ts.header.stamp.sec * 10**9 + ts.header.stamp.nanosec == log_time
-            r, p = ts.transform.rotation, ts.transform.translation
-            assert r.w >= 0 and abs(r.x**2 + r.y**2 + r.z**2 + r.w**2 - 1) < 1e-15
-            A = np.eye(4)
-            A[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
-            A[:3, 3] = [p.x, p.y, p.z]
-            edges[ts.child_frame_id] = (ts.header.frame_id, A)
-        assert {c: p for c, (p, _) in edges.items()} == urdf_tf_parents(URDF)
+        assert all(ts.header.stamp.sec * 10**9 + ts.header.stamp.nanosec == log_time for ts in tf.transforms)
+        edges = tf_edges(tf)
+        assert {c: p for c, (p, _) in edges.items()} == {"l1": "base", "l2": "l1"}  # the moving joints only
+        edges.update(static_edges)
         for link, expected in poses.items():
             pose, frame = np.eye(4), link
             while frame in edges:  # walk up to the root, composing parent_T_child
@@ -205,7 +228,7 @@ def test_the_file_is_valid_for_a_streaming_reader_that_checks_every_crc(plan):
     _, _, data = plan
     reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True)
     topics = {c.topic for _, c, _ in reader.iter_messages()}
-    assert topics == {"/joint_states", "/joint_accelerations", "/joint_trajectory", "/robot_description", "/tf"}
+    assert topics == {"/joint_states", "/joint_accelerations", "/joint_trajectory", "/robot_description", "/tf", "/tf_static"}
     assert make_reader(io.BytesIO(data)).get_header().profile == "ros2"
 
 
@@ -323,15 +346,18 @@ def test_tf_matches_forward_kinematics_computed_independently_by_yourdfpy(path):
     urdf_text = path.read_text()
     data = write(traj, urdf_text=urdf_text, link_poses=lambda q: dynamics.link_poses(model, q))
     msgs = decoded(data, "/tf")
+    (_, _, static), = decoded(data, "/tf_static")
     assert len(msgs) == traj.K
 
     oracle = yourdfpy.URDF.load(str(path), build_scene_graph=True, load_meshes=False,
                                 build_collision_scene_graph=False, load_collision_meshes=False)
-    assert {ts.child_frame_id for ts in msgs[0][2].transforms} == {j.child for j in oracle.robot.joints}
+    moving = {j.child for j in oracle.robot.joints if j.name in model.joint_names}
+    assert {ts.child_frame_id for ts in msgs[0][2].transforms} == moving
+    assert {ts.child_frame_id for ts in static.transforms} == {j.child for j in oracle.robot.joints} - moving
     for k in (0, 4, traj.K - 1):
         cfg = {**model.locked, **dict(zip(model.joint_names, q[k].tolist()))}
         oracle.update_cfg({name: cfg.get(name, 0.0) for name in oracle.actuated_joint_names})
-        for ts in msgs[k][2].transforms:
+        for ts in list(msgs[k][2].transforms) + list(static.transforms):
             r, p = ts.transform.rotation, ts.transform.translation
             A = np.eye(4)
             A[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()

@@ -35,7 +35,8 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
                            metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
-                           link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj))
+                           link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj),
+                           locked=model.locked)
         written.append(target.label)
     return written
 

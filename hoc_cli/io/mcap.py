@@ -1,25 +1,44 @@
-"""MCAP plan files that Foxglove, ``ros2 bag play`` and hoc itself can read (README, Outputs).
+"""MCAP plan files that Foxglove, ``ros2 bag play`` (ROS 2 Humble and later) and hoc itself can read
+(README, Outputs).
 
-Layout of a file written by :func:`write_mcap` (profile ``ros2``, CDR messages, zstd chunks):
+Layout of a file written by :func:`write_mcap` (profile ``ros2``, CDR messages, zstd chunks; every
+schema is the ROS 2 Humble definition, ``hoc_cli.io.ros2_msgdefs``):
 
 =========================== ======================================= ==================================
-topic                       schema (ROS 2 ``ros2msg``)              content, one message per sample k
+topic                       schema (ROS 2 ``ros2msg``)              content
 =========================== ======================================= ==================================
 ``/robot_description``      ``std_msgs/msg/String``                 the URDF text, once, at t = 0
-``/joint_states``           ``sensor_msgs/msg/JointState``          name = joints, position = q [rad|m],
-                                                                    velocity = q̇, effort = u [N·m|N]
-``/joint_accelerations``    ``trajectory_msgs/msg/JointTrajectory`` joint_names = joints, one point with
-                                                                    accelerations = q̈ [rad/s²|m/s²] and
-                                                                    time_from_start = t
+                                                                    (QoS transient-local)
+``/tf_static``              ``tf2_msgs/msg/TFMessage``              once, at t = 0 (QoS transient-local):
+                                                                    one TransformStamped per URDF joint
+                                                                    that does not move (fixed, locked,
+                                                                    mimic): child link in parent link
 ``/joint_trajectory``       ``trajectory_msgs/msg/JointTrajectory`` ONE message at t = 0 (stamp 0: "start
                                                                     on receipt"): every sample k is a
                                                                     point with positions = q, velocities
                                                                     = q̇, accelerations = q̈, effort = u,
                                                                     time_from_start = t_k; what a ROS 2
                                                                     joint_trajectory_controller accepts
-``/tf``                     ``tf2_msgs/msg/TFMessage``              one TransformStamped per URDF joint:
-                                                                    child link in its parent link
+``/joint_states``           ``sensor_msgs/msg/JointState``          per sample k: name = the plan's joints,
+                                                                    then every other non-fixed URDF joint
+                                                                    (locked, mimic) in document order;
+                                                                    position = q [rad|m] (the others at
+                                                                    their locked value), velocity = q̇ (0),
+                                                                    effort = u [N·m|N] (NaN: not computed)
+``/joint_accelerations``    ``trajectory_msgs/msg/JointTrajectory`` per sample: joint_names = the plan's
+                                                                    joints, one point with accelerations =
+                                                                    q̈ [rad/s²|m/s²], time_from_start = t
+``/tf``                     ``tf2_msgs/msg/TFMessage``              per sample: one TransformStamped per
+                                                                    URDF joint of the plan: child link in
+                                                                    its parent link
+``/goal_marker``            ``visualization_msgs/msg/Marker``       per sample and link goal (when any,
+                                                                    ``hoc_cli.io.mcap_markers``)
 =========================== ======================================= ==================================
+
+Every channel carries ``offered_qos_profiles`` metadata as rosbag2 writes it (reliable; the two
+once-only topics transient-local, the others volatile), so ``ros2 bag play`` offers what a
+recorded publisher would and a transient-local subscriber (robot_state_publisher's consumers, tf2's
+static listener) connects.
 
 Every header stamp, log time and publish time is the trajectory time t (ns since 0, i.e. the
 Unix epoch): nothing is taken from the clock, so the same inputs give byte-identical files.
@@ -48,7 +67,7 @@ import numpy as np
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError
 from hoc_cli.io.mcap_markers import MARKER_TYPE, TOPIC_GOAL_MARKER, MarkerTrack, marker_message
-from hoc_cli.io.ros2_msgdefs import MSGDEFS
+from hoc_cli.io.ros2_msgdefs import MSGDEFS, offered_qos_profiles
 from hoc_cli.trajectory import Trajectory
 
 TOPIC_JOINT_STATES = "/joint_states"
@@ -56,6 +75,9 @@ TOPIC_ACCELERATIONS = "/joint_accelerations"
 TOPIC_TRAJECTORY = "/joint_trajectory"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
 TOPIC_TF = "/tf"
+TOPIC_TF_STATIC = "/tf_static"
+LATCHED_TOPICS = (TOPIC_ROBOT_DESCRIPTION, TOPIC_TF_STATIC)
+MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 METADATA_NAME = "hoc"
 ATTACHMENT_URDF = "robot.urdf"
 ATTACHMENT_TASK = "task.yaml"
@@ -76,13 +98,52 @@ def time_ns(t: np.ndarray) -> np.ndarray:
 
 def urdf_tf_parents(urdf_text: str) -> dict[str, str]:
     """Child link → parent link for every ``<joint>`` of a URDF document (the /tf tree)."""
-    root = ET.fromstring(urdf_text)
-    parents = {}
-    for joint in root.findall("joint"):
-        p, c = joint.find("parent"), joint.find("child")
-        if p is not None and c is not None:
-            parents[c.get("link")] = p.get("link")
-    return parents
+    return {j.child: j.parent for j in urdf_joints(urdf_text) if j.child is not None and j.parent is not None}
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """A URDF ``<joint>`` as the writer needs it: name, type, parent and child links, and the mimic
+    (master joint, multiplier, offset) or None.
+    """
+
+    name: str
+    type: str
+    parent: str | None
+    child: str | None
+    mimic: tuple[str, float, float] | None = None
+
+
+def urdf_joints(urdf_text: str) -> list[UrdfJoint]:
+    """Every ``<joint>`` of a URDF document, in document order."""
+    out = []
+    for joint in ET.fromstring(urdf_text).findall("joint"):
+        p, c, m = joint.find("parent"), joint.find("child"), joint.find("mimic")
+        mimic = None
+        if m is not None:
+            mimic = (m.get("joint"), float(m.get("multiplier") or 1.0), float(m.get("offset") or 0.0))
+        out.append(UrdfJoint(joint.get("name"), joint.get("type"), None if p is None else p.get("link"),
+                             None if c is None else c.get("link"), mimic))
+    return out
+
+
+def held_joint_values(joints: Sequence[UrdfJoint], moving: Sequence[str], locked: Mapping[str, float]) -> dict[str, float]:
+    """Value (rad or m) of every movable URDF joint not in ``moving``, in document order: its
+    ``locked`` value, else (mimic joints) multiplier · locked value of the master (0 when the master
+    moves or is not listed) + offset, else 0, the rule of ``hoc_cli.model.load_robot``.
+    """
+    out = {}
+    for j in joints:
+        if j.type not in MOVABLE_TYPES or j.name in moving:
+            continue
+        if j.name in locked:
+            out[j.name] = float(locked[j.name])
+        elif j.mimic is not None:
+            master, multiplier, offset = j.mimic
+            out[j.name] = multiplier * float(locked.get(master, 0.0)) + offset
+        else:
+            out[j.name] = 0.0
+    return out
 
 
 def quaternions(R: np.ndarray) -> np.ndarray:
@@ -167,6 +228,52 @@ def hermite_json(traj: Trajectory) -> bytes:
     return (json.dumps(doc, allow_nan=False) + "\n").encode()
 
 
+class _Ros2Writer:
+    """mcap's Writer with ROS 2 channels (CDR messages, Humble schemas from ``MSGDEFS``), each
+    registered once with its ``offered_qos_profiles`` metadata.
+    """
+
+    def __init__(self, fh: IO[bytes]):
+        from mcap.writer import CompressionType
+        from mcap.writer import Writer as McapWriter
+
+        from hoc_cli import __version__
+
+        self.mcap = McapWriter(fh, compression=CompressionType.ZSTD)
+        self.mcap.start(profile="ros2", library=f"hoc {__version__}")
+        self.schemas: dict[str, tuple[int, Callable]] = {}
+        self.channels: dict[str, tuple[int, Callable]] = {}
+
+    def channel(self, topic: str, type_name: str) -> None:
+        """Register ``topic`` with the message type ``type_name`` (a key of ``MSGDEFS``)."""
+        from mcap_ros2._dynamic import serialize_dynamic  # the CDR encoder of mcap-ros2-support
+
+        if type_name not in self.schemas:
+            text = MSGDEFS[type_name]
+            schema_id = self.mcap.register_schema(type_name, "ros2msg", text.encode())
+            self.schemas[type_name] = (schema_id, serialize_dynamic(type_name, text)[type_name])
+        schema_id, encode = self.schemas[type_name]
+        qos = offered_qos_profiles(latched=topic in LATCHED_TOPICS)
+        self.channels[topic] = (self.mcap.register_channel(topic, "cdr", schema_id, {"offered_qos_profiles": qos}), encode)
+
+    def write(self, topic: str, message: dict, ns: int, sequence: int = 0) -> None:
+        """Write ``message`` on ``topic`` with log and publish time ``ns`` [ns]."""
+        channel_id, encode = self.channels[topic]
+        self.mcap.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, sequence=sequence, data=encode(message))
+
+
+def _stamp(ns: int) -> dict:
+    return {"sec": int(ns // 1_000_000_000), "nanosec": int(ns % 1_000_000_000)}
+
+
+def _tf_message(transforms: list, k: int, stamp: dict) -> dict:
+    """TFMessage of sample k of ``transforms``: (parent, child, translations (K, 3), quaternions (K, 4)) lists."""
+    return {"transforms": [{
+        "header": {"stamp": stamp, "frame_id": parent}, "child_frame_id": child,
+        "transform": {"translation": dict(zip("xyz", p[k])), "rotation": dict(zip("xyzw", r[k]))},
+    } for parent, child, p, r in transforms]}
+
+
 def write_mcap(
     fh: IO[bytes],
     traj: Trajectory,
@@ -177,6 +284,7 @@ def write_mcap(
     link_poses: LinkPosesSource | None = None,
     tf_parents: Mapping[str, str] | None = None,
     markers: Sequence[MarkerTrack] = (),
+    locked: Mapping[str, float] | None = None,
 ) -> None:
     """Write ``traj`` (t (K,) s; q, dq, ddq, u (K, n)) as an MCAP plan file to the binary stream ``fh``.
 
@@ -187,20 +295,19 @@ def write_mcap(
     metadata : extra string entries of the ``hoc`` metadata record (e.g. ``solver``: a JSON
         summary); may not use the reserved keys ``hoc_version``, ``task``, ``joints``
     link_poses : pose (K, 4, 4) of each URDF link in the root frame at the K samples, or a
-        callable mapping q (K, n) to such a dict; None writes no /tf
+        callable mapping q (K, n) to such a dict; None writes no /tf and no /tf_static
     tf_parents : child link → parent link of each published transform; default: the URDF's
-        joints (parent link → child link, as robot_state_publisher does)
+        joints (parent link → child link, as robot_state_publisher does). A child whose URDF
+        joint is not a trajectory joint (fixed, locked, mimic) goes once on /tf_static.
     markers : points (K, 3) [m] in the root frame to show on /goal_marker at each sample (a goal's
         target, ``hoc_cli.io.mcap_markers``)
+    locked : value (rad or m) of the URDF's movable joints that are not trajectory joints
+        (``RobotModel.locked``), published on /joint_states after the trajectory's joints;
+        missing ones follow :func:`held_joint_values`
 
     The stream is always finished (``finally``), so an exception leaves a truncated file that the
     caller discards (``atomic_output``).
     """
-    from mcap.writer import CompressionType
-    from mcap_ros2.writer import Writer
-
-    from hoc_cli import __version__
-
     meta = dict(metadata or {})
     clash = [k for k in RESERVED_METADATA if k in meta]
     if clash:
@@ -223,50 +330,61 @@ def write_mcap(
         raise ValueError("two samples fall in the same nanosecond (output rate above 1 GHz)")
     hermite = hermite_json(traj) if traj.mesh is not None and traj.coeffs is not None else None
 
-    transforms: list[tuple[str, str, list, list]] = []
+    try:
+        table = urdf_joints(urdf_text)
+    except ET.ParseError:  # a document that is not XML has no joints to hold (a /tf from it raises below)
+        table = []
+    held = held_joint_values(table, joints, locked or {})
+    state_names = joints + list(held)
+    held_q, held_zero, held_nan = list(held.values()), [0.0] * len(held), [float("nan")] * len(held)
+
+    moving, still = [], []  # (parent, child, translations (K, 3), quaternions (K, 4))
     if link_poses is not None:
         poses = link_poses(np.asarray(traj.q, dtype=float)) if callable(link_poses) else link_poses
         parents = urdf_tf_parents(urdf_text) if tf_parents is None else dict(tf_parents)
+        static_children = {j.child for j in table if j.name not in joints}
         for parent, child, rel in relative_transforms(poses, parents, K):
-            transforms.append((parent, child, rel[:, :3, 3].tolist(), quaternions(rel[:, :3, :3]).tolist()))
+            entry = (parent, child, rel[:, :3, 3].tolist(), quaternions(rel[:, :3, :3]).tolist())
+            (still if child in static_children else moving).append(entry)
 
-    writer = Writer(fh, compression=CompressionType.ZSTD)
+    writer = _Ros2Writer(fh)
     try:
-        schemas = {name: writer.register_msgdef(name, text) for name, text in MSGDEFS.items()
-                   if name != MARKER_TYPE or markers}
-        writer.write_message(TOPIC_ROBOT_DESCRIPTION, schemas["std_msgs/msg/String"], {"data": urdf_text},
-                             log_time=0, publish_time=0)
-        writer.write_message(TOPIC_TRAJECTORY, schemas["trajectory_msgs/msg/JointTrajectory"],
-                             trajectory_message(joints, ns, arrays), log_time=0, publish_time=0)
+        topics = [(TOPIC_ROBOT_DESCRIPTION, "std_msgs/msg/String"), (TOPIC_TRAJECTORY, "trajectory_msgs/msg/JointTrajectory"),
+                  (TOPIC_JOINT_STATES, "sensor_msgs/msg/JointState"), (TOPIC_ACCELERATIONS, "trajectory_msgs/msg/JointTrajectory")]
+        topics += [(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage")] if still else []
+        topics += [(TOPIC_TF, "tf2_msgs/msg/TFMessage")] if moving else []
+        topics += [(TOPIC_GOAL_MARKER, MARKER_TYPE)] if markers else []
+        for topic, type_name in topics:
+            writer.channel(topic, type_name)
+        writer.write(TOPIC_ROBOT_DESCRIPTION, {"data": urdf_text}, 0)
+        if still:
+            writer.write(TOPIC_TF_STATIC, _tf_message(still, 0, _stamp(0)), 0)
+        writer.write(TOPIC_TRAJECTORY, trajectory_message(joints, ns, arrays), 0)
         for k in range(K):
-            stamp = {"sec": int(ns[k] // 1_000_000_000), "nanosec": int(ns[k] % 1_000_000_000)}
+            stamp = _stamp(ns[k])
             header = {"stamp": stamp, "frame_id": ""}
-            when = dict(log_time=int(ns[k]), publish_time=int(ns[k]), sequence=k)
-            writer.write_message(TOPIC_JOINT_STATES, schemas["sensor_msgs/msg/JointState"], {
-                "header": header, "name": joints, "position": arrays["q"][k],
-                "velocity": arrays["dq"][k], "effort": arrays["u"][k]}, **when)
-            writer.write_message(TOPIC_ACCELERATIONS, schemas["trajectory_msgs/msg/JointTrajectory"], {
+            when = dict(ns=int(ns[k]), sequence=k)
+            writer.write(TOPIC_JOINT_STATES, {
+                "header": header, "name": state_names, "position": arrays["q"][k] + held_q,
+                "velocity": arrays["dq"][k] + held_zero, "effort": arrays["u"][k] + held_nan}, **when)
+            writer.write(TOPIC_ACCELERATIONS, {
                 "header": header, "joint_names": joints, "points": [{
                     "positions": [], "velocities": [], "accelerations": arrays["ddq"][k], "effort": [],
                     "time_from_start": stamp}]}, **when)
-            if transforms:
-                writer.write_message(TOPIC_TF, schemas["tf2_msgs/msg/TFMessage"], {"transforms": [{
-                    "header": {"stamp": stamp, "frame_id": parent},
-                    "child_frame_id": child,
-                    "transform": {
-                        "translation": dict(zip("xyz", p[k])),
-                        "rotation": dict(zip("xyzw", r[k])),
-                    }} for parent, child, p, r in transforms]}, **when)
+            if moving:
+                writer.write(TOPIC_TF, _tf_message(moving, k, stamp), **when)
             for i, track in enumerate(markers):
-                writer.write_message(TOPIC_GOAL_MARKER, schemas[MARKER_TYPE], marker_message(track, i, k, stamp), **when)
-        writer.add_metadata(METADATA_NAME, {"hoc_version": __version__, "task": task_text,
-                                            "joints": json.dumps(joints), **meta})
-        writer.add_attachment(0, 0, ATTACHMENT_URDF, "application/xml", urdf_text.encode())
-        writer.add_attachment(0, 0, ATTACHMENT_TASK, "application/yaml", task_text.encode())
-        if hermite is not None:
-            writer.add_attachment(0, 0, ATTACHMENT_HERMITE, "application/json", hermite)
+                writer.write(TOPIC_GOAL_MARKER, marker_message(track, i, k, stamp), **when)
+        from hoc_cli import __version__
+
+        writer.mcap.add_metadata(METADATA_NAME, {"hoc_version": __version__, "task": task_text,
+                                                 "joints": json.dumps(joints), **meta})
+        for name, media_type, data in ((ATTACHMENT_URDF, "application/xml", urdf_text.encode()),
+                                       (ATTACHMENT_TASK, "application/yaml", task_text.encode()),
+                                       *(((ATTACHMENT_HERMITE, "application/json", hermite),) if hermite is not None else ())):
+            writer.mcap.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
     finally:
-        writer.finish()
+        writer.mcap.finish()
 
 
 # --------------------------------------------------------------------------- reading
@@ -330,7 +448,7 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
     except Exception as exc:  # third-party reader and CDR decoder on damaged bytes: wrap whatever they raise
         raise InputFileError(f"damaged MCAP file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     try:
-        traj = _trajectory(path, states, accels)
+        traj = _trajectory(path, states, accels, _plan_joints(metadata))
     except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # a message decoded into the wrong shape
         raise InputFileError(f"damaged {TOPIC_JOINT_STATES}/{TOPIC_ACCELERATIONS} messages ({_first_line(exc)})",
                              file=path) from None
@@ -346,26 +464,47 @@ def _first_line(exc: BaseException) -> str:
     return text[0][:200] if text else ""
 
 
-def _trajectory(path: Path, states: list, accels: list) -> Trajectory:
+def _plan_joints(metadata: Mapping[str, str]) -> tuple[str, ...] | None:
+    """The plan's joints from the ``hoc`` metadata record, or None when it does not list them."""
+    try:
+        joints = json.loads(metadata.get("joints", ""))
+    except ValueError:
+        return None
+    if isinstance(joints, list) and joints and all(isinstance(j, str) for j in joints):
+        return tuple(joints)
+    return None
+
+
+def _trajectory(path: Path, states: list, accels: list, joints: tuple[str, ...] | None) -> Trajectory:
+    """The plan's samples: /joint_states' first n entries (the plan's joints; the held joints after
+    them are not part of the trajectory) and /joint_accelerations.
+    """
     if not states:
         raise InputFileError(f"not a hoc plan (no messages on {TOPIC_JOINT_STATES})", file=path)
-    joints = tuple(states[0][1].name)
+    names = tuple(states[0][1].name)
+    if joints is None:
+        joints = names
     n = len(joints)
+    if names[:n] != joints:
+        raise InputFileError(f"{TOPIC_JOINT_STATES} names joints {list(names)}, expected the plan's joints "
+                             f"{list(joints)} first", file=path)
     if len(accels) != len(states):
         raise InputFileError(f"{TOPIC_ACCELERATIONS} has {len(accels)} messages, expected one per "
                              f"{TOPIC_JOINT_STATES} message ({len(states)})", file=path)
     ns, q, dq, u, ddq = [], [], [], [], []
     for k, ((log_time, js), (log_time_a, acc)) in enumerate(zip(states, accels)):
         stamp = js.header.stamp.sec * 1_000_000_000 + js.header.stamp.nanosec
-        if tuple(js.name) != joints or tuple(acc.joint_names) != joints:
-            raise InputFileError(f"message {k} names joints {list(js.name)}, expected {list(joints)} as in the first", file=path)
+        if tuple(js.name) != names or tuple(acc.joint_names) != joints:
+            raise InputFileError(f"message {k} names joints {list(js.name)}, expected {list(names)} as in the first", file=path)
         if log_time_a != log_time or stamp != log_time:
             raise InputFileError(f"message {k}: stamps of {TOPIC_JOINT_STATES} and {TOPIC_ACCELERATIONS} differ", file=path)
         if len(acc.points) != 1:
             raise InputFileError(f"{TOPIC_ACCELERATIONS} message {k} has {len(acc.points)} points, expected 1", file=path)
-        rows = (js.position, js.velocity, js.effort, acc.points[0].accelerations)
-        if any(len(r) != n for r in rows):
-            raise InputFileError(f"message {k} has arrays of lengths {[len(r) for r in rows]}, expected {n} each", file=path)
+        rows = (js.position, js.velocity, js.effort)
+        if any(len(r) != len(names) for r in rows) or len(acc.points[0].accelerations) != n:
+            raise InputFileError(f"message {k} has arrays of lengths {[len(r) for r in rows]} and "
+                                 f"{len(acc.points[0].accelerations)}, expected {len(names)} and {n}", file=path)
+        rows = tuple(r[:n] for r in rows) + (acc.points[0].accelerations,)
         ns.append(stamp)
         for out, r in zip((q, dq, u, ddq), rows):
             out.append(r)

@@ -1,5 +1,5 @@
 """The /goal_marker topic of a plan's MCAP: where a goal is at each sample, as ROS 2
-``visualization_msgs/msg/Marker`` spheres in the root frame (Foxglove's 3D panel shows them beside /tf).
+``visualization_msgs/msg/Marker`` spheres (the Humble definition) in the root frame (Foxglove's 3D panel shows them beside /tf).
 
 A ``MarkerTrack`` is one goal: a label (the marker's namespace, e.g. "x1" or "via[0]"), the root
 frame's name and the positions (K, 3) [m] at the plan's K sample times (a moving target:
@@ -38,8 +38,10 @@ def marker_message(track: MarkerTrack, index: int, k: int, stamp: dict) -> dict:
         "pose": {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
         "scale": {"x": DIAMETER, "y": DIAMETER, "z": DIAMETER},
         "color": {"r": r, "g": g, "b": b, "a": a},
-        "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": False, "points": [], "colors": [], "text": "",
-        "mesh_resource": "", "mesh_use_embedded_materials": False,
+        "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": False, "points": [], "colors": [],
+        "texture_resource": "", "texture": {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "format": "", "data": b""},
+        "uv_coordinates": [], "text": "", "mesh_resource": "", "mesh_file": {"filename": "", "data": b""},
+        "mesh_use_embedded_materials": False,
     }
 
 
