@@ -215,7 +215,7 @@ def run_task(path: Path) -> dict:
 def drift(paths, Ns, mode: str) -> None:
     """J(N) for each task and N, each N solved on its own from the minimum-jerk guess (``hoc plan -N N``)."""
     from hoc_cli.commands.plan import solve
-    from hoc_cli.commands.plan_limits import task_limits
+    from hoc_cli.io.task.problem import task_limits
 
     say(f"torque-cost drift: each N solved on its own (as `hoc plan TASK -N N`), limits: {mode}")
     for path in paths:
@@ -242,8 +242,8 @@ def drift(paths, Ns, mode: str) -> None:
 
 def refine_table() -> None:
     """``N: auto`` with h-refinement beside uniform doubling: elements, J, estimate, true error (when known)."""
-    from hoc_cli.commands.plan_limits import task_limits
     from hoc_cli.constraints import JointLimits
+    from hoc_cli.io.task.problem import task_limits
     from hoc_cli.system import LinearOscillator
 
     osc = LinearOscillator(1, omega=0.0)

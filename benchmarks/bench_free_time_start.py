@@ -20,9 +20,9 @@ import time
 from bench_goals import task_from
 from bench_replan import ROOT
 
-from hoc_cli.commands.plan_goals import task_goals
 from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.time_solver import goal_solver
+from hoc_cli.io.task.problem import task_goals
 from hoc_cli.system import RobotSystem
 
 CATCH = (ROOT / "configs" / "catch_ball.yaml").read_text()

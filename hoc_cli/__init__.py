@@ -4,7 +4,9 @@ The public Python API (no CLI, terminal or file-format imports here):
 
 - ``HermiteMesh``, ``QuadratureOperator``: cubic/quintic Hermite elements (``hoc_cli.elements``)
 - ``load_robot`` (URDF → ``RobotModel``), ``RobotSystem``, ``LinearOscillator``, ``System`` (``hoc_cli.system``)
-- ``plan`` → ``PlanResult``, ``ControlProblem`` (cost, gradient, banded Newton matrix)
+- ``solve(problem, options, warm=None)`` → ``Plan``: plans an ``OptimalControlProblem`` (time ``Fixed`` or
+  ``Free``; goals ``link_goal``, ``joint_via``, ``link_via``; ``JointLimits``), choosing the solver (docs/api.md)
+- ``plan`` → ``PlanResult``, ``ControlProblem`` (cost, gradient, banded Newton matrix): the fixed-T solver itself
 - ``simulate_hermite``, ``simulate_reference`` (``hoc_cli.simulate``)
 - ``HocError`` and its subclasses (``hoc_cli.errors``)
 """
@@ -56,16 +58,43 @@ from hoc_cli.system import LinearOscillator, RobotSystem, System  # noqa: E402
 __version__ = "0.1.0"
 
 
-def __getattr__(name: str):
-    """``hoc_cli.load_robot``, imported on first use (keeps ``import hoc_cli`` to the maths)."""
-    if name == "load_robot":
-        from hoc_cli.model import load_robot
+_LAZY = {  # imported on first use: ``import hoc_cli`` stays light
+    "load_robot": "hoc_cli.model",
+    "solve": "hoc_cli.strategy",
+    "SolveOptions": "hoc_cli.strategy",
+    "Plan": "hoc_cli.strategy",
+    "WarmStart": "hoc_cli.strategy",
+    "OptimalControlProblem": "hoc_cli.ocp",
+    "Fixed": "hoc_cli.ocp",
+    "Free": "hoc_cli.ocp",
+    "link_goal": "hoc_cli.ocp",
+    "joint_via": "hoc_cli.ocp",
+    "link_via": "hoc_cli.ocp",
+    "JointLimits": "hoc_cli.constraints",
+}
 
-        return load_robot
+
+def __getattr__(name: str):
+    """The names of ``_LAZY``, imported on first use."""
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'hoc_cli' has no attribute {name!r}")
 
 
 __all__ = [
+    "OptimalControlProblem",
+    "Fixed",
+    "Free",
+    "JointLimits",
+    "link_goal",
+    "joint_via",
+    "link_via",
+    "solve",
+    "SolveOptions",
+    "Plan",
+    "WarmStart",
     "ControlProblem",
     "HermiteMesh",
     "LinearOscillator",

@@ -203,11 +203,11 @@ def test_item7_the_summary_is_validated_before_any_output_is_written(d, monkeypa
 @pytest.fixture
 def no_solve(monkeypatch):
     """Fail the test if the optimiser is reached: the check must come before the solve."""
-    from hoc_cli.commands import plan as plan_cmd
+    from hoc_cli import planner
 
     def refuse(*args, **kwargs):
         raise AssertionError("the solve started before the check")
-    monkeypatch.setattr(plan_cmd, "plan", refuse)
+    monkeypatch.setattr(planner, "plan", refuse)  # hoc_cli.solve imports it from there when it plans
 
 
 @pytest.mark.parametrize("name,why", [("sh,oulder", "contains ','"), ("", "it is empty"), (" shoulder", "white space")])

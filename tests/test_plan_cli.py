@@ -159,12 +159,12 @@ def test_reported_cost_equals_pinocchios_integral_of_the_covariant_effort(task, 
 
 
 def test_an_unexpected_exception_is_one_line_exit_1_and_a_traceback_with_debug(task, monkeypatch):
-    import hoc_cli.commands.plan as cmd
+    import hoc_cli.planner as planner
 
     def boom(*a, **k):
         raise ZeroDivisionError("simulated bug")
 
-    monkeypatch.setattr(cmd, "plan", boom)
+    monkeypatch.setattr(planner, "plan", boom)
     r = invoke("plan", task)
     assert r.exit_code == 1
     assert r.stderr.strip().splitlines() == [

@@ -210,9 +210,8 @@ def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():
 def _task(path, text: str):
     """(system, goals, limits, x0 states) of a task file written at ``path``."""
     from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_goals import task_goals
-    from hoc_cli.commands.plan_limits import task_limits
     from hoc_cli.io.task import load_task, resolve
+    from hoc_cli.io.task.problem import task_goals, task_limits
 
     path.write_text(text)
     task = load_task(path, purpose="plan")

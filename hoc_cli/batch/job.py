@@ -6,10 +6,9 @@ files are written atomically (``hoc_cli.commands.outputs``) as ``DIR/plans/<id>.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
-
-import numpy as np
 
 from hoc_cli.batch.results import column_name
 from hoc_cli.batch.spec import Job
@@ -57,13 +56,14 @@ def _message(exc: Exception) -> str:
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
-    from hoc_cli.commands.plan import reproducible_summary, sample_plan, solve, summarise
-    from hoc_cli.commands.plan_goals import goal_summary, task_goals
-    from hoc_cli.commands.plan_goals import solve as solve_goals
-    from hoc_cli.commands.plan_limits import check_boundary_states, check_jerk_order, limits_summary, task_limits
+    from hoc_cli.commands.plan import reproducible_summary, sample_plan, summarise
+    from hoc_cli.commands.plan_goals import goal_summary
+    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
     from hoc_cli.commands.starts import starts_summary
-    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.errors import HocError
     from hoc_cli.io.task import load_task, parse_task, resolve
+    from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
+    from hoc_cli.strategy import SolveOptions, solve
     from hoc_cli.system import RobotSystem
 
     source = Path(job.source)
@@ -83,18 +83,20 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
-    goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
-    extra: dict = {}
-    if goals is not None:  # as ``hoc plan``: a link goal, vias, a free T
-        if starts > 1:
-            raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
-                            file=task.path, key="solver.starts")
-        with np.errstate(all="ignore"):
-            result, extra = solve_goals(task, model, states, goals, limits if task.limits.mode == "enforce" else None)
-        multi = None
-    else:
-        mesh = HermiteMesh(task.order, task.T, task.N)  # type: ignore[arg-type]
-        result, multi = solve(task, model, states, mesh, limits, starts=starts, seed=seed)
+    problem = problem_from_task(task, model, states, limits if task.limits.mode == "enforce" else None)
+    if problem.has_goals and starts > 1:
+        raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
+                        file=task.path, key="solver.starts")
+    options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
+                           estimate_error=False)  # as ``hoc plan``, without its error estimate
+    try:
+        planned = solve(problem, options)
+    except HocError as exc:
+        if exc.file is not None or exc.key is None:
+            raise
+        raise type(exc)(exc.detail, file=task.path, key=exc.key) from None
+    result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
+    extra, multi, goals = dict(planned.details), planned.multi, planned.goals
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
     summary.update(starts_summary(multi, seed))

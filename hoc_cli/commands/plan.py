@@ -1,6 +1,7 @@
 """``hoc plan``: load the task and robot, solve, sample, check limits, write outputs, summarise."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -10,7 +11,7 @@ from rich.table import Table
 from rich.text import Text
 
 from hoc_cli import __version__
-from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START, ErrorEstimate, estimate, plan_auto
+from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START, ErrorEstimate
 from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
@@ -29,23 +30,24 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
-from hoc_cli.commands.plan_goals import goal_mesh, goal_summary, task_goals
-from hoc_cli.commands.plan_goals import solve as solve_goals
-from hoc_cli.commands.plan_limits import check_boundary_states, check_jerk_order, limits_summary, task_limits
+from hoc_cli.commands.plan_goals import goal_summary
+from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
 from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import InputFileError, OutputError, TaskError
+from hoc_cli.errors import HocError, InputFileError, OutputError
+from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
+from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
 from hoc_cli.limits import dense_times, limit_violations
 from hoc_cli.optimize import check_gradient
-from hoc_cli.planner import PlanResult, plan
+from hoc_cli.planner import PlanResult
 from hoc_cli.problem import ControlProblem
+from hoc_cli.strategy import Plan, SolveOptions, WarmStart, node_fractions, solve
 from hoc_cli.system import RobotSystem
 from hoc_cli.trajectory import Trajectory, sample_times
 
 GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
 GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
-ESTIMATE_MIN_ITER = 50  # the error estimate's iteration budget: the plan's own iterations, at least this
 
 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
@@ -70,7 +72,6 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     check_columns(targets, model.joint_names)
     urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
     states = resolve(task, model.joint_names)
-    goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
     limits = task_limits(model, states.limits)
@@ -80,30 +81,29 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         check_boundary_states(task, limits, states)
     else:
         _warn_outside_limits(console, task, model, states)
+    problem = problem_from_task(task, model, states, limits if mode == "enforce" else None)
+    has_goals = problem.has_goals  # a link goal, vias or a free T
     auto = task.N is None
     mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
-    if goals is not None and not auto:
-        mesh = goal_mesh(task, goals)  # the via times are nodes
-    C_init = warm = None
+    if has_goals and not auto:
+        mesh = _with_file(task, lambda: scaled_mesh(task.order, task.T, task.N, node_fractions(problem)))
+    warm = None
     if init is not None and not auto:
-        if goals is not None and task.time.free is not None:  # a warm replan from the plan's T and coefficients
-            warm = _init_plan(init, model.joint_names)
+        if has_goals and task.time.free is not None:  # a warm replan from the plan's T and coefficients
+            warm = WarmStart(*_init_plan(init, model.joint_names))
         else:
-            C_init = _warm_start(init, mesh, model.joint_names)
+            warm = WarmStart(mesh, _warm_start(init, mesh, model.joint_names))
     if auto and init is not None:
         raise OutputError("--init needs a fixed N (the task has N: auto; give -N)", key="--init")
     if auto and starts > 1:
         raise OutputError("multi-start needs a fixed N (the task has N: auto; give -N)", key=starts_key)
-    if goals is not None and auto:
-        raise TaskError("goals (a link goal, vias or a free T) need a fixed number of elements "
-                        "(expected an integer N >= 1, not auto)", file=task.path, key="N")
-    if goals is not None and starts > 1:
+    if has_goals and starts > 1:
         raise OutputError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
                           key=starts_key)
-    if gradient_check and goals is not None:
-        return _check_goal_gradient(task, model, states, goals, console, as_json)
+    if gradient_check and has_goals:
+        return _check_goal_gradient(task, model, states, problem, console, as_json)
     if gradient_check:
-        return _check_gradient(task, model, states, mesh, C_init, console, as_json)
+        return _check_gradient(task, model, states, mesh, None if warm is None else warm.coeffs, console, as_json)
     check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
 
     start = time.perf_counter()
@@ -122,27 +122,16 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
-    system, enforced = RobotSystem(model), limits if mode == "enforce" else None
-    multi = None
-    with np.errstate(all="ignore"), beat:  # NaN and inf are detected and reported (exit 1), not warned about
-        extra: dict = {}
-        error = None
-        if goals is not None:
-            result, extra = solve_goals(task, model, states, goals, enforced, report, C_init=C_init, init=warm)
-        elif auto:
-            found = plan_auto(system, task.order, task.T, states.q0, states.dq0, states.q1, states.dq1,
-                              accuracy=task.accuracy, cost=task.cost, method=task.method, tol=task.tol,
-                              max_iter=task.max_iter, limits=enforced, callback=report)
-            result, error = found.plan, found.error
-        else:
-            result, multi = solve(task, model, states, mesh, limits, C_init=C_init, callback=report, starts=starts,
-                                  seed=seed, client=starts_pool if starts > 1 else None, on_start=report_start)
-            # the estimate's solves may take as many iterations as the plan did (each costs about twice
-            # as much on 2N elements), so it at most about doubles the time; else it reports null
-            budget = min(task.max_iter, max(ESTIMATE_MIN_ITER, result.optimizer.iterations))
-            beat.say(f"estimating the error of J (solves on {2 * result.mesh.N} elements)")
-            error = estimate(system, result, cost=task.cost, method=task.method, tol=task.tol,
-                             max_iter=budget, limits=enforced)
+    system = RobotSystem(model)
+    options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
+                           estimate_error=not has_goals, callback=report, on_start=report_start, on_phase=beat.say,
+                           client=starts_pool if starts > 1 else None)
+    with beat:
+        planned: Plan = _with_file(task, lambda: solve(problem, options, warm))
+    # wall_time_s: the whole solve (every start, mesh and T tried; the error estimate apart)
+    result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
+    extra, error, multi, found = dict(planned.details), planned.error, planned.multi, planned.auto
+    goals = planned.goals
     with beat.phase("sampling the plan and checking its limits"):
         traj = sample_plan(system, result, model.joint_names, task.rate)
         summary = summarise(task, model, result, states)
@@ -177,25 +166,16 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     return EXIT_OK
 
 
-def solve(task: Task, model, states, mesh: HermiteMesh, limits, *, C_init: np.ndarray | None = None, callback=None,
-          starts: int = 1, seed: int = 0, client=None, on_start=None):
-    """Solve the task: (PlanResult, None), or with ``starts`` > 1 (the best start's result, MultiStartResult).
-
-    ``limits`` (``task_limits``) are enforced when ``task.limits.mode`` is "enforce".
-    ``client``, ``on_start``: see ``hoc_cli.multistart.solve_starts``.
+def _with_file(task: Task, fn):
+    """``fn()``, with the task file named in a ``HocError`` that names a task key but no file (the maths
+    names the key only); a numerical failure, which names neither, is left as it is.
     """
-    options = dict(cost=task.cost, method=task.method, tol=task.tol, max_iter=task.max_iter,
-                   limits=limits if task.limits.mode == "enforce" else None)
-    system = RobotSystem(model)
-    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
-        if starts <= 1:
-            return plan(system, mesh, states.q0, states.dq0, states.q1, states.dq1, C_init=C_init, callback=callback,
-                        **options), None
-        from hoc_cli.multistart import solve_starts
-
-        multi = solve_starts(system, mesh, states.q0, states.dq0, states.q1, states.dq1, starts=starts, seed=seed,
-                             client=client, on_start=on_start, **options)
-    return multi.best, multi
+    try:
+        return fn()
+    except HocError as exc:
+        if exc.file is not None or exc.key is None:
+            raise
+        raise type(exc)(exc.detail, file=task.path, key=exc.key) from None
 
 
 def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
@@ -227,12 +207,12 @@ def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, consol
     return EXIT_OK if passed else EXIT_UNMET
 
 
-def _check_goal_gradient(task: Task, model, states, goals, console, as_json: bool) -> int:
+def _check_goal_gradient(task: Task, model, states, problem, console, as_json: bool) -> int:
     """``--check-gradient`` on a task with goals (``hoc_cli.commands.gradient_goals``) at the initial trajectory."""
     from hoc_cli.commands.gradient_goals import goal_gradient_checks, report
-    from hoc_cli.commands.plan_goals import node_fractions
 
-    checks = goal_gradient_checks(model, task.order, task.T, task.N, node_fractions(task, goals), states.q0,
+    goals, fractions = _with_file(task, lambda: (problem.goals(), node_fractions(problem)))
+    checks = goal_gradient_checks(model, task.order, task.T, task.N, fractions, states.q0,
                                   states.dq0, goals, cost=task.cost, free_time=task.time.free is not None,
                                   max_coordinates=GRADIENT_MAX_COORDINATES)
     return report(checks, GRADIENT_RTOL, console, as_json, cost=task.cost, order=task.order, N=task.N)

@@ -13,35 +13,6 @@ from hoc_cli.errors import TaskError
 from hoc_cli.planner import PlanResult
 
 
-def task_limits(model, overrides) -> JointLimits:
-    """The URDF's limits with the task's per-joint overrides and scale factors applied.
-
-    ``overrides`` is the ``LimitOverrides`` of ``resolve`` (arrays in model joint order, NaN where
-    the task gives nothing), or None.
-    """
-    limits = JointLimits.from_model(model)
-    if overrides is None:
-        return limits
-    joints = model.joint_names
-    named = {
-        "position": {j: (overrides.lower[i], overrides.upper[i]) for i, j in enumerate(joints)
-                     if np.isfinite(overrides.lower[i])},
-        **{kind: {j: getattr(overrides, kind)[i] for i, j in enumerate(joints) if np.isfinite(getattr(overrides, kind)[i])}
-           for kind in ("velocity", "acceleration", "jerk", "effort")},
-    }
-    scale = {k: getattr(overrides.scale, k) for k in ("velocity", "acceleration", "jerk", "effort")}
-    return limits.with_overrides(scale=scale, **named)
-
-
-def check_jerk_order(task, limits: JointLimits, order: str) -> None:
-    """Jerk limits need quintic elements (TaskError, exit 2): a cubic plan's q̈ jumps at every node."""
-    if order != "quintic" and limits.has("jerk").any():
-        name = limits.joints[int(np.flatnonzero(limits.has("jerk"))[0])]
-        raise TaskError(f"a jerk limit needs order: quintic (a cubic plan's acceleration jumps at every node, "
-                        f"so its jerk is unbounded there; the order is {order})", file=task.path,
-                        key=f"limits.jerk.{name}")
-
-
 def check_boundary_states(task, limits: JointLimits, states) -> None:
     """In enforce mode x0 and x1 must lie within the position and velocity limits (TaskError, exit 2)."""
     for label, q, dq in (("x0", states.q0, states.dq0), ("x1", states.q1, states.dq1)):

@@ -1,0 +1,103 @@
+"""A task file read into one ``OptimalControlProblem`` (``hoc_cli.ocp``) and its ``JointLimits``.
+
+``hoc plan`` and ``hoc batch`` both build their problem here and hand it to ``hoc_cli.solve``. Errors
+(an unknown link, a limit on a joint that is not a task joint, a jerk limit on cubic elements) are
+``TaskError``s naming the task file and the key.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.constraints.bounds import JointLimits
+from hoc_cli.errors import TaskError
+from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix
+from hoc_cli.goals.terms import GoalPoint
+from hoc_cli.io.task.checks import Checker
+from hoc_cli.io.task.document import Task
+from hoc_cli.io.task.goals import LinkGoal
+from hoc_cli.io.task.resolve import ResolvedStates, joint_vector
+from hoc_cli.ocp.problem import Fixed, Free, OptimalControlProblem
+from hoc_cli.system import RobotSystem
+
+
+def task_limits(model, overrides) -> JointLimits:
+    """The URDF's limits with the task's per-joint overrides and scale factors applied.
+
+    ``overrides`` is the ``LimitOverrides`` of ``resolve`` (arrays in model joint order, NaN where
+    the task gives nothing), or None.
+    """
+    limits = JointLimits.from_model(model)
+    if overrides is None:
+        return limits
+    joints = model.joint_names
+    named = {
+        "position": {j: (overrides.lower[i], overrides.upper[i]) for i, j in enumerate(joints)
+                     if np.isfinite(overrides.lower[i])},
+        **{kind: {j: getattr(overrides, kind)[i] for i, j in enumerate(joints) if np.isfinite(getattr(overrides, kind)[i])}
+           for kind in ("velocity", "acceleration", "jerk", "effort")},
+    }
+    scale = {k: getattr(overrides.scale, k) for k in ("velocity", "acceleration", "jerk", "effort")}
+    return limits.with_overrides(scale=scale, **named)
+
+
+def check_jerk_order(task: Task, limits: JointLimits, order: str) -> None:
+    """Jerk limits need quintic elements (TaskError, exit 2): a cubic plan's q̈ jumps at every node."""
+    if order != "quintic" and limits.has("jerk").any():
+        name = limits.joints[int(np.flatnonzero(limits.has("jerk"))[0])]
+        raise TaskError(f"a jerk limit needs order: quintic (a cubic plan's acceleration jumps at every node, "
+                        f"so its jerk is unbounded there; the order is {order})", file=task.path,
+                        key=f"limits.jerk.{name}")
+
+
+def frame_goal(task: Task, model, link: str, key: str, position, orientation, target=None,
+               match: bool = False) -> FrameResidual:
+    """A link's pose (or a moving target) as a ``FrameResidual``; TaskError naming ``key`` for an unknown link."""
+    if link not in model.link_names:
+        raise TaskError(f"unknown link {link[:60]!r} (links: {', '.join(model.link_names)})", file=task.path, key=key)
+    R = None if orientation is None else quaternion_matrix(orientation)
+    if target is not None:
+        return FrameResidual(model, link, np.array(target.position), R, np.array(target.velocity),
+                             np.array(target.acceleration), match_velocity=match)
+    return FrameResidual(model, link, np.array(position, float), R)
+
+
+def task_vias(task: Task, model) -> tuple[GoalPoint, ...]:
+    """The task's vias as goal rows at fractions s of T (``t`` gives s = t/T of the task's T)."""
+    c = Checker(task.path)
+    joints = tuple(model.joint_names)
+    vias = []
+    for i, v in enumerate(task.via):
+        s = v.s if v.s is not None else v.t / task.T
+        if v.q is not None:
+            dq = joint_vector(c, v.dq, f"via[{i}].dq", joints)
+            vias.append(GoalPoint(s, JointResidual(joint_vector(c, v.q, f"via[{i}].q", joints), dq), f"via[{i}]"))
+        else:
+            vias.append(GoalPoint(s, frame_goal(task, model, v.link, f"via[{i}].link", v.position, v.orientation),
+                                  f"via[{i}]"))
+    return tuple(vias)
+
+
+def problem_from_task(task: Task, model, states: ResolvedStates, limits: JointLimits | None) -> OptimalControlProblem:
+    """The task as an ``OptimalControlProblem``; ``limits``: enforced limits (``task_limits``), None in
+    report mode. The mesh size N is the task's (None: ``N: auto``).
+    """
+    free = task.time.free
+    if (isinstance(task.x1, LinkGoal) or task.via or free is not None) and task.N is None:
+        raise TaskError("goals (a link goal, vias or a free T) need a fixed number of elements "
+                        "(expected an integer N >= 1, not auto)", file=task.path, key="N")
+    time = Fixed(task.T) if free is None else Free(free.min, free.max, free.weight, free.guess)
+    link_goal = None
+    final_dq = "zero"
+    if isinstance(task.x1, LinkGoal):
+        g = task.x1
+        link_goal = frame_goal(task, model, g.link, "x1.link", g.position, g.orientation, g.target, g.match_velocity)
+        final_dq = g.dq
+    return OptimalControlProblem(RobotSystem(model), q0=states.q0, dq0=states.dq0, q1=states.q1, dq1=states.dq1,
+                                 time=time, N=task.N, order=task.order, cost=task.cost, limits=limits,
+                                 link_goal=link_goal, final_dq=final_dq, vias=task_vias(task, model),
+                                 accuracy=task.accuracy)
+
+
+def task_goals(task: Task, model, states: ResolvedStates):
+    """The task's goal rows (``hoc_cli.goals.Goals``), or None for a joint goal in a fixed T."""
+    return problem_from_task(task, model, states, None).goals()
