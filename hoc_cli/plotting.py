@@ -2,7 +2,8 @@
 
 Two layouts:
 
-- per joint (default): one row of three panels (q, q̇, u) per joint, each in that joint's units
+- per joint (default): one row of three panels (q, q̇, u) per joint (four, with the jerk q⃛, when a
+  jerk limit is known and the trajectory carries its quintic Hermite coefficients), each in that joint's units
   (rad, rad/s, N·m; m, m/s, N for a prismatic joint) with that joint's limits only, as red dashed
   lines. A limit within the view (the data's span either side of it) is drawn; one farther out is
   named in the panel's corner ("limits ±320 N·m off scale") instead of flattening the curve.
@@ -38,7 +39,8 @@ NO_LIMITS_NOTE = "limits unknown: a CSV carries no URDF (give --robot ROBOT.urdf
 class JointLimits:
     """Limits of one joint as the URDF gives them; None where it gives none.
 
-    lower, upper: rad (m for prismatic); velocity: rad/s (m/s); effort: N·m (N).
+    lower, upper: rad (m for prismatic); velocity: rad/s (m/s); effort: N·m (N); jerk: rad/s³ (m/s³),
+    from the task's ``limits.jerk`` (a URDF has none).
     """
 
     lower: float | None = None
@@ -46,6 +48,7 @@ class JointLimits:
     velocity: float | None = None
     effort: float | None = None
     prismatic: bool | None = None
+    jerk: float | None = None
 
 
 class MatplotlibMissing(ImportError):
@@ -66,6 +69,23 @@ QUANTITIES = (  # (attribute, panel title, units (revolute, prismatic))
     ("dq", r"velocity $\dot{q}$", ("rad/s", "m/s")),
     ("u", "effort $u$", ("N·m", "N")),
 )
+JERK = ("jerk", r"jerk $\dddot{q}$", ("rad/s³", "m/s³"))  # a fourth panel where a jerk limit is known
+
+
+def values(traj: Trajectory, quantity: str, joint: int) -> np.ndarray | None:
+    """The joint's samples (K,) of ``quantity``; the jerk from the exact quintic coefficients (None without them)."""
+    if quantity != "jerk":
+        return np.asarray(getattr(traj, quantity), dtype=float)[:, joint]
+    if traj.mesh is None or traj.coeffs is None or traj.mesh.order != "quintic":
+        return None
+    return traj.mesh.evaluate(traj.coeffs, np.asarray(traj.t, dtype=float), 3)[:, joint]
+
+
+def quantities(runs, limits: Mapping[str, JointLimits]) -> tuple:
+    """The panels' quantities: q, q̇, u, and the jerk when some joint has a jerk limit and a run its coefficients."""
+    jerk = any(L is not None and L.jerk is not None for L in limits.values()) and any(
+        values(traj, "jerk", 0) is not None for _, traj in runs)
+    return QUANTITIES + ((JERK,) if jerk else ())
 
 
 def bounds(L: JointLimits | None, quantity: str) -> tuple[float | None, float | None]:
@@ -74,7 +94,8 @@ def bounds(L: JointLimits | None, quantity: str) -> tuple[float | None, float | 
         return None, None
     lo, hi = {"q": (L.lower, L.upper),
               "dq": (None if L.velocity is None else -L.velocity, L.velocity),
-              "u": (None if L.effort is None else -L.effort, L.effort)}[quantity]
+              "u": (None if L.effort is None else -L.effort, L.effort),
+              "jerk": (None if L.jerk is None else -L.jerk, L.jerk)}[quantity]
     finite = lambda x: x if x is not None and np.isfinite(x) else None
     return finite(lo), finite(hi)
 
@@ -104,9 +125,9 @@ def off_scale_note(off: list[float], shown: list[float], data: np.ndarray, unit:
 
 def normalise(traj: Trajectory, quantity: str, joint: int, L: JointLimits | None) -> np.ndarray | None:
     """The joint's ``quantity`` divided by its limit (±1 at the limits), or None without that limit."""
-    x = np.asarray(getattr(traj, quantity), dtype=float)[:, joint]
+    x = values(traj, quantity, joint)
     lo, hi = bounds(L, quantity)
-    if lo is None or hi is None or hi <= lo:
+    if x is None or lo is None or hi is None or hi <= lo:
         return None
     return (2.0 * x - (lo + hi)) / (hi - lo)
 
@@ -156,17 +177,20 @@ def plot_trajectories(
 
 def _draw_per_joint(Figure, runs, joints, limits):
     n = len(joints)
-    fig = Figure(figsize=(12.0, max(5.5, 1.2 + 1.5 * n)), layout="constrained")
-    axes = np.asarray(fig.subplots(n, 3, sharex=True, squeeze=False))
+    panels = quantities(runs, limits)
+    fig = Figure(figsize=(4.0 * len(panels), max(5.5, 1.2 + 1.5 * n)), layout="constrained")
+    axes = np.asarray(fig.subplots(n, len(panels), sharex=True, squeeze=False))
     many = len(runs) > 1
     for i, joint in enumerate(joints):
         L = limits.get(joint)
         known = L is not None and L.prismatic is not None
-        for c, (quantity, name, units) in enumerate(QUANTITIES):
+        for c, (quantity, name, units) in enumerate(panels):
             ax = axes[i, c]
             data = []
             for r, (label, traj) in enumerate(runs):
-                y = np.asarray(getattr(traj, quantity), dtype=float)[:, i]
+                y = values(traj, quantity, i)
+                if y is None:  # no coefficients in this run: no jerk
+                    continue
                 ax.plot(traj.t, y, color=FILE_COLOURS[r % len(FILE_COLOURS)], lw=1.3, label=label)
                 data.append(y)
             unit = units[bool(L.prismatic)] if known else f"{units[0]} or {units[1]}"
@@ -194,16 +218,17 @@ def _draw_per_joint(Figure, runs, joints, limits):
         from matplotlib.lines import Line2D
 
         handles.append(Line2D([], [], **LIMIT_STYLE))
-        labels.append("URDF limit")
+        labels.append("URDF limit" if len(panels) == len(QUANTITIES) else "URDF limit (jerk: the task's)")
     if handles:
         fig.legend(handles, labels, loc="outside lower center", ncol=min(len(handles), 4), fontsize="small")
     return fig
 
 
 def _draw_normalised(Figure, runs, joints, limits):
-    fig = Figure(figsize=(11.0, 9.0), layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
-    for ax, (quantity, name, _) in zip(axes, QUANTITIES):
+    panels = quantities(runs, limits)
+    fig = Figure(figsize=(11.0, 3.0 * len(panels)), layout="constrained")
+    axes = fig.subplots(len(panels), 1, sharex=True)
+    for ax, (quantity, name, _) in zip(axes, panels):
         missing = []
         for i, joint in enumerate(joints):
             for r, (label, traj) in enumerate(runs):

@@ -131,3 +131,27 @@ def test_a_free_time_plan_with_a_jerk_limit_is_optimal_in_T(workdir):
         _, f = plan(workdir, fixed.replace("T: 1.5", f"T: {T + dT!r}"))
         assert f["converged"] and f["limit_violations"] == []
         assert f["cost"] + 80.0 * (T + dT) >= total - 1e-7 * total
+
+
+def test_hoc_plot_adds_a_jerk_panel_with_the_tasks_jerk_limit(workdir):
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from hoc_cli.commands.plot import read_for_plot
+    from hoc_cli.plotting import _draw_normalised, _draw_per_joint
+
+    r, _ = plan(workdir, TASK + "limits: {jerk: {shoulder: 80.0, elbow: 80.0}, scale: {jerk: 0.5}}\n", out="plan.mcap")
+    assert r.exit_code == 0, r.output
+    traj, limits = read_for_plot(workdir / "plan.mcap")
+    assert limits["elbow"].jerk == 40.0 and limits["elbow"].velocity is not None
+    fig = _draw_per_joint(Figure, [("plan", traj)], list(traj.joints), limits)
+    axes = np.array(fig.axes).reshape(2, 4)
+    for ax in axes[:, 3]:
+        drawn = [line for line in ax.lines if len(line.get_xdata()) > 2]
+        peak = max(np.abs(line.get_ydata()).max() for line in drawn)
+        limits_drawn = sorted(float(line.get_ydata()[0]) for line in ax.lines if len(line.get_xdata()) == 2)
+        assert limits_drawn and set(limits_drawn) <= {-40.0, 40.0} and peak <= 40.0 * (1 + 1e-9)  # a far side: named
+    assert len(_draw_normalised(Figure, [("plan", traj)], list(traj.joints), limits).axes) == 4
+    r, _ = plan(workdir, TASK, out="free.mcap")  # no jerk limit: the three panels of q, q̇, u
+    traj, limits = read_for_plot(workdir / "free.mcap")
+    assert len(_draw_per_joint(Figure, [("plan", traj)], list(traj.joints), limits).axes) == 6

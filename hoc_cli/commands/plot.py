@@ -89,8 +89,28 @@ def read_for_plot(file: Path):
         head = fh.read(len(MCAP_MAGIC))
     if head == MCAP_MAGIC or file.suffix.lower() == ".mcap":
         plan = read_plan(file)
-        return plan.trajectory, urdf_limits(plan.urdf_text, plan.joints, source=file)
+        return plan.trajectory, with_task_jerk(urdf_limits(plan.urdf_text, plan.joints, source=file), plan.task_text)
     return read_csv(file), {}
+
+
+def with_task_jerk(limits: dict, task_text: str) -> dict:
+    """``limits`` with the jerk limits of the plan's task (``limits.jerk`` times ``limits.scale.jerk``) added."""
+    import dataclasses
+
+    from hoc_cli.io.task import load_yaml
+
+    try:
+        doc = load_yaml(task_text)
+        section = doc.get("limits") or {}
+        jerk = section.get("jerk") or {}
+        scale = float((section.get("scale") or {}).get("jerk", 1.0))
+    except Exception:  # a plan's task was checked when it was planned: an unreadable one only loses the jerk panel
+        return limits
+    out = dict(limits)
+    for joint, value in jerk.items():
+        if joint in out and isinstance(value, (int, float)) and value > 0:
+            out[joint] = dataclasses.replace(out[joint], jerk=float(value) * scale)
+    return out
 
 
 def urdf_limits(urdf_text: str, joints, source: Path) -> dict:
