@@ -179,6 +179,8 @@ def simulate(
 def inspect(
     robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file.")],
     json_: JsonOpt = False,
+    collision: Annotated[bool, typer.Option("--collision", help="List each link's collision primitives and their "
+                                            "volume against the geometry's (docs/collision.md).")] = False,
     debug: DebugOpt = False,
 ) -> None:
     """Print the parsed kinematic tree: joints, bodies, total mass, degrees of freedom.
@@ -187,7 +189,7 @@ def inspect(
     """
     from hoc_cli.commands import inspect as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_, collision=collision), debug=debug))
 
 
 @app.command()
