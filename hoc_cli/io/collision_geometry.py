@@ -54,11 +54,15 @@ def resolve_mesh(filename: str, urdf: Path) -> Path | None:
     return path if path.is_file() else None
 
 
-def read_collision_shapes(path, *, label: str | None = None) -> dict[str, list[Shape]]:
-    """Link name → its collision shapes in the link frame, for every link with ``<collision>`` elements."""
+def read_collision_shapes(path, *, label: str | None = None, skip=()) -> dict[str, list[Shape]]:
+    """Link name → its collision shapes in the link frame, for every link with ``<collision>`` elements
+    (except the links in ``skip``, whose geometry is not read: a task replaces it).
+    """
     robot, path, src = read(path, label)
     out: dict[str, list[Shape]] = {}
     for link in robot.links:
+        if link.name in skip:
+            continue
         key = f"link {link.name!r}"
         for collision in link.collisions:
             if collision.error is not None:

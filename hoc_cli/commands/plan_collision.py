@@ -1,0 +1,90 @@
+"""``hoc plan``'s collision checking: the task's scene built against the model, the x0/x1 check, the summary.
+
+The maths (``hoc_cli.collision``) takes arrays; this module reads the task's ``collision:`` section
+and the URDF's collision geometry into a ``CollisionScene``, refuses a start or goal state in
+collision (exit 2), and certifies a plan's clearance for the JSON summary's ``collision_mode``,
+``min_clearance`` and ``collisions`` (docs/collision.md). Enforcement in the optimiser is not
+built yet: ``check`` plans without the constraint and reports.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.collision.certify import certify
+from hoc_cli.collision.evaluate import distances
+from hoc_cli.collision.geometry import obstacle_primitive
+from hoc_cli.collision.robot import robot_geometry
+from hoc_cli.collision.scene import CollisionScene, Obstacle, collision_scene
+from hoc_cli.commands.common import warn
+from hoc_cli.errors import TaskError
+from hoc_cli.io.collision_geometry import read_collision_shapes
+from hoc_cli.io.task.checks import join
+
+
+def task_collision(task, model) -> CollisionScene | None:
+    """The pairs to check for ``task`` (None when ``collision.mode`` is off).
+
+    Raises TaskError for a link the robot does not have (``collision.robot``), an obstacle given in
+    another frame than the URDF root, or an ``ignore`` name that is neither a link nor an obstacle;
+    ModelError (naming the URDF and link) for URDF collision geometry that cannot be read.
+    """
+    spec = task.collision
+    if spec.mode == "off":
+        return None
+    for link in spec.robot:
+        if link not in model.link_names:
+            raise TaskError(f"no link {link!r} in the URDF (links: {', '.join(model.link_names)})", file=task.path,
+                            key=join("collision.robot", link))
+    shapes = read_collision_shapes(task.robot, skip=set(spec.robot))
+    robot = robot_geometry(model, shapes, {k: list(v) for k, v in spec.robot.items()})
+    obstacles = []
+    for o in spec.obstacles:
+        if o.frame not in (None, "", model.root_link, "/" + model.root_link):
+            raise TaskError(f"frame_id {o.frame!r} is not the URDF root link {model.root_link!r} (obstacles are placed "
+                            "in the root frame)", file=o.file, key=o.key.rsplit(".primitives", 1)[0] + ".header.frame_id")
+        obstacles.append(Obstacle(o.name, obstacle_primitive(o.shape)))
+    names = set(model.link_names) | {o.name for o in obstacles}
+    for i, pair in enumerate(spec.ignore):
+        for k, name in enumerate(pair):
+            if name not in names:
+                raise TaskError(f"{name!r} is neither a link nor an obstacle", file=task.path,
+                                key=f"collision.ignore[{i}][{k}]")
+    return collision_scene(model, robot, obstacles, margin=spec.margin, self_collision=spec.self_collision,
+                           disabled=spec.disabled + spec.ignore)
+
+
+def check_boundary_clearance(task, model, scene: CollisionScene | None, states) -> None:
+    """x0 (and a joint goal x1) must keep the margin: TaskError (exit 2) naming the closest pair and its depth."""
+    if scene is None or scene.size == 0:
+        return
+    for label, q in (("x0", states.q0), ("x1", states.q1)):
+        if q is None:  # a link goal: its final q is planned
+            continue
+        d = distances(model, scene, q[None, :])[0]
+        k = int(np.argmin(d))
+        if d[k] >= scene.margin:
+            continue
+        a, b = scene.names[k]
+        how = (f"overlap by {-d[k]:.4g} m" if d[k] < 0 else f"are {d[k]:.4g} m apart")
+        raise TaskError(f"{a} and {b} {how} (collision.margin is {scene.margin:g} m; move the state, add the pair "
+                        "to collision.ignore, or give the links' geometry under collision.robot)",
+                        file=task.path, key=f"{label}.q")
+
+
+def collision_summary(model, scene: CollisionScene | None, mode: str, result) -> dict:
+    """Summary keys ``collision_mode``, ``min_clearance`` and ``collisions`` (empty when mode is off)."""
+    if scene is None:
+        return {"collision_mode": mode}
+    cert = certify(model, scene, result.mesh, result.coeffs)
+    return {"collision_mode": mode, **cert.summary()}
+
+
+def warn_collisions(collisions: list[dict]) -> None:
+    """One warning line per pair and interval where the clearance is below the margin (standard error)."""
+    for c in collisions:
+        a, b = c["pair"]
+        t0, t1 = c["interval"]
+        what = f"overlap by {c['depth']:.4g} m" if c["depth"] > 0 else f"come within {c['distance']:.4g} m"
+        if not c["certain"]:
+            what = f"may come within {c['lower_bound']:.4g} m (not proven clear)"
+        warn(f"{a} and {b} {what} in t = [{t0:.4g}, {t1:.4g}] s")
