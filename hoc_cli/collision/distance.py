@@ -7,10 +7,11 @@ two solids when they are apart, minus the penetration depth (the length of the s
 translation that separates them) when they overlap.
 
 Formulas (docs/collision.md): capsule–capsule is the segment–segment distance minus both radii;
-capsule–half-space the lower end's height minus the radius; capsule–box minimises the convex,
+capsule–half-space the lower end's height minus the radius; capsule–box minimises the convex, C¹,
 piecewise-quadratic squared distance from the segment's points to the box over the segment's
-parameter (the minimum lies at a knot where the segment crosses a face plane, at an end, or at the
-stationary point of a piece) and, when the segment meets the box, takes the penetration depth by
+parameter (its derivative is piecewise linear between the knots where the segment crosses a face
+plane: the minimiser is an end or the zero of that derivative between two knots) and, when the
+segment meets the box, takes the penetration depth by
 separating axes: the box's face normals and the cross products of its axes with the segment, the
 facet normals of box ⊕ (−segment).
 """
@@ -115,60 +116,70 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     """Capsule [a, b] radius r (A) against the box (B) with ``center`` (S, 3), ``rotation`` (S, 3, 3)
     (its axes as columns) and half side lengths ``half`` (S, 3).
     """
-    R = np.asarray(rotation, dtype=float)
-    h = np.asarray(half, dtype=float)
-    p = np.einsum("...ji,...j->...i", R, a - center)          # segment in the box frame
-    d = np.einsum("...ji,...j->...i", R, b - a)
+    a, b, center = (np.asarray(x, dtype=float) for x in (a, b, center))
+    R, h = np.asarray(rotation, dtype=float), np.asarray(half, dtype=float)
+    r = np.asarray(r, dtype=float)
+    lead = np.broadcast_shapes(a.shape[:-1], b.shape[:-1], center.shape[:-1], R.shape[:-2], h.shape[:-1], r.shape)
+    if lead != (np.prod(lead, dtype=int),):  # work on rows (M,), reshape back at the end
+        flat = capsule_box(*(np.broadcast_to(x, lead + x.shape[len(x.shape) - k:]).reshape((-1,) + x.shape[len(x.shape) - k:])
+                             for x, k in ((a, 1), (b, 1), (r, 0), (center, 1), (R, 2), (h, 1))))
+        return Contact(*(getattr(flat, f).reshape(lead + getattr(flat, f).shape[1:])
+                         for f in ("distance", "normal", "point_a", "point_b")))
+    p = np.matmul((a - center)[..., None, :], R)[..., 0, :]  # segment start in the box frame (Rᵀ x)
+    d = np.matmul((b - a)[..., None, :], R)[..., 0, :]       # segment direction in the box frame
+    h, _ = np.broadcast_arrays(h, p)
     shape = p.shape[:-1]
-    # knots: where a coordinate crosses ±h (inside (0, 1)), plus the ends
+    # f(t) = dist²(p + t d, box) is convex and C¹ with f'(t) = 2 d·(x − clip(x)), piecewise linear between the
+    # knots where a coordinate crosses ±h: the minimiser is an end, or where f' changes sign between two knots
     with np.errstate(divide="ignore", invalid="ignore"):
-        cross = np.concatenate([(h - p) / d, (-h - p) / d], axis=-1)  # (S, 6)
-    cross = np.where(np.isfinite(cross) & (cross > 0.0) & (cross < 1.0), cross, 0.0)
-    knots = np.sort(np.concatenate([np.zeros(shape + (1,)), cross, np.ones(shape + (1,))], axis=-1), axis=-1)
-    # the stationary point of each piece: the active faces are those the piece's midpoint is outside of
-    mid = (knots[..., 1:] + knots[..., :-1]) / 2                        # (S, 7)
-    x = p[..., None, :] + mid[..., None] * d[..., None, :]              # (S, 7, 3)
-    side = np.where(x > h[..., None, :], 1.0, np.where(x < -h[..., None, :], -1.0, 0.0))
-    dd = d[..., None, :]
-    num = -np.sum(side * side * dd * (p[..., None, :] - side * h[..., None, :]), axis=-1)
-    den = np.sum(side * side * dd * dd, axis=-1)
-    stationary = np.where(den > 0, num / np.where(den > 0, den, 1.0), mid)
-    stationary = np.clip(stationary, knots[..., :-1], knots[..., 1:])
-    cand = np.concatenate([knots, stationary], axis=-1)                 # (S, 15)
-    xc = p[..., None, :] + cand[..., None] * d[..., None, :]
-    out = xc - np.clip(xc, -h[..., None, :], h[..., None, :])
-    f = np.sum(out * out, axis=-1)
-    k = np.argmin(f, axis=-1)
-    t = np.take_along_axis(cand, k[..., None], axis=-1)[..., 0]
+        cross = np.concatenate([(h - p) / d, (-h - p) / d], axis=-1)          # (S, 6)
+    knots = np.concatenate([np.zeros(shape + (1,)), np.where((cross > 0.0) & (cross < 1.0), cross, 0.0),
+                            np.ones(shape + (1,))], axis=-1)                    # (S, 8)
+    xk = p[..., None, :] + knots[..., None] * d[..., None, :]
+    slope = np.sum(d[..., None, :] * (xk - np.clip(xk, -h[..., None, :], h[..., None, :])), axis=-1)  # f'/2
+    neg = slope < 0.0
+    t_lo = np.max(np.where(neg, knots, -1.0), axis=-1)
+    t_hi = np.min(np.where(neg, 2.0, knots), axis=-1)
+    k_lo = np.argmax(np.where(neg, knots, -1.0), axis=-1)[..., None]
+    k_hi = np.argmin(np.where(neg, 2.0, knots), axis=-1)[..., None]
+    s_lo = np.take_along_axis(slope, k_lo, axis=-1)[..., 0]
+    s_hi = np.take_along_axis(slope, k_hi, axis=-1)[..., 0]
+    jump = s_hi - s_lo
+    inner = t_lo - s_lo * (t_hi - t_lo) / np.where(jump > 0, jump, 1.0)
+    t = np.where(t_lo < 0.0, 0.0, np.where(t_hi > 1.0, 1.0, np.where(jump > 0, inner, t_hi)))
+    t = np.clip(t, 0.0, 1.0)
     x = p + t[..., None] * d                                            # closest point of the segment (box frame)
     y = np.clip(x, -h, h)                                               # closest point of the box
-    gap = np.linalg.norm(x - y, axis=-1)
-    separated = gap > 0.0
-
-    # overlap: penetration depth by separating axes (box frame), for both ends of the segment
-    e = np.broadcast_to(np.eye(3), shape + (3, 3))
-    axes_c = np.cross(e, d[..., None, :])                               # (S, 3, 3): e_i × d
-    axes_c, length = _unit(axes_c, np.zeros(3))
-    axes = np.concatenate([e, axes_c], axis=-2)                         # (S, 6, 3)
-    valid = np.concatenate([np.ones(shape + (3,), bool), length > 1e-12 * np.maximum(np.linalg.norm(d, axis=-1), EPS)[..., None]], axis=-1)
-    rho = np.sum(np.abs(axes) * h[..., None, :], axis=-1)               # box support along each axis
-    u0, u1 = _dot(axes, p[..., None, :]), _dot(axes, (p + d)[..., None, :])
-    up = rho - np.minimum(u0, u1)    # push the segment along +axis
-    down = rho + np.maximum(u0, u1)  # along −axis
-    depth = np.where(valid, np.minimum(up, down), np.inf)
-    j = np.argmin(depth, axis=-1)
-    pen = np.take_along_axis(depth, j[..., None], axis=-1)[..., 0]
-    axis = np.take_along_axis(axes, j[..., None, None], axis=-2)[..., 0, :]
-    sign = np.where(np.take_along_axis(up, j[..., None], axis=-1)[..., 0] <= np.take_along_axis(down, j[..., None], axis=-1)[..., 0], 1.0, -1.0)
-    n_in = sign[..., None] * axis
-    deep = np.where((_dot(n_in, p) <= _dot(n_in, p + d))[..., None], p, p + d)  # the end deepest against n_in
-
-    n_out, _ = _unit(x - y, np.zeros(3))
-    n_box = np.where(separated[..., None], n_out, n_in)
-    xa = np.where(separated[..., None], x, deep)
-    dist_core = np.where(separated, gap, -pen)
-    r = np.asarray(r, dtype=float)
-    normal = np.einsum("...ij,...j->...i", R, n_box)
-    point_a = np.einsum("...ij,...j->...i", R, xa) + center - r[..., None] * normal
+    n_box, gap = _unit(x - y, np.zeros(3))
+    xa = x.copy()
+    dist_core = gap.copy()
+    # rows whose segment meets the box (up to rounding in t): the penetration depth by separating axes
+    # (box frame), for these rows only; a positive depth on every axis proves the overlap
+    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1) + np.linalg.norm(d, axis=-1)
+    inside = gap <= 1e-12 * scale
+    if np.any(inside):
+        pi, di, hi = p[inside], d[inside], h[inside]
+        m = pi.shape[0]
+        e = np.broadcast_to(np.eye(3), (m, 3, 3))
+        axes_c, length = _unit(np.cross(e, di[:, None, :]), np.zeros(3))  # e_i × d
+        axes = np.concatenate([e, axes_c], axis=1)                          # (m, 6, 3)
+        valid = np.concatenate([np.ones((m, 3), bool), length > 1e-12 * np.maximum(np.linalg.norm(di, axis=-1), EPS)[:, None]],
+                               axis=1)
+        rho = np.sum(np.abs(axes) * hi[:, None, :], axis=-1)               # box support along each axis
+        u0, u1 = _dot(axes, pi[:, None, :]), _dot(axes, (pi + di)[:, None, :])
+        up = rho - np.minimum(u0, u1)    # push the segment along +axis
+        down = rho + np.maximum(u0, u1)  # along −axis
+        depth = np.where(valid, np.minimum(up, down), np.inf)
+        j = np.argmin(depth, axis=-1)[:, None]
+        pen = np.take_along_axis(depth, j, axis=-1)[:, 0]
+        axis = np.take_along_axis(axes, j[..., None], axis=1)[:, 0, :]
+        sign = np.where(np.take_along_axis(up, j, axis=-1)[:, 0] <= np.take_along_axis(down, j, axis=-1)[:, 0], 1.0, -1.0)
+        n_in = sign[:, None] * axis
+        deep = np.where((_dot(n_in, pi) <= _dot(n_in, pi + di))[:, None], pi, pi + di)  # the end deepest against n_in
+        overlap = pen > 0.0
+        rows = np.flatnonzero(inside)[overlap]
+        n_box[rows], xa[rows], dist_core[rows] = n_in[overlap], deep[overlap], -pen[overlap]
+    normal = np.matmul(R, n_box[..., None])[..., 0]
+    point_a = np.matmul(R, xa[..., None])[..., 0] + center - r[..., None] * normal
     distance = dist_core - r
     return Contact(distance=distance, normal=normal, point_a=point_a, point_b=point_a - distance[..., None] * normal)
