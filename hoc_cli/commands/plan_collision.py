@@ -66,8 +66,9 @@ def check_boundary_clearance(task, model, scene: CollisionScene | None, states) 
             continue
         a, b = scene.names[k]
         how = (f"overlap by {-d[k]:.4g} m" if d[k] < 0 else f"are {d[k]:.4g} m apart")
-        raise TaskError(f"{a} and {b} {how} (collision.margin is {scene.margin:g} m; move the state, add the pair "
-                        "to collision.ignore, or give the links' geometry under collision.robot)",
+        raise TaskError(f"{a} and {b} {how} (collision.margin is {scene.margin:g} m; move the state, give the robot's "
+                        "SRDF as collision.srdf, add the pair to collision.ignore, or give the links' geometry under "
+                        "collision.robot)",
                         file=task.path, key=f"{label}.q")
 
 
