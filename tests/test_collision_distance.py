@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hoc_cli.collision.distance import capsule_box, capsule_capsule, capsule_halfspace
-from hoc_cli.collision.evaluate import distance_gradient, distances
+from hoc_cli.collision.evaluate import distance_gradient, distances, pair_gradient
 from hoc_cli.collision.robot import robot_geometry
 from hoc_cli.collision.scene import Obstacle, collision_scene
 from hoc_cli.collision.shapes import Box, HalfSpace, cylinder_capsule, sphere
@@ -159,3 +159,13 @@ def test_batched_distances_equal_one_sample_at_a_time(panda):
     batch = distances(model, scene, q)
     for k in range(5):
         assert np.array_equal(batch[k], distances(model, scene, q[k:k + 1])[0])
+
+
+def test_pair_gradient_on_chosen_rows_and_pairs_equals_the_full_grid(panda):
+    model, scene = panda
+    q = np.random.default_rng(2).uniform(-1, 1, (4, model.n))
+    d, g = distance_gradient(model, scene, q)
+    rng = np.random.default_rng(3)
+    rows, pairs = rng.integers(0, 4, 50), rng.integers(0, scene.size, 50)
+    d1, g1 = pair_gradient(model, scene, q, rows, pairs)
+    assert np.array_equal(d1, d[rows, pairs]) and np.allclose(g1, g[rows, pairs], rtol=0, atol=1e-15)

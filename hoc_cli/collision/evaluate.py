@@ -86,29 +86,45 @@ def distances(model: RobotModel, scene: CollisionScene, q) -> np.ndarray:
     return contacts(model, scene, q).distance
 
 
-def distance_gradient(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distances d (K, Q) and their gradients ∂d/∂q (K, Q, n) at configurations q (K, n).
+def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance d (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q: (K, n)), and ∂d/∂q (M, n).
 
     With n̂ the contact normal and x_A, x_B the witness points on the two shapes, moving q by δq
     moves x_A by (J_v − [x_A − o]× J_ω) δq for the frame Jacobian J = (J_v, J_ω) of A's link (origin
     o), so ∂d/∂q = n̂·J_v + ((x_A − o) × n̂)·J_ω, minus the same for B when B is a robot link. Exact
-    wherever the witness points are unique (the distance is differentiable there).
+    wherever the witness points are unique (the distance is differentiable there). The kinematics
+    run once per configuration, not per pair.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    c = contacts(model, scene, q)
-    K, Q, n = len(q), scene.size, model.n
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    a, b = world_capsules(model, scene, q)
+    c = pair_contacts(scene, a, b, rows, pairs)
     robot = scene.robot
     poses = link_poses(model, q)
-    grad = np.zeros((K, Q, n))
-    for link in sorted(set(robot.links)):
-        J = frame_jacobian(model, q, link)        # (K, 6, n)
-        o = poses[link][:, :3, 3]                 # (K, 3)
-        for side, point, sign in ((scene.prim, c.point_a, 1.0), (scene.other, c.point_b, -1.0)):
-            mask = np.array([robot.links[i] == link for i in side]) if side is scene.prim else \
-                np.array([kind == KIND_SELF and robot.links[i] == link for i, kind in zip(side, scene.kind)])
-            if not mask.any():
-                continue
-            nrm = c.normal[:, mask]                                 # (K, Qm, 3)
-            arm = np.cross(point[:, mask] - o[:, None, :], nrm)     # (K, Qm, 3)
-            grad[:, mask] += sign * (np.einsum("kqi,kij->kqj", nrm, J[:, 0:3]) + np.einsum("kqi,kij->kqj", arm, J[:, 3:6]))
+    grad = np.zeros((rows.size, model.n))
+    link_a = robot.link_index[scene.prim[pairs]]
+    link_b = np.where(scene.kind[pairs] == KIND_SELF, robot.link_index[scene.other[pairs]], -1)
+    for k in np.unique(robot.link_index):
+        on_a, on_b = link_a == k, link_b == k
+        if not (on_a.any() or on_b.any()):
+            continue
+        name = model.link_names[k]
+        J = frame_jacobian(model, q, name)        # (K, 6, n)
+        o = poses[name][:, :3, 3]                 # (K, 3)
+        for on, point, sign in ((on_a, c.point_a, 1.0), (on_b, c.point_b, -1.0)):
+            if on.any():
+                r = rows[on]
+                nrm = c.normal[on]
+                arm = np.cross(point[on] - o[r], nrm)
+                grad[on] += sign * (np.einsum("mi,mij->mj", nrm, J[r, 0:3]) + np.einsum("mi,mij->mj", arm, J[r, 3:6]))
     return c.distance, grad
+
+
+def distance_gradient(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances d (K, Q) of every pair and their gradients ∂d/∂q (K, Q, n) at configurations q (K, n)
+    (:func:`pair_gradient` on every sample × pair).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    K, Q = len(q), scene.size
+    d, g = pair_gradient(model, scene, q, np.repeat(np.arange(K), Q), np.tile(np.arange(Q), K))
+    return d.reshape(K, Q), g.reshape(K, Q, model.n)
