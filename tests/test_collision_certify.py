@@ -134,3 +134,27 @@ def test_no_pairs_is_trivially_certified(lbr7):
     mesh = HermiteMesh("quintic", 1.0, 2)
     cert = certify(model, scene, mesh, rest_to_rest(mesh, np.zeros(7), np.ones(7)))
     assert cert.certified and cert.summary() == {"min_clearance": None, "collisions": []}
+
+
+def test_velocity_bounds_on_sub_intervals_enclose_and_tighten():
+    """The Bernstein bound of |q̇| on [s0, s1] is >= every sampled |q̇| there, and within 1 % of it on short pieces."""
+    from hoc_cli.collision.certify import velocity_bounds
+    from hoc_cli.constraints.extrema import element_polynomials
+
+    rng = np.random.default_rng(4)
+    for mesh in (HermiteMesh("quintic", 1.3, 5), HermiteMesh("cubic", 0.7, 3)):
+        n = 3
+        C = rng.normal(size=(mesh.N + 1, mesh.m, n))
+        poly = element_polynomials(mesh, C, 1)
+        M = 40
+        e = rng.integers(0, mesh.N, M)
+        s0 = rng.uniform(0, 0.9, M)
+        for width in (None, 1e-3):
+            s1 = rng.uniform(s0, 1.0) if width is None else s0 + width
+            B = velocity_bounds(poly, e, s0, s1)
+            sig = np.linspace(0, 1, 201)
+            t = mesh.nodes[e][:, None] + (s0[:, None] + sig * (s1 - s0)[:, None]) * mesh.hs[e][:, None]
+            v = np.abs(mesh.evaluate(C, t.ravel(), 1).reshape(M, sig.size, n)).max(axis=1)
+            assert np.all(B >= v * (1 - 1e-12) - 1e-12)
+            if width is not None:
+                assert np.all(B <= v * 1.01 + 1e-9)

@@ -20,13 +20,14 @@ Symbols: N elements, n joints, Q pairs; times in s, distances in m.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import comb
 
 import numpy as np
 
 from hoc_cli.collision.evaluate import distances, pair_contacts, world_capsules
 from hoc_cli.collision.robot import reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
-from hoc_cli.constraints.extrema import extrema
+from hoc_cli.constraints.extrema import element_polynomials, extrema
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model.tree import RobotModel
 
@@ -70,19 +71,54 @@ class Certificate:
         return {"min_clearance": clearance, "collisions": [dict(c) for c in self.collisions]}
 
 
+def _reach_per_element(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray) -> np.ndarray:
+    """(N, P, n) bounds on |∂x/∂q_j| for the points x of each primitive on each element (``reach``)."""
+    q = extrema(mesh, C, 0)
+    qmax = np.maximum(np.abs(q.max), np.abs(q.min)) * (1 + SAFETY)          # (N, n), for prismatic joints
+    R0, S = reach(model, scene.robot)                                        # (P, n), (P, n, n)
+    return R0[None] + np.einsum("pjk,ek->epj", S, qmax)
+
+
+def _speeds(scene: CollisionScene, R: np.ndarray, vmax: np.ndarray, pair: np.ndarray) -> np.ndarray:
+    """Pair speed bounds (M,) from reaches R (M, P, n) or (P, n) per row and joint speed bounds vmax (M, n)."""
+    prim = scene.prim[pair]
+    other = np.where(scene.kind[pair] == KIND_SELF, scene.other[pair], -1)
+    rows = np.arange(pair.size)
+    V = np.einsum("mj,mj->m", R[rows, prim], vmax)
+    both = other >= 0
+    V[both] += np.einsum("mj,mj->m", R[rows[both], other[both]], vmax[both])
+    return V
+
+
 def pair_speeds(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray) -> np.ndarray:
     """(N, Q) bounds V on |d/dt| of every pair's signed distance on every element, m/s (module docstring)."""
     dq = extrema(mesh, C, 1)
     vmax = np.maximum(np.abs(dq.max), np.abs(dq.min)) * (1 + SAFETY)        # (N, n)
-    q = extrema(mesh, C, 0)
-    qmax = np.maximum(np.abs(q.max), np.abs(q.min)) * (1 + SAFETY)          # (N, n)
-    R0, S = reach(model, scene.robot)                                        # (P, n), (P, n, n)
-    R = R0[None] + np.einsum("pjk,ek->epj", S, qmax)                         # (N, P, n)
-    v = np.einsum("epj,ej->ep", R, vmax)                                     # (N, P)
-    V = v[:, scene.prim]
-    self_pairs = scene.kind == KIND_SELF
-    V[:, self_pairs] += v[:, scene.other[self_pairs]]
-    return V
+    R = _reach_per_element(model, scene, mesh, C)                            # (N, P, n)
+    N, Q = mesh.N, scene.size
+    e, pair = np.repeat(np.arange(N), Q), np.tile(np.arange(Q), N)
+    return _speeds(scene, R[e], vmax[e], pair).reshape(N, Q)
+
+
+def velocity_bounds(poly: np.ndarray, e: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+    """Bounds (M, n) on |q̇_j| over [s0, s1] ⊂ [0, 1] of elements e (each (M,)), from the power coefficients
+    ``poly`` (N, n, D) of q̇ in the local coordinate (``element_polynomials(mesh, C, 1)``).
+
+    The polynomial re-parametrised on the sub-interval, p(s0 + σ(s1 − s0)) for σ ∈ [0, 1], has Bernstein
+    coefficients β_i, and |p| <= max_i |β_i| there (the convex-hull property).
+    """
+    c = poly[e]                                                  # (M, n, D)
+    D = c.shape[-1]
+    L = (s1 - s0)[:, None]
+    j = np.arange(D)
+    binom = np.array([[comb(a, b) for b in range(D)] for a in range(D)], dtype=float)  # C(a, b)
+    # shifted[k] = Σ_{j >= k} c_j C(j, k) s0^(j−k) L^k
+    power = np.where(j[:, None] >= j[None, :], s0[:, None, None] ** np.maximum(j[:, None] - j[None, :], 0), 0.0)
+    shift = binom * power * L[:, :, None] ** j[None, None, :]    # (M, D_j, D_k)
+    shifted = np.einsum("mij,mjk->mik", c, shift)                # (M, n, D)
+    to_bernstein = np.where(j[:, None] >= j[None, :], binom / binom[D - 1][None, :], 0.0)  # β_i = Σ_k C(i,k)/C(d,k) c_k
+    beta = np.einsum("ik,mnk->mni", to_bernstein, shifted)
+    return np.abs(beta).max(axis=-1) * (1 + SAFETY)
 
 
 def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray, *,
@@ -102,6 +138,8 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
     nodes = mesh.nodes
     D = distances(model, scene, mesh.evaluate(C, nodes))                    # (N+1, Q)
     V = pair_speeds(model, scene, mesh, C)
+    R = _reach_per_element(model, scene, mesh, C)                            # (N, P, n)
+    poly = element_polynomials(mesh, C, 1)                                   # (N, n, D): q̇ in s
     evaluations = D.size
     e = np.repeat(np.arange(N), Q)
     pair = np.tile(np.arange(Q), N)
@@ -123,7 +161,7 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
         leaves.append((t0[keep], t1[keep], d0[keep], d1[keep], bound[keep], pair[keep]))
         if not split.any():
             break
-        t0, t1, d0, d1, speed, pair, depth = (x[split] for x in (t0, t1, d0, d1, speed, pair, depth))
+        t0, t1, d0, d1, speed, pair, depth, e = (x[split] for x in (t0, t1, d0, d1, speed, pair, depth, e))
         tm = (t0 + t1) / 2
         a, b = world_capsules(model, scene, mesh.evaluate(C, tm))
         dm = pair_contacts(scene, a, b, np.arange(tm.size), pair).distance
@@ -131,9 +169,16 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
         k = int(np.argmin(dm))
         if dm[k] < best[0]:
             best[0], best_t, best_pair = float(dm[k]), float(tm[k]), int(pair[k])
+        # each half's speed bound: the parent's, or the Bernstein bound of q̇ on the half if smaller
+        start, h = nodes[e], mesh.hs[e]
+        s0, sm, s1 = (t0 - start) / h, (tm - start) / h, (t1 - start) / h
+        halves = np.concatenate([s0, sm]), np.concatenate([sm, s1])
+        ee, pp = np.tile(e, 2), np.tile(pair, 2)
+        vmax = velocity_bounds(poly, ee, *halves)                           # rad/s (m/s)
+        speed = np.minimum(np.tile(speed, 2), _speeds(scene, R[ee], vmax, pp))
         t0, t1 = np.concatenate([t0, tm]), np.concatenate([tm, t1])
         d0, d1 = np.concatenate([d0, dm]), np.concatenate([dm, d1])
-        speed, pair, depth = np.tile(speed, 2), np.tile(pair, 2), np.tile(depth + 1, 2)
+        pair, depth, e = pp, np.tile(depth + 1, 2), ee
     L0, L1, Ld0, Ld1, Lb, Lp = (np.concatenate(x) for x in zip(*leaves))
     # locate the minimum better: resample the intervals with the lowest bounds
     worst = np.argsort(Lb)[:REFINE_LEAVES]
