@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from hoc_cli.cli import app
@@ -173,3 +174,51 @@ def test_a_scene_in_another_frame_is_refused_naming_the_scene_key(workdir):
     doc["collision"]["scene"] = "scene.yaml"
     r, _ = plan(workdir, doc)
     assert r.exit_code == 2 and "scene.yaml: world.collision_objects[0].header.frame_id: frame_id 'camera'" in r.stderr
+    assert "collision.frames" in r.stderr
+    doc["collision"]["frames"] = {"camera": "lbr_link_3"}  # a moving link cannot hold a scene
+    r, _ = plan(workdir, doc)
+    assert r.exit_code == 2 and "task.yaml: collision.frames.camera: 'lbr_link_3' is not a link fixed" in r.stderr
+
+
+MBM_SCENE = """\
+world:
+  collision_objects:
+    - header:
+        frame_id: base_link
+      id: side_cap
+      primitives:
+        - type: box
+          dimensions: [0.7, 0.7, 0.04]
+      primitive_poses:
+        - position: [0.9, 0, 1.35]
+          orientation: [0, 0.383, 0, 0.924]
+"""
+
+
+def test_a_motionbenchmaker_scene_is_read_as_is_with_its_frame_named(workdir):
+    """MotionBenchMaker's box scene writes frame_id base_link and a quaternion of norm 1.0002 (rounded): accepted,
+    normalised, and placed on the fixed link that collision.frames names."""
+    from hoc_cli.commands.plan_collision import task_collision
+    from hoc_cli.io.task import load_task
+    from hoc_cli.model import load_robot
+
+    urdf = (workdir.parent / "robots" / "lbr7.urdf")
+    text = urdf.read_text().replace("</robot>", '<link name="mount"/><joint name="m" type="fixed"><parent link="lbr_link_0"/>'
+                                    '<child link="mount"/><origin xyz="0 0 -0.5" rpy="0 0 0.3"/></joint></robot>')
+    urdf.write_text(text)
+    (workdir / "scene.yaml").write_text(MBM_SCENE)
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["collision"]["scene"] = "scene.yaml"
+    doc["collision"]["frames"] = {"base_link": "mount"}
+    (workdir / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    task = load_task(workdir / "task.yaml")
+    scene = task_collision(task, load_robot(urdf))
+    (cap,) = [o.primitive for o in scene.obstacles if o.name == "side_cap"]
+    q = np.array([0, 0.383, 0, 0.924]) / np.linalg.norm([0, 0.383, 0, 0.924])
+    Rz = Rotation.from_euler("z", 0.3).as_matrix()
+    assert np.allclose(cap.center, Rz @ [0.9, 0, 1.35] + [0, 0, -0.5], atol=1e-12)
+    assert np.allclose(cap.rotation, Rz @ Rotation.from_quat(q).as_matrix(), atol=1e-12)
+    assert np.array_equal(cap.half, [0.35, 0.35, 0.02])
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr

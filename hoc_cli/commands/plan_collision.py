@@ -8,6 +8,8 @@ built yet: ``check`` plans without the constraint and reports.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from hoc_cli.collision.certify import certify
@@ -37,12 +39,22 @@ def task_collision(task, model) -> CollisionScene | None:
                             key=join("collision.robot", link))
     shapes = read_collision_shapes(task.robot, skip=set(spec.robot))
     robot = robot_geometry(model, shapes, {k: list(v) for k, v in spec.robot.items()})
+    for name, link in spec.frames.items():
+        if link not in model.link_names or model.link_body[model.link_names.index(link)] >= 0:
+            raise TaskError(f"{link!r} is not a link fixed to the URDF root (fixed links: "
+                            f"{', '.join(_fixed_links(model))})", file=task.path, key=join("collision.frames", name))
     obstacles = []
     for o in spec.obstacles:
-        if o.frame not in (None, "", model.root_link, "/" + model.root_link):
-            raise TaskError(f"frame_id {o.frame!r} is not the URDF root link {model.root_link!r} (obstacles are placed "
-                            "in the root frame)", file=o.file, key=o.key.rsplit(".primitives", 1)[0] + ".header.frame_id")
-        obstacles.append(Obstacle(o.name, obstacle_primitive(o.shape)))
+        shape = o.shape
+        if o.frame not in (None, ""):
+            frame = spec.frames.get(o.frame, o.frame.lstrip("/"))
+            if frame not in _fixed_links(model):
+                raise TaskError(f"frame_id {o.frame!r} is not a link fixed to the URDF root {model.root_link!r} (name "
+                                f"the link it stands for under collision.frames: {{{o.frame}: {model.root_link}}})",
+                                file=o.file, key=o.key.rsplit(".primitives", 1)[0] + ".header.frame_id")
+            offset = model.link_offset[model.link_names.index(frame)]  # the fixed link's pose in the root frame
+            shape = replace(shape, pose=offset @ shape.pose)
+        obstacles.append(Obstacle(o.name, obstacle_primitive(shape)))
     names = set(model.link_names) | {o.name for o in obstacles}
     for i, pair in enumerate(spec.ignore):
         for k, name in enumerate(pair):
@@ -51,6 +63,11 @@ def task_collision(task, model) -> CollisionScene | None:
                                 key=f"collision.ignore[{i}][{k}]")
     return collision_scene(model, robot, obstacles, margin=spec.margin, self_collision=spec.self_collision,
                            disabled=spec.disabled + spec.ignore)
+
+
+def _fixed_links(model) -> list[str]:
+    """The links welded to the URDF root (the root included): their poses are constant."""
+    return [name for name, body in zip(model.link_names, model.link_body) if body < 0]
 
 
 def check_boundary_clearance(task, model, scene: CollisionScene | None, states) -> None:

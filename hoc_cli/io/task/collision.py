@@ -13,6 +13,7 @@
       obstacles:                  # URDF root frame
         - {name: table, box: {size: [1.0, 0.8, 0.04]}, position: [0.5, 0, 0.2], orientation: [1, 0, 0, 0]}
       scene: scene.yaml           # MoveIt collision_objects (MotionBenchMaker scenes), as written
+      frames: {base_link: lbr_link_0}   # a scene's frame_id → a link fixed to the URDF root
 
 A shape is one of ``sphere: {radius}``, ``capsule: {a, b, radius}``, ``box: {size}`` (full side
 lengths), ``cylinder: {radius, length}`` (axis z) and, for obstacles, ``half_space: {normal}``
@@ -39,13 +40,14 @@ from hoc_cli.io.task.checks import Checker, join, show
 from hoc_cli.io.task.yaml12 import load_yaml
 
 COLLISION_MODES = ("check", "off")
-COLLISION_KEYS = ("mode", "margin", "self", "srdf", "ignore", "robot", "obstacles", "scene")
+COLLISION_KEYS = ("mode", "margin", "self", "srdf", "ignore", "robot", "obstacles", "scene", "frames")
 SHAPE_KINDS = ("sphere", "capsule", "box", "cylinder", "half_space")
 SHAPE_KEYS = {"sphere": ("radius",), "capsule": ("a", "b", "radius"), "box": ("size",),
               "cylinder": ("radius", "length"), "half_space": ("normal",)}
 POSE_KEYS = ("position", "orientation")
 DEFAULT_MARGIN = 0.01
 MAX_OBSTACLES = 10_000
+SCENE_QUATERNION_TOLERANCE = 1e-2  # |norm − 1| accepted (and normalised) in scene files: MoveIt normalises too
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,6 +84,7 @@ class CollisionSpec:
     robot: Mapping[str, tuple[Shape, ...]] = field(default_factory=lambda: MappingProxyType({}))
     obstacles: tuple[ObstacleSpec, ...] = ()
     scene: Path | None = None
+    frames: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def check_collision_mode(c: Checker, value: Any, key: str) -> str:
@@ -104,9 +107,9 @@ def _rotation(w: float, x: float, y: float, z: float) -> np.ndarray:
     ])
 
 
-def _unit_quaternion(c: Checker, q: np.ndarray, key: str, order: str) -> np.ndarray:
+def _unit_quaternion(c: Checker, q: np.ndarray, key: str, order: str, tolerance: float = 1e-6) -> np.ndarray:
     norm = float(np.linalg.norm(q))
-    if abs(norm - 1.0) > 1e-6:
+    if abs(norm - 1.0) > tolerance:
         raise c.error(key, f"expected a unit quaternion ({order}), got norm {norm:.9g}")
     return q / norm
 
@@ -219,7 +222,7 @@ def _ros_pose(s: Checker, value: Any, key: str) -> np.ndarray:
         T[:3, 3] = numbers(m["position"], f"{key}.position", "xyz")
     if m.get("orientation") is not None:
         x, y, z, w = _unit_quaternion(s, numbers(m["orientation"], f"{key}.orientation", "xyzw"),
-                                      f"{key}.orientation", "x, y, z, w: ROS order")
+                                      f"{key}.orientation", "x, y, z, w: ROS order", SCENE_QUATERNION_TOLERANCE)
         T[:3, :3] = _rotation(w, x, y, z)
     return T
 
@@ -342,6 +345,10 @@ def parse_collision(c: Checker, top: dict, parsed: dict) -> CollisionSpec:
     if m.get("scene") is not None:
         scene = _path(c, m["scene"], "collision.scene", "a scene file")
         obstacles += read_scene(c, scene, "collision.scene")
+    frames: dict[str, str] = {}
+    if m.get("frames") is not None:
+        given = c.names(m["frames"], "collision.frames", "a mapping scene frame_id -> URDF link")
+        frames = {k: _name(c, v, join("collision.frames", k), "a URDF link name") for k, v in given.items()}
     if len(obstacles) > MAX_OBSTACLES:
         raise c.error("collision.obstacles", f"expected at most {MAX_OBSTACLES} obstacles, got {len(obstacles)}")
     seen: dict[str, ObstacleSpec] = {}
@@ -352,7 +359,7 @@ def parse_collision(c: Checker, top: dict, parsed: dict) -> CollisionSpec:
         seen[o.name] = o
     return CollisionSpec(given=True, mode=mode, margin=margin, self_collision=self_collision, srdf=srdf,
                          disabled=disabled, ignore=tuple(ignore), robot=MappingProxyType(robot),
-                         obstacles=tuple(obstacles), scene=scene)
+                         obstacles=tuple(obstacles), scene=scene, frames=MappingProxyType(frames))
 
 
 __all__ = ["COLLISION_MODES", "CollisionSpec", "ObstacleSpec", "check_collision_mode", "parse_collision",
