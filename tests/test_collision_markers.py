@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
@@ -26,7 +27,12 @@ def roundtrip(message: dict):
     w.write_message(TOPIC_COLLISION_SCENE, schema, message, log_time=0, publish_time=0)
     w.finish()
     buf.seek(0)
-    (_, _, _, decoded), = list(make_reader(buf, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    (_, _, raw, decoded), = list(make_reader(buf, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    typesys = pytest.importorskip("rosbags.typesys")
+    for store in (typesys.Stores.ROS2_HUMBLE, typesys.Stores.ROS2_JAZZY):  # what a Humble or Jazzy subscriber decodes
+        ts = typesys.get_typestore(store)
+        msg = ts.deserialize_cdr(raw.data, MARKER_ARRAY_TYPE)
+        assert len(msg.markers) == len(decoded.markers) and ts.serialize_cdr(msg, MARKER_ARRAY_TYPE) == raw.data
     return decoded.markers
 
 

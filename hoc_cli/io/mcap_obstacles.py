@@ -25,9 +25,8 @@ PLANE_SIZE, PLANE_THICKNESS = 4.0, 0.001  # m
 
 
 def marker_array_msgdef() -> str:
-    """The MarkerArray definition as rosbag2 stores it: its field, then Marker and Marker's dependencies."""
-    return "visualization_msgs/Marker[] markers\n" + "=" * 80 + "\nMSG: visualization_msgs/Marker\n" + \
-        MSGDEFS["visualization_msgs/msg/Marker"]
+    """The MarkerArray definition as rosbag2 stores it (ROS 2 Humble's, from ``hoc_cli.io.ros2_msgdefs``)."""
+    return MSGDEFS[MARKER_ARRAY_TYPE]
 
 
 def _quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
@@ -57,8 +56,11 @@ def _marker(frame: str, ns: str, index: int, kind: int, center, R, scale, color,
         "pose": {"position": dict(zip("xyz", (float(v) for v in center))), "orientation": {"x": x, "y": y, "z": z, "w": w}},
         "scale": dict(zip("xyz", (float(v) for v in scale))),
         "color": {"r": r, "g": g, "b": b, "a": a},
-        "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": locked, "points": [], "colors": [], "text": "",
-        "mesh_resource": "", "mesh_use_embedded_materials": False,
+        "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": locked, "points": [], "colors": [],
+        "texture_resource": "", "texture": {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "format": "",
+                                            "data": b""},
+        "uv_coordinates": [], "text": "", "mesh_resource": "", "mesh_file": {"filename": "", "data": b""},
+        "mesh_use_embedded_materials": False,
     }
 
 
