@@ -9,18 +9,18 @@ built yet: ``check`` plans without the constraint and reports.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hoc_cli.collision.certify import certify
-from hoc_cli.collision.evaluate import distances
-from hoc_cli.collision.geometry import obstacle_primitive
-from hoc_cli.collision.robot import robot_geometry
-from hoc_cli.collision.scene import CollisionScene, Obstacle, collision_scene
 from hoc_cli.commands.common import warn
 from hoc_cli.errors import TaskError
-from hoc_cli.io.collision_geometry import read_collision_shapes
 from hoc_cli.io.task.checks import join
+
+if TYPE_CHECKING:
+    from hoc_cli.collision.scene import CollisionScene
+
+# hoc_cli.collision is imported on use: a task without a collision section does not pay for it at start-up
 
 
 def task_collision(task, model) -> CollisionScene | None:
@@ -30,6 +30,11 @@ def task_collision(task, model) -> CollisionScene | None:
     another frame than the URDF root, or an ``ignore`` name that is neither a link nor an obstacle;
     ModelError (naming the URDF and link) for URDF collision geometry that cannot be read.
     """
+    from hoc_cli.collision.geometry import obstacle_primitive
+    from hoc_cli.collision.robot import robot_geometry
+    from hoc_cli.collision.scene import Obstacle, collision_scene
+    from hoc_cli.io.collision_geometry import read_collision_shapes
+
     spec = task.collision
     if spec.mode == "off":
         return None
@@ -74,6 +79,8 @@ def check_boundary_clearance(task, model, scene: CollisionScene | None, states) 
     """x0 (and a joint goal x1) must keep the margin: TaskError (exit 2) naming the closest pair and its depth."""
     if scene is None or scene.size == 0:
         return
+    from hoc_cli.collision.evaluate import distances
+
     for label, q in (("x0", states.q0), ("x1", states.q1)):
         if q is None:  # a link goal: its final q is planned
             continue
@@ -93,6 +100,8 @@ def collision_summary(model, scene: CollisionScene | None, mode: str, result) ->
     """Summary keys ``collision_mode``, ``min_clearance`` and ``collisions`` (empty when mode is off)."""
     if scene is None:
         return {"collision_mode": mode}
+    from hoc_cli.collision.certify import certify
+
     cert = certify(model, scene, result.mesh, result.coeffs)
     return {"collision_mode": mode, **cert.summary()}
 

@@ -29,15 +29,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
-from hoc_cli.collision.geometry import Shape
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task.checks import Checker, join, show
 from hoc_cli.io.task.yaml12 import load_yaml
+
+if TYPE_CHECKING:  # imported on use: a task without a collision section does not load hoc_cli.collision
+    from hoc_cli.collision.geometry import Shape
 
 COLLISION_MODES = ("check", "off")
 COLLISION_KEYS = ("mode", "margin", "self", "srdf", "ignore", "robot", "obstacles", "scene", "frames")
@@ -133,6 +135,8 @@ def _length(c: Checker, value: Any, key: str, zero: bool = False) -> float:
 
 def _shape(c: Checker, value: Any, key: str, extra: tuple[str, ...], kinds: tuple[str, ...]) -> tuple[Shape, dict]:
     """A shape entry ``{KIND: {...}, position?, orientation?, *extra}``; returns (shape, the mapping)."""
+    from hoc_cli.collision.geometry import Shape
+
     m = c.mapping(value, key, kinds + POSE_KEYS + extra)
     present = [k for k in kinds if k in m]
     if len(present) != 1:
@@ -233,6 +237,8 @@ def read_scene(c: Checker, path: Path, key: str) -> tuple[ObstacleSpec, ...]:
     primitives with their ``primitive_poses`` (composed with the object's ``pose`` when given).
     Errors name the scene file and the key in it.
     """
+    from hoc_cli.collision.geometry import Shape
+
     s = Checker(path)
     try:
         doc = load_yaml(path.read_text(encoding="utf-8"))
