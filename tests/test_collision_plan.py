@@ -222,3 +222,37 @@ def test_a_motionbenchmaker_scene_is_read_as_is_with_its_frame_named(workdir):
     assert np.array_equal(cap.half, [0.35, 0.35, 0.02])
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
+
+
+def test_the_mcap_carries_the_collision_scene_only_when_checked(workdir):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    (workdir / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    for extra, expect in (((), 1), (("--collision", "off"), 0)):
+        r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "-o", "plan.mcap", *extra])
+        assert r.exit_code == 0, r.stderr
+        with (workdir / "plan.mcap").open("rb") as fh:
+            found = list(make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/collision_scene"]))
+        assert len(found) == expect
+
+
+def test_the_collision_scene_topic_lists_every_obstacle_and_link_once_latched(workdir):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    (workdir / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "-o", "plan.mcap"])
+    assert r.exit_code == 0, r.stderr
+    with (workdir / "plan.mcap").open("rb") as fh:
+        (_, channel, message, decoded), = list(make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=["/collision_scene"]))
+    assert message.log_time == 0 and "durability: 1" in channel.metadata["offered_qos_profiles"]
+    spaces = {m.ns for m in decoded.markers}
+    assert {"obstacle/table", "obstacle/post", "obstacle/floor"} <= spaces
+    assert {f"robot/{link}" for link in doc["collision"]["robot"]} <= spaces

@@ -30,7 +30,13 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
-from hoc_cli.commands.plan_collision import check_boundary_clearance, collision_summary, task_collision, warn_collisions
+from hoc_cli.commands.plan_collision import (
+    check_boundary_clearance,
+    collision_markers,
+    collision_summary,
+    task_collision,
+    warn_collisions,
+)
 from hoc_cli.commands.plan_goals import goal_summary
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
 from hoc_cli.commands.workload import Heartbeat, check_workload
@@ -149,7 +155,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=reproducible_summary(summary), goals=goals)
+                                           summary=reproducible_summary(summary), goals=goals,
+                                           scene=collision_markers(collision, model, targets))
     warn_limit_violations(summary["limit_violations"])
     warn_collisions(summary.get("collisions") or [])
     if as_json:

@@ -115,3 +115,14 @@ def warn_collisions(collisions: list[dict]) -> None:
         if not c["certain"]:
             what = f"may come within {c['lower_bound']:.4g} m (not proven clear)"
         warn(f"{a} and {b} {what} in t = [{t0:.4g}, {t1:.4g}] s")
+
+
+def collision_markers(scene: CollisionScene | None, model, targets) -> dict | None:
+    """The MCAP's /collision_scene MarkerArray (``hoc_cli.io.mcap_obstacles``) when collisions are checked and an
+    MCAP is written; None otherwise.
+    """
+    if scene is None or not any(t.kind == "mcap" for t in targets):
+        return None
+    from hoc_cli.io.mcap_obstacles import scene_markers
+
+    return scene_markers(scene, model.root_link)

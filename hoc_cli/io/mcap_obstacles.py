@@ -5,7 +5,7 @@ two SPHEREs; half-space: a thin 4 m square CUBE on its plane). The robot's colli
 drawn in their link frames with ``frame_locked`` set, so Foxglove's 3D panel moves them with /tf.
 Every marker has an infinite lifetime: one message at t = 0 shows the scene for the whole plan.
 Namespaces: ``obstacle/<name>`` and ``robot/<link>``. The message is a dict for ``mcap_ros2``'s
-writer, registered with :func:`marker_array_msgdef`.
+writer (``write_mcap``'s ``scene``), whose definition is :func:`marker_array_msgdef`.
 """
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import numpy as np
 
 from hoc_cli.collision.scene import CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
+from hoc_cli.io.mcap import TOPIC_COLLISION_SCENE  # noqa: F401  (re-exported: the topic this message goes on)
 from hoc_cli.io.ros2_msgdefs import MSGDEFS
 
-TOPIC_COLLISION_SCENE = "/collision_scene"
 MARKER_ARRAY_TYPE = "visualization_msgs/msg/MarkerArray"
 CUBE, SPHERE, CYLINDER = 1, 2, 3   # Marker.type
 ADD = 0                            # Marker.action
