@@ -78,6 +78,9 @@ def plan(
     limits: Annotated[Optional[str], typer.Option(
         "--limits", help="enforce (default: the plan respects every joint limit) | report (the unconstrained "
         "optimum; violations are only reported). Overrides limits.mode.")] = None,
+    collision: Annotated[Optional[str], typer.Option(
+        "--collision", help="check (plan, then certify the clearance between samples and report collisions; the "
+        "default with a collision section) | off. Overrides collision.mode.")] = None,
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,
@@ -97,7 +100,7 @@ def plan(
         lambda: cmd.run(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost,
-                           limits=limits),
+                           limits=limits, collision=collision),
             init=init, gradient_check=check_gradient, starts=starts, seed=seed,
         ),
         debug=debug, quiet=quiet,
@@ -179,6 +182,8 @@ def simulate(
 def inspect(
     robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file.")],
     json_: JsonOpt = False,
+    collision: Annotated[bool, typer.Option("--collision", help="List each link's collision primitives and their "
+                                            "volume against the geometry's (docs/collision.md).")] = False,
     debug: DebugOpt = False,
 ) -> None:
     """Print the parsed kinematic tree: joints, bodies, total mass, degrees of freedom.
@@ -187,7 +192,7 @@ def inspect(
     """
     from hoc_cli.commands import inspect as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_), debug=debug))
+    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_, collision=collision), debug=debug))
 
 
 @app.command()

@@ -159,12 +159,13 @@ IN_FILE = {
     "max_iter": lambda v: GOOD + f"solver: {{max_iter: {v}}}\n",
     "method": lambda v: GOOD + f"solver: {{method: {v}}}\n",
     "limits": lambda v: GOOD + f"limits: {{mode: {v}}}\n",
+    "collision": lambda v: GOOD + f"collision: {{mode: {v}}}\n",
 }
 PROBES = [0, -1, 1, 3, 2.5, 1e-6, 1e4, 100000, 100001, True, "x", "quintic", "cubic", "covariant", "torque",
-          "pr-cg", "newton", "enforce", "report", None]
+          "pr-cg", "newton", "enforce", "report", "check", "off", None]
 WHERE = {"N": ("time", "N"), "T": ("time", "T"), "order": ("time", "order"), "cost": ("", "cost"),
          "tol": ("solver", "tol"), "max_iter": ("solver", "max_iter"), "method": ("solver", "method"),
-         "limits": ("limits", "mode")}
+         "limits": ("limits", "mode"), "collision": ("collision", "mode")}
 
 
 @pytest.mark.parametrize("key", sorted(IN_FILE))

@@ -10,6 +10,11 @@ link's mass summed), ``urdf_joints`` (every joint in tree order: ``name``, ``typ
 ``mimic``; null where the URDF gives none), ``links`` (every link: ``name``, ``mass`` kg, ``com``
 m in the link frame), ``plannable`` (the dynamics model loads) and ``problem`` (why not, or null).
 
+With ``--collision`` the document also has ``collision``: one entry per link with collision
+geometry, ``link``, ``shapes`` (what the URDF gives: sphere, box, cylinder, capsule, mesh),
+``volume`` (m³ of that geometry, a mesh's convex hull), ``primitives`` (the capsules hoc checks:
+``a``, ``b`` m in the link frame, ``radius`` m; a sphere has a = b) and ``primitive_volume`` (m³).
+
 A URDF that cannot be parsed is exit 2 with one line; one that parses but cannot be planned on
 (e.g. a movable joint carrying no mass) is still shown, with the problem as a warning.
 """
@@ -53,8 +58,24 @@ def describe(path: Path) -> dict:
     }
 
 
-def run(robot: Path, as_json: bool = False) -> int:
+def collision_table(path: Path) -> list[dict]:
+    """The ``collision`` entries described in the module docstring; ModelError for unreadable geometry."""
+    from hoc_cli.collision.geometry import robot_capsule
+    from hoc_cli.io.collision_geometry import read_collision_shapes
+
+    rows = []
+    for link, shapes in read_collision_shapes(path).items():
+        capsules = [robot_capsule(s) for s in shapes]
+        rows.append({"link": link, "shapes": [s.kind for s in shapes], "volume": sum(s.volume for s in shapes),
+                     "primitives": [{"a": c.a.tolist(), "b": c.b.tolist(), "radius": c.radius} for c in capsules],
+                     "primitive_volume": sum(c.volume for c in capsules)})
+    return rows
+
+
+def run(robot: Path, as_json: bool = False, collision: bool = False) -> int:
     doc = describe(robot)
+    if collision:
+        doc["collision"] = collision_table(robot)
     if as_json:
         print_json(doc)
         return EXIT_OK
@@ -77,12 +98,30 @@ def run(robot: Path, as_json: bool = False) -> int:
         bt.add_column(col, justify="right" if col.startswith("mass") else "left")
     for link in doc["links"]:
         bt.add_row(link["name"], _num(link["mass"]), " ".join(_num(c) for c in link["com"]))
-    for table in (jt, bt):
+    tables = [jt, bt]
+    if collision:
+        ct = Table(title="collision geometry (link frame; capsules [a, b] radius r, a sphere has a = b)")
+        for col in ("link", "geometry", "volume [cm³]", "primitives [m]", "primitive volume [cm³]", "ratio"):
+            ct.add_column(col, justify="right" if "volume" in col or col == "ratio" else "left")
+        for row in doc["collision"]:
+            prims = "; ".join(("sphere " + _vec(p["a"]) if p["a"] == p["b"] else f"{_vec(p['a'])} → {_vec(p['b'])}")
+                              + f" r {p['radius']:.4g}" for p in row["primitives"])
+            ratio = row["primitive_volume"] / row["volume"] if row["volume"] > 0 else math.inf
+            ct.add_row(row["link"], ", ".join(row["shapes"]), f"{row['volume'] * 1e6:.4g}", prims,
+                       f"{row['primitive_volume'] * 1e6:.4g}", f"{ratio:.3g}")
+        if not doc["collision"]:
+            ct.caption = "the URDF has no <collision> elements (give geometry in the task: collision.robot)"
+        tables.append(ct)
+    for table in tables:
         table.caption_justify = "left"
         console.print(table, markup=False)
     if doc["problem"]:
         console.print(f"warning: cannot plan with this URDF as it is: {doc['problem']}", markup=False)
     return EXIT_OK
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{x:.3g}" for x in v) + ")"
 
 
 def _num(x) -> str:

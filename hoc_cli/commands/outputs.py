@@ -10,10 +10,11 @@ from hoc_cli.trajectory import Trajectory
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
-                  summary: dict, goals=None) -> list[str]:
+                  summary: dict, goals=None, scene=None) -> list[str]:
     """Write ``traj`` to every target; returns the labels written ("-" for stdout).
 
     ``goals`` (``hoc_cli.goals.Goals`` or None): link goals shown on an MCAP's /goal_marker.
+    ``scene`` (a MarkerArray message, ``hoc_cli.io.mcap_obstacles``, or None): an MCAP's /collision_scene.
     Each file goes to a temporary file beside its target and is renamed into place only when
     complete, so an interrupted or failed run leaves existing files as they were.
     """
@@ -36,7 +37,7 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
                            metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
                            link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj),
-                           locked=model.locked)
+                           locked=model.locked, scene=scene)
         written.append(target.label)
     return written
 

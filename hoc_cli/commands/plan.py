@@ -30,6 +30,13 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.commands.outputs import write_outputs
+from hoc_cli.commands.plan_collision import (
+    check_boundary_clearance,
+    collision_markers,
+    collision_summary,
+    task_collision,
+    warn_collisions,
+)
 from hoc_cli.commands.plan_goals import goal_summary
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
 from hoc_cli.commands.workload import Heartbeat, check_workload
@@ -81,6 +88,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         check_boundary_states(task, limits, states)
     else:
         _warn_outside_limits(console, task, model, states)
+    collision = task_collision(task, model)  # None: collision.mode off (docs/collision.md)
+    check_boundary_clearance(task, model, collision, states)
     problem = problem_from_task(task, model, states, limits if mode == "enforce" else None)
     has_goals = problem.has_goals  # a link goal, vias or a free T
     auto = task.N is None
@@ -138,6 +147,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         if error is not None:  # goals: no estimate yet (docs/goals.md)
             summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
         summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
+        summary.update(collision_summary(model, collision, task.collision.mode, result))
         summary.update(starts_summary(multi, seed))
         summary.update(extra | goal_summary(model, result, goals))
         summary = json_ready(summary)  # an absent limit (inf) is null
@@ -145,8 +155,10 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=reproducible_summary(summary), goals=goals)
+                                           summary=reproducible_summary(summary), goals=goals,
+                                           scene=collision_markers(collision, model, targets))
     warn_limit_violations(summary["limit_violations"])
+    warn_collisions(summary.get("collisions") or [])
     if as_json:
         print_json(summary)
     if show:
@@ -316,6 +328,12 @@ def summary_table(summary: dict) -> Table:
     viol = summary["limit_violations"]
     table.add_row("limit violations", Text("none" if not viol else "; ".join(
         f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
+    clearance = summary.get("min_clearance")
+    if clearance:
+        table.add_row("min clearance", Text(f"{clearance['distance']:.4g} m ({' – '.join(clearance['pair'])} at t = "
+                                            f"{clearance['t']:.4g} s; proven >= {clearance['lower_bound']:.4g} m)"))
+        table.add_row("collisions", Text("none" if not summary["collisions"] else "; ".join(
+            f"{' – '.join(c['pair'])} [{c['interval'][0]:.3g}, {c['interval'][1]:.3g}] s" for c in summary["collisions"])))
     if "starts" in summary:
         table.add_row("starts", "; ".join(
             f"{o['start']}{'*' if o['start'] == summary['best_start'] else ''} "

@@ -33,9 +33,13 @@ topic                       schema (ROS 2 ``ros2msg``)              content
                                                                     its parent link
 ``/goal_marker``            ``visualization_msgs/msg/Marker``       per sample and link goal (when any,
                                                                     ``hoc_cli.io.mcap_markers``)
+``/collision_scene``        ``visualization_msgs/msg/MarkerArray``  once, at t = 0, when collisions are
+                                                                    checked (QoS transient-local): the
+                                                                    obstacles and the robot's collision
+                                                                    primitives (``hoc_cli.io.mcap_obstacles``)
 =========================== ======================================= ==================================
 
-Every channel carries ``offered_qos_profiles`` metadata as rosbag2 writes it (reliable; the two
+Every channel carries ``offered_qos_profiles`` metadata as rosbag2 writes it (reliable; the
 once-only topics transient-local, the others volatile), so ``ros2 bag play`` offers what a
 recorded publisher would and a transient-local subscriber (robot_state_publisher's consumers, tf2's
 static listener) connects.
@@ -76,7 +80,8 @@ TOPIC_TRAJECTORY = "/joint_trajectory"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
 TOPIC_TF = "/tf"
 TOPIC_TF_STATIC = "/tf_static"
-LATCHED_TOPICS = (TOPIC_ROBOT_DESCRIPTION, TOPIC_TF_STATIC)
+TOPIC_COLLISION_SCENE = "/collision_scene"
+LATCHED_TOPICS = (TOPIC_ROBOT_DESCRIPTION, TOPIC_TF_STATIC, TOPIC_COLLISION_SCENE)
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 METADATA_NAME = "hoc"
 ATTACHMENT_URDF = "robot.urdf"
@@ -285,6 +290,7 @@ def write_mcap(
     tf_parents: Mapping[str, str] | None = None,
     markers: Sequence[MarkerTrack] = (),
     locked: Mapping[str, float] | None = None,
+    scene: Mapping | None = None,
 ) -> None:
     """Write ``traj`` (t (K,) s; q, dq, ddq, u (K, n)) as an MCAP plan file to the binary stream ``fh``.
 
@@ -304,6 +310,8 @@ def write_mcap(
     locked : value (rad or m) of the URDF's movable joints that are not trajectory joints
         (``RobotModel.locked``), published on /joint_states after the trajectory's joints;
         missing ones follow :func:`held_joint_values`
+    scene : a ``visualization_msgs/msg/MarkerArray`` message (``hoc_cli.io.mcap_obstacles``), written
+        once at t = 0 on /collision_scene; None writes no such topic
 
     The stream is always finished (``finally``), so an exception leaves a truncated file that the
     caller discards (``atomic_output``).
@@ -354,9 +362,12 @@ def write_mcap(
         topics += [(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage")] if still else []
         topics += [(TOPIC_TF, "tf2_msgs/msg/TFMessage")] if moving else []
         topics += [(TOPIC_GOAL_MARKER, MARKER_TYPE)] if markers else []
+        topics += [(TOPIC_COLLISION_SCENE, "visualization_msgs/msg/MarkerArray")] if scene is not None else []
         for topic, type_name in topics:
             writer.channel(topic, type_name)
         writer.write(TOPIC_ROBOT_DESCRIPTION, {"data": urdf_text}, 0)
+        if scene is not None:
+            writer.write(TOPIC_COLLISION_SCENE, dict(scene), 0)
         if still:
             writer.write(TOPIC_TF_STATIC, _tf_message(still, 0, _stamp(0)), 0)
         writer.write(TOPIC_TRAJECTORY, trajectory_message(joints, ns, arrays), 0)

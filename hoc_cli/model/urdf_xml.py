@@ -1,8 +1,10 @@
 """The URDF elements hoc needs, read with the standard library's XML parser.
 
-Only the kinematic and inertial description is read: ``<link>`` (name, ``<inertial>``: origin,
-mass, inertia) and ``<joint>`` (name, type, parent, child, origin, axis, limit, mimic). Visuals,
-collisions, materials, transmissions and ``<gazebo>`` tags are ignored. Units are the URDF's: m,
+The kinematic and inertial description is read: ``<link>`` (name, ``<inertial>``: origin,
+mass, inertia) and ``<joint>`` (name, type, parent, child, origin, axis, limit, mimic); a link's
+``<collision>`` elements are kept as written (origin and the ``<geometry>`` element's tag and
+attributes, checked by :mod:`hoc_cli.io.collision_geometry` when collision checking asks for them).
+Visuals, materials, transmissions and ``<gazebo>`` tags are ignored. Units are the URDF's: m,
 rad, kg, kg·m², N·m (N), rad/s (m/s).
 
 Conventions (URDF specification, wiki.ros.org/urdf/XML): an origin is the transform
@@ -37,9 +39,18 @@ class Inertial:
 
 
 @dataclass
+class Collision:
+    origin: np.ndarray | None   # (4, 4) pose of the geometry in the link frame (None: identity)
+    shape: str | None           # the <geometry> child's tag (box, sphere, cylinder, mesh, ...), None if absent
+    attributes: dict[str, str]  # that element's attributes as written (size, radius, length, filename, scale)
+    error: str | None = None    # why the origin does not parse (kept, not raised: only collision checking reads it)
+
+
+@dataclass
 class Link:
     name: str
     inertial: Inertial | None = None
+    collisions: list[Collision] = field(default_factory=list)
 
 
 @dataclass
@@ -172,7 +183,20 @@ def _link(element: ET.Element) -> Link:
     name = element.get("name")
     if name is None:
         raise UrdfSyntaxError("a <link>", "has no name attribute")
-    return Link(name=name, inertial=_inertial(element.find("inertial"), f"link {name!r}"))
+    where = f"link {name!r}"
+    return Link(name=name, inertial=_inertial(element.find("inertial"), where),
+                collisions=[_collision(e, where) for e in element.findall("collision")])
+
+
+def _collision(element: ET.Element, where: str) -> Collision:
+    geometry = element.find("geometry")
+    shape = None if geometry is None or len(geometry) == 0 else geometry[0]
+    try:
+        origin, error = _origin(element.find("origin"), where), None
+    except UrdfSyntaxError as exc:
+        origin, error = None, exc.message
+    return Collision(origin=origin, shape=None if shape is None else shape.tag,
+                     attributes={} if shape is None else dict(shape.attrib), error=error)
 
 
 def parse_robot(root: ET.Element) -> Robot:

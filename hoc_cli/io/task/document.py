@@ -10,6 +10,7 @@ import yaml
 
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task.checks import Checker, Values
+from hoc_cli.io.task.collision import CollisionSpec, parse_collision
 from hoc_cli.io.task.goals import Via, parse_via
 from hoc_cli.io.task.limits import LimitsSpec, parse_limits
 from hoc_cli.io.task.sections import (
@@ -52,6 +53,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("output", ("output",), parse_output),
     Section("limits", ("limits",), parse_limits),
     Section("torque", ("torque",), parse_torque),
+    Section("collision", ("collision",), parse_collision),
 )
 TOP_KEYS = tuple(key for section in SECTIONS for key in section.keys)
 
@@ -74,6 +76,7 @@ class Task:
     limits: LimitsSpec = field(default_factory=LimitsSpec)
     torque: str | Values | None = None
     via: tuple[Via, ...] = ()
+    collision: CollisionSpec = field(default_factory=CollisionSpec)
     text: str = field(default="", repr=False)
 
     @property

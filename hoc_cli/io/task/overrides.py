@@ -8,6 +8,7 @@ from functools import partial
 from typing import Any
 
 from hoc_cli.io.task.checks import Check, Checker
+from hoc_cli.io.task.collision import check_collision_mode
 from hoc_cli.io.task.document import Task
 from hoc_cli.io.task.limits import check_limits_mode
 from hoc_cli.io.task.sections import (
@@ -41,6 +42,7 @@ OVERRIDES: dict[str, Override] = {
     "method": Override("--method", "solver", "method", check_method),
     "cost": Override("--cost", "", "cost", check_cost),
     "limits": Override("--limits", "limits", "mode", check_limits_mode),
+    "collision": Override("--collision", "collision", "mode", check_collision_mode),
 }
 
 

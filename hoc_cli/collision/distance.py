@@ -1,0 +1,185 @@
+"""Signed distances between a capsule and a capsule, a box or a half-space, batched with numpy.
+
+Every function takes arrays with any common leading shape ``S`` (samples × pairs, ...), points as
+(S, 3) in one frame, in metres, and returns a :class:`Contact` of arrays over ``S``. The first
+shape, A, is always the capsule (a sphere when a = b). Signed distance: the distance between the
+two solids when they are apart, minus the penetration depth (the length of the shortest
+translation that separates them) when they overlap.
+
+Formulas (docs/collision.md): capsule–capsule is the segment–segment distance minus both radii;
+capsule–half-space the lower end's height minus the radius; capsule–box minimises the convex, C¹,
+piecewise-quadratic squared distance from the segment's points to the box over the segment's
+parameter (its derivative is piecewise linear between the knots where the segment crosses a face
+plane: the minimiser is an end or the zero of that derivative between two knots) and, when the
+segment meets the box, takes the penetration depth by
+separating axes: the box's face normals and the cross products of its axes with the segment, the
+facet normals of box ⊕ (−segment).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+EPS = 1e-300
+
+
+@dataclass(frozen=True, eq=False)
+class Contact:
+    """Signed distance and witnesses, arrays over the leading shape S.
+
+    distance : (S,) m, negative when the solids overlap.
+    normal : (S, 3) unit; moving A by δ along it changes the distance by δ (to first order).
+    point_a, point_b : (S, 3) m, the witness points on A and on B; point_a − point_b = distance · normal
+        (for a box it is the deepest point of A and its projection on the separating face when they overlap).
+    """
+
+    distance: np.ndarray
+    normal: np.ndarray
+    point_a: np.ndarray
+    point_b: np.ndarray
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", x, y)
+
+
+def _unit(v: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(v / |v| where |v| > 0 else the unit fallback, |v|)."""
+    n = np.linalg.norm(v, axis=-1)
+    ok = n > 0
+    u = np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback)
+    return u, n
+
+
+def _perpendicular(d: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to each d (S, 3) (any unit vector where d = 0)."""
+    e = np.where((np.abs(d[..., 0]) < 0.9 * np.linalg.norm(d, axis=-1))[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    u, _ = _unit(np.cross(d, e), np.array([0.0, 0.0, 1.0]))
+    return u
+
+
+def segment_segment(p1, q1, p2, q2) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters (s, t), each (S,) in [0, 1], of the closest points p1 + s(q1 − p1), p2 + t(q2 − p2).
+
+    Minimises |x1(s) − x2(t)|² over the unit square: the unconstrained minimiser in s with t
+    eliminated, clamped; then t for that s, clamped, and s recomputed for a clamped t (the
+    minimiser of a convex quadratic over a square lies on this path). Degenerate segments
+    (points) and parallel segments are handled.
+    """
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    c, b = _dot(d1, r), _dot(d1, d2)
+    denom = a * e - b * b
+    tiny = 1e-14 * np.maximum(a * e, EPS)
+    point1, point2 = a <= EPS, e <= EPS
+    s = np.where(denom > tiny, np.clip((b * f - c * e) / np.where(denom > tiny, denom, 1.0), 0.0, 1.0), 0.0)
+    t = (b * s + f) / np.where(point2, 1.0, e)
+    s_low = np.clip(-c / np.where(point1, 1.0, a), 0.0, 1.0)
+    s_high = np.clip((b - c) / np.where(point1, 1.0, a), 0.0, 1.0)
+    s = np.where(t < 0.0, s_low, np.where(t > 1.0, s_high, s))
+    t = np.clip(t, 0.0, 1.0)
+    # points: one parameter is free of the other
+    s = np.where(point2 & ~point1, s_low, s)
+    t = np.where(point2, 0.0, t)
+    t = np.where(point1 & ~point2, np.clip(f / np.where(point2, 1.0, e), 0.0, 1.0), t)
+    s = np.where(point1, 0.0, s)
+    return s, t
+
+
+def capsule_capsule(a1, b1, r1, a2, b2, r2) -> Contact:
+    """Capsule [a1, b1] radius r1 (A) against capsule [a2, b2] radius r2 (B): |x1 − x2| − r1 − r2.
+
+    Where the segments meet, the normal is along d1 × d2 (or perpendicular to d1 if parallel).
+    """
+    s, t = segment_segment(a1, b1, a2, b2)
+    x1 = a1 + s[..., None] * (b1 - a1)
+    x2 = a2 + t[..., None] * (b2 - a2)
+    fallback, _ = _unit(np.cross(b1 - a1, b2 - a2), _perpendicular(b1 - a1 + (b2 - a2)))
+    n, gap = _unit(x1 - x2, fallback)
+    r1, r2 = np.asarray(r1, dtype=float), np.asarray(r2, dtype=float)
+    return Contact(distance=gap - r1 - r2, normal=n, point_a=x1 - r1[..., None] * n, point_b=x2 + r2[..., None] * n)
+
+
+def capsule_halfspace(a, b, r, normal, offset) -> Contact:
+    """Capsule [a, b] radius r (A) against the half-space {x : normal · x <= offset} (B, unit normal)."""
+    ha, hb = _dot(a, normal) - offset, _dot(b, normal) - offset
+    low = np.where((ha <= hb)[..., None], a, b)
+    h = np.minimum(ha, hb)
+    r = np.asarray(r, dtype=float)
+    n = np.broadcast_to(normal, low.shape)
+    point_a = low - r[..., None] * n
+    return Contact(distance=h - r, normal=n.copy(), point_a=point_a, point_b=low - h[..., None] * n)
+
+
+def capsule_box(a, b, r, center, rotation, half) -> Contact:
+    """Capsule [a, b] radius r (A) against the box (B) with ``center`` (S, 3), ``rotation`` (S, 3, 3)
+    (its axes as columns) and half side lengths ``half`` (S, 3).
+    """
+    a, b, center = (np.asarray(x, dtype=float) for x in (a, b, center))
+    R, h = np.asarray(rotation, dtype=float), np.asarray(half, dtype=float)
+    r = np.asarray(r, dtype=float)
+    lead = np.broadcast_shapes(a.shape[:-1], b.shape[:-1], center.shape[:-1], R.shape[:-2], h.shape[:-1], r.shape)
+    if lead != (np.prod(lead, dtype=int),):  # work on rows (M,), reshape back at the end
+        flat = capsule_box(*(np.broadcast_to(x, lead + x.shape[len(x.shape) - k:]).reshape((-1,) + x.shape[len(x.shape) - k:])
+                             for x, k in ((a, 1), (b, 1), (r, 0), (center, 1), (R, 2), (h, 1))))
+        return Contact(*(getattr(flat, f).reshape(lead + getattr(flat, f).shape[1:])
+                         for f in ("distance", "normal", "point_a", "point_b")))
+    p = np.matmul((a - center)[..., None, :], R)[..., 0, :]  # segment start in the box frame (Rᵀ x)
+    d = np.matmul((b - a)[..., None, :], R)[..., 0, :]       # segment direction in the box frame
+    h, _ = np.broadcast_arrays(h, p)
+    shape = p.shape[:-1]
+    # f(t) = dist²(p + t d, box) is convex and C¹ with f'(t) = 2 d·(x − clip(x)), piecewise linear between the
+    # knots where a coordinate crosses ±h: the minimiser is an end, or where f' changes sign between two knots
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = np.concatenate([(h - p) / d, (-h - p) / d], axis=-1)          # (S, 6)
+    knots = np.concatenate([np.zeros(shape + (1,)), np.where((cross > 0.0) & (cross < 1.0), cross, 0.0),
+                            np.ones(shape + (1,))], axis=-1)                    # (S, 8)
+    xk = p[..., None, :] + knots[..., None] * d[..., None, :]
+    slope = np.sum(d[..., None, :] * (xk - np.clip(xk, -h[..., None, :], h[..., None, :])), axis=-1)  # f'/2
+    neg = slope < 0.0
+    t_lo = np.max(np.where(neg, knots, -1.0), axis=-1)
+    t_hi = np.min(np.where(neg, 2.0, knots), axis=-1)
+    k_lo = np.argmax(np.where(neg, knots, -1.0), axis=-1)[..., None]
+    k_hi = np.argmin(np.where(neg, 2.0, knots), axis=-1)[..., None]
+    s_lo = np.take_along_axis(slope, k_lo, axis=-1)[..., 0]
+    s_hi = np.take_along_axis(slope, k_hi, axis=-1)[..., 0]
+    jump = s_hi - s_lo
+    inner = t_lo - s_lo * (t_hi - t_lo) / np.where(jump > 0, jump, 1.0)
+    t = np.where(t_lo < 0.0, 0.0, np.where(t_hi > 1.0, 1.0, np.where(jump > 0, inner, t_hi)))
+    t = np.clip(t, 0.0, 1.0)
+    x = p + t[..., None] * d                                            # closest point of the segment (box frame)
+    y = np.clip(x, -h, h)                                               # closest point of the box
+    n_box, gap = _unit(x - y, np.zeros(3))
+    xa = x.copy()
+    dist_core = gap.copy()
+    # rows whose segment meets the box (up to rounding in t): the penetration depth by separating axes
+    # (box frame), for these rows only; a positive depth on every axis proves the overlap
+    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1) + np.linalg.norm(d, axis=-1)
+    inside = gap <= 1e-12 * scale
+    if np.any(inside):
+        pi, di, hi = p[inside], d[inside], h[inside]
+        m = pi.shape[0]
+        e = np.broadcast_to(np.eye(3), (m, 3, 3))
+        axes_c, length = _unit(np.cross(e, di[:, None, :]), np.zeros(3))  # e_i × d
+        axes = np.concatenate([e, axes_c], axis=1)                          # (m, 6, 3)
+        valid = np.concatenate([np.ones((m, 3), bool), length > 1e-12 * np.maximum(np.linalg.norm(di, axis=-1), EPS)[:, None]],
+                               axis=1)
+        rho = np.sum(np.abs(axes) * hi[:, None, :], axis=-1)               # box support along each axis
+        u0, u1 = _dot(axes, pi[:, None, :]), _dot(axes, (pi + di)[:, None, :])
+        up = rho - np.minimum(u0, u1)    # push the segment along +axis
+        down = rho + np.maximum(u0, u1)  # along −axis
+        depth = np.where(valid, np.minimum(up, down), np.inf)
+        j = np.argmin(depth, axis=-1)[:, None]
+        pen = np.take_along_axis(depth, j, axis=-1)[:, 0]
+        axis = np.take_along_axis(axes, j[..., None], axis=1)[:, 0, :]
+        sign = np.where(np.take_along_axis(up, j, axis=-1)[:, 0] <= np.take_along_axis(down, j, axis=-1)[:, 0], 1.0, -1.0)
+        n_in = sign[:, None] * axis
+        deep = np.where((_dot(n_in, pi) <= _dot(n_in, pi + di))[:, None], pi, pi + di)  # the end deepest against n_in
+        overlap = pen > 0.0
+        rows = np.flatnonzero(inside)[overlap]
+        n_box[rows], xa[rows], dist_core[rows] = n_in[overlap], deep[overlap], -pen[overlap]
+    normal = np.matmul(R, n_box[..., None])[..., 0]
+    point_a = np.matmul(R, xa[..., None])[..., 0] + center - r[..., None] * normal
+    distance = dist_core - r
+    return Contact(distance=distance, normal=normal, point_a=point_a, point_b=point_a - distance[..., None] * normal)

@@ -1,0 +1,130 @@
+"""Signed distances of a scene's pairs at joint configurations, and their gradients with respect to q.
+
+Symbols: K configurations (samples), n joints, P robot primitives, Q pairs (see
+:class:`~hoc_cli.collision.scene.CollisionScene`); lengths in m. Everything is batched over samples
+and pairs: Python loops run over the robot's links only.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace
+from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
+from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
+from hoc_cli.dynamics.kinematics import frame_jacobian, link_poses
+from hoc_cli.model.tree import RobotModel
+
+
+def world_capsules(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
+    """Segment ends (a, b), each (K, P, 3), of every robot primitive at configurations q (K, n), root frame."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    robot = scene.robot
+    poses = link_poses(model, q)
+    T = np.stack([poses[name] for name in robot.links], axis=1) if robot.size else np.zeros((len(q), 0, 4, 4))
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    a = np.einsum("kpij,pj->kpi", R, robot.a) + t
+    b = np.einsum("kpij,pj->kpi", R, robot.b) + t
+    return a, b
+
+
+def _obstacle_arrays(scene: CollisionScene) -> dict:
+    O = len(scene.obstacles)
+    out = {"ca": np.zeros((O, 3)), "cb": np.zeros((O, 3)), "cr": np.zeros(O), "center": np.zeros((O, 3)),
+           "rot": np.tile(np.eye(3), (O, 1, 1)), "half": np.zeros((O, 3)), "normal": np.zeros((O, 3)),
+           "offset": np.zeros(O)}
+    for o, obstacle in enumerate(scene.obstacles):
+        p = obstacle.primitive
+        if isinstance(p, Capsule):
+            out["ca"][o], out["cb"][o], out["cr"][o] = p.a, p.b, p.radius
+        elif isinstance(p, Box):
+            out["center"][o], out["rot"][o], out["half"][o] = p.center, p.rotation, p.half
+        elif isinstance(p, HalfSpace):
+            out["normal"][o], out["offset"][o] = p.normal, p.offset
+    return out
+
+
+def pair_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.ndarray, pairs: np.ndarray) -> Contact:
+    """The contact (M,) of pair ``pairs[m]`` at sample ``rows[m]``, from world capsules a, b (K, P, 3)."""
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    M = rows.size
+    out = Contact(distance=np.empty(M), normal=np.empty((M, 3)), point_a=np.empty((M, 3)), point_b=np.empty((M, 3)))
+    if M == 0:
+        return out
+    robot = scene.robot
+    prim, other, kind = scene.prim[pairs], scene.other[pairs], scene.kind[pairs]
+    a1, b1, r1 = a[rows, prim], b[rows, prim], robot.radius[prim]
+    obs = _obstacle_arrays(scene)
+    for k in (KIND_SELF, KIND_CAPSULE, KIND_BOX, KIND_HALFSPACE):
+        m = kind == k
+        if not m.any():
+            continue
+        o = other[m]
+        if k == KIND_SELF:
+            c = capsule_capsule(a1[m], b1[m], r1[m], a[rows[m], o], b[rows[m], o], robot.radius[o])
+        elif k == KIND_CAPSULE:
+            c = capsule_capsule(a1[m], b1[m], r1[m], obs["ca"][o], obs["cb"][o], obs["cr"][o])
+        elif k == KIND_BOX:
+            c = capsule_box(a1[m], b1[m], r1[m], obs["center"][o], obs["rot"][o], obs["half"][o])
+        else:
+            c = capsule_halfspace(a1[m], b1[m], r1[m], obs["normal"][o], obs["offset"][o])
+        out.distance[m], out.normal[m], out.point_a[m], out.point_b[m] = c.distance, c.normal, c.point_a, c.point_b
+    return out
+
+
+def contacts(model: RobotModel, scene: CollisionScene, q) -> Contact:
+    """Every pair at every configuration q (K, n): a Contact with arrays (K, Q) and (K, Q, 3)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    K, Q = len(q), scene.size
+    a, b = world_capsules(model, scene, q)
+    c = pair_contacts(scene, a, b, np.repeat(np.arange(K), Q), np.tile(np.arange(Q), K))
+    return Contact(distance=c.distance.reshape(K, Q), normal=c.normal.reshape(K, Q, 3),
+                   point_a=c.point_a.reshape(K, Q, 3), point_b=c.point_b.reshape(K, Q, 3))
+
+
+def distances(model: RobotModel, scene: CollisionScene, q) -> np.ndarray:
+    """Signed distances (K, Q), m, of every pair at configurations q (K, n)."""
+    return contacts(model, scene, q).distance
+
+
+def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance d (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q: (K, n)), and ∂d/∂q (M, n).
+
+    With n̂ the contact normal and x_A, x_B the witness points on the two shapes, moving q by δq
+    moves x_A by (J_v − [x_A − o]× J_ω) δq for the frame Jacobian J = (J_v, J_ω) of A's link (origin
+    o), so ∂d/∂q = n̂·J_v + ((x_A − o) × n̂)·J_ω, minus the same for B when B is a robot link. Exact
+    wherever the witness points are unique (the distance is differentiable there). The kinematics
+    run once per configuration, not per pair.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    a, b = world_capsules(model, scene, q)
+    c = pair_contacts(scene, a, b, rows, pairs)
+    robot = scene.robot
+    poses = link_poses(model, q)
+    grad = np.zeros((rows.size, model.n))
+    link_a = robot.link_index[scene.prim[pairs]]
+    link_b = np.where(scene.kind[pairs] == KIND_SELF, robot.link_index[scene.other[pairs]], -1)
+    for k in np.unique(robot.link_index):
+        on_a, on_b = link_a == k, link_b == k
+        if not (on_a.any() or on_b.any()):
+            continue
+        name = model.link_names[k]
+        J = frame_jacobian(model, q, name)        # (K, 6, n)
+        o = poses[name][:, :3, 3]                 # (K, 3)
+        for on, point, sign in ((on_a, c.point_a, 1.0), (on_b, c.point_b, -1.0)):
+            if on.any():
+                r = rows[on]
+                nrm = c.normal[on]
+                arm = np.cross(point[on] - o[r], nrm)
+                grad[on] += sign * (np.einsum("mi,mij->mj", nrm, J[r, 0:3]) + np.einsum("mi,mij->mj", arm, J[r, 3:6]))
+    return c.distance, grad
+
+
+def distance_gradient(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances d (K, Q) of every pair and their gradients ∂d/∂q (K, Q, n) at configurations q (K, n)
+    (:func:`pair_gradient` on every sample × pair).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    K, Q = len(q), scene.size
+    d, g = pair_gradient(model, scene, q, np.repeat(np.arange(K), Q), np.tile(np.arange(Q), K))
+    return d.reshape(K, Q), g.reshape(K, Q, model.n)

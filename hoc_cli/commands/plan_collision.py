@@ -1,0 +1,128 @@
+"""``hoc plan``'s collision checking: the task's scene built against the model, the x0/x1 check, the summary.
+
+The maths (``hoc_cli.collision``) takes arrays; this module reads the task's ``collision:`` section
+and the URDF's collision geometry into a ``CollisionScene``, refuses a start or goal state in
+collision (exit 2), and certifies a plan's clearance for the JSON summary's ``collision_mode``,
+``min_clearance`` and ``collisions`` (docs/collision.md). Enforcement in the optimiser is not
+built yet: ``check`` plans without the constraint and reports.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from hoc_cli.commands.common import warn
+from hoc_cli.errors import TaskError
+from hoc_cli.io.task.checks import join
+
+if TYPE_CHECKING:
+    from hoc_cli.collision.scene import CollisionScene
+
+# hoc_cli.collision is imported on use: a task without a collision section does not pay for it at start-up
+
+
+def task_collision(task, model) -> CollisionScene | None:
+    """The pairs to check for ``task`` (None when ``collision.mode`` is off).
+
+    Raises TaskError for a link the robot does not have (``collision.robot``), an obstacle given in
+    another frame than the URDF root, or an ``ignore`` name that is neither a link nor an obstacle;
+    ModelError (naming the URDF and link) for URDF collision geometry that cannot be read.
+    """
+    from hoc_cli.collision.geometry import obstacle_primitive
+    from hoc_cli.collision.robot import robot_geometry
+    from hoc_cli.collision.scene import Obstacle, collision_scene
+    from hoc_cli.io.collision_geometry import read_collision_shapes
+
+    spec = task.collision
+    if spec.mode == "off":
+        return None
+    for link in spec.robot:
+        if link not in model.link_names:
+            raise TaskError(f"no link {link!r} in the URDF (links: {', '.join(model.link_names)})", file=task.path,
+                            key=join("collision.robot", link))
+    shapes = read_collision_shapes(task.robot, skip=set(spec.robot))
+    robot = robot_geometry(model, shapes, {k: list(v) for k, v in spec.robot.items()})
+    for name, link in spec.frames.items():
+        if link not in model.link_names or model.link_body[model.link_names.index(link)] >= 0:
+            raise TaskError(f"{link!r} is not a link fixed to the URDF root (fixed links: "
+                            f"{', '.join(_fixed_links(model))})", file=task.path, key=join("collision.frames", name))
+    obstacles = []
+    for o in spec.obstacles:
+        shape = o.shape
+        if o.frame not in (None, ""):
+            frame = spec.frames.get(o.frame, o.frame.lstrip("/"))
+            if frame not in _fixed_links(model):
+                raise TaskError(f"frame_id {o.frame!r} is not a link fixed to the URDF root {model.root_link!r} (name "
+                                f"the link it stands for under collision.frames: {{{o.frame}: {model.root_link}}})",
+                                file=o.file, key=o.key.rsplit(".primitives", 1)[0] + ".header.frame_id")
+            offset = model.link_offset[model.link_names.index(frame)]  # the fixed link's pose in the root frame
+            shape = replace(shape, pose=offset @ shape.pose)
+        obstacles.append(Obstacle(o.name, obstacle_primitive(shape)))
+    names = set(model.link_names) | {o.name for o in obstacles}
+    for i, pair in enumerate(spec.ignore):
+        for k, name in enumerate(pair):
+            if name not in names:
+                raise TaskError(f"{name!r} is neither a link nor an obstacle", file=task.path,
+                                key=f"collision.ignore[{i}][{k}]")
+    return collision_scene(model, robot, obstacles, margin=spec.margin, self_collision=spec.self_collision,
+                           disabled=spec.disabled + spec.ignore)
+
+
+def _fixed_links(model) -> list[str]:
+    """The links welded to the URDF root (the root included): their poses are constant."""
+    return [name for name, body in zip(model.link_names, model.link_body) if body < 0]
+
+
+def check_boundary_clearance(task, model, scene: CollisionScene | None, states) -> None:
+    """x0 (and a joint goal x1) must keep the margin: TaskError (exit 2) naming the closest pair and its depth."""
+    if scene is None or scene.size == 0:
+        return
+    from hoc_cli.collision.evaluate import distances
+
+    for label, q in (("x0", states.q0), ("x1", states.q1)):
+        if q is None:  # a link goal: its final q is planned
+            continue
+        d = distances(model, scene, q[None, :])[0]
+        k = int(np.argmin(d))
+        if d[k] >= scene.margin:
+            continue
+        a, b = scene.names[k]
+        how = (f"overlap by {-d[k]:.4g} m" if d[k] < 0 else f"are {d[k]:.4g} m apart")
+        raise TaskError(f"{a} and {b} {how} (collision.margin is {scene.margin:g} m; move the state, give the robot's "
+                        "SRDF as collision.srdf, add the pair to collision.ignore, or give the links' geometry under "
+                        "collision.robot)",
+                        file=task.path, key=f"{label}.q")
+
+
+def collision_summary(model, scene: CollisionScene | None, mode: str, result) -> dict:
+    """Summary keys ``collision_mode``, ``min_clearance`` and ``collisions`` (empty when mode is off)."""
+    if scene is None:
+        return {"collision_mode": mode}
+    from hoc_cli.collision.certify import certify
+
+    cert = certify(model, scene, result.mesh, result.coeffs)
+    return {"collision_mode": mode, **cert.summary()}
+
+
+def warn_collisions(collisions: list[dict]) -> None:
+    """One warning line per pair and interval where the clearance is below the margin (standard error)."""
+    for c in collisions:
+        a, b = c["pair"]
+        t0, t1 = c["interval"]
+        what = f"overlap by {c['depth']:.4g} m" if c["depth"] > 0 else f"come within {c['distance']:.4g} m"
+        if not c["certain"]:
+            what = f"may come within {c['lower_bound']:.4g} m (not proven clear)"
+        warn(f"{a} and {b} {what} in t = [{t0:.4g}, {t1:.4g}] s")
+
+
+def collision_markers(scene: CollisionScene | None, model, targets) -> dict | None:
+    """The MCAP's /collision_scene MarkerArray (``hoc_cli.io.mcap_obstacles``) when collisions are checked and an
+    MCAP is written; None otherwise.
+    """
+    if scene is None or not any(t.kind == "mcap" for t in targets):
+        return None
+    from hoc_cli.io.mcap_obstacles import scene_markers
+
+    return scene_markers(scene, model.root_link)
