@@ -241,9 +241,13 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
                               stderr=subprocess.DEVNULL, env=env)]
     try:
         deadline = time.monotonic() + 60
-        while not sched_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        address = json.loads(sched_file.read_text())["address"]
+        address = None
+        while address is None and time.monotonic() < deadline:  # the scheduler writes the file in pieces
+            try:
+                address = json.loads(sched_file.read_text())["address"]
+            except (OSError, ValueError, KeyError):
+                time.sleep(0.1)
+        assert address is not None, "the scheduler wrote no address in 60 s"
         assert address.startswith("tcp://127.0.0.1:")
         procs.append(subprocess.Popen([DASK, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
                                        "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
