@@ -11,10 +11,12 @@ from typing import Annotated, Optional
 import typer
 
 from hoc_cli import __version__
-from hoc_cli.commands.common import run_guarded
+from hoc_cli.commands.common import refuse_irregular, run_guarded
+from hoc_cli.commands.usage import OneLineGroup
 
 app = typer.Typer(
     name="hoc",
+    cls=OneLineGroup,  # a usage error is one `hoc: error:` line, exit 2
     help=(
         "Covariant optimal-control trajectory planner for jointed robot arms.\n\n"
         "Example: hoc plan configs/lbr7_reach.yaml -o reach.mcap -o reach.csv"
@@ -45,6 +47,17 @@ DebugOpt = Annotated[bool, typer.Option("--debug", help="Show Python tracebacks 
 ElementsOpt = Annotated[Optional[int], typer.Option("-N", "--elements", help="Override the task's number of elements N (>= 1).")]
 OrderOpt = Annotated[Optional[str], typer.Option("--order", help="Override the element order: quintic | cubic.")]
 DurationOpt = Annotated[Optional[float], typer.Option("-T", "--duration", help="Override the duration T in seconds (> 0).")]
+
+
+MCAP_PLAN = "a plan's MCAP file written by hoc plan"
+
+
+def _inputs_checked(inputs: list, body, *, missing_ok: bool = False):
+    """``body`` run after every input file is found to be a regular file (``refuse_irregular``)."""
+    def run() -> int:
+        refuse_irregular(inputs, missing_ok=missing_ok)
+        return body()
+    return run
 
 
 def _version(value: bool) -> None:
@@ -96,13 +109,13 @@ def plan(
     """
     from hoc_cli.commands import plan as cmd
 
-    code = run_guarded(
+    code = run_guarded(_inputs_checked([(init, "--init", MCAP_PLAN)],
         lambda: cmd.run(
             task, outputs=output, as_json=json_, quiet=quiet, progress=progress,
             overrides=dict(N=elements, order=order, T=duration, tol=tol, max_iter=max_iter, method=method, cost=cost,
                            limits=limits, collision=collision),
             init=init, gradient_check=check_gradient, starts=starts, seed=seed,
-        ),
+        )),
         debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
@@ -130,9 +143,10 @@ def batch(
     """
     from hoc_cli.commands import batch as cmd
 
-    code = run_guarded(
+    code = run_guarded(_inputs_checked(
+        [(p, None, "a batch spec or task YAML file") for p in spec],
         lambda: cmd.run(spec, out_dir=output, workers=workers, scheduler=scheduler, resume=resume, as_json=json_,
-                        quiet=quiet, progress=progress),
+                        quiet=quiet, progress=progress), missing_ok=True),  # a path that is not there: a glob
         debug=debug,
     )
     raise typer.Exit(code)
@@ -167,12 +181,13 @@ def simulate(
     """
     from hoc_cli.commands import simulate as cmd
 
-    code = run_guarded(
+    code = run_guarded(_inputs_checked(
+        [(source, None, "a task YAML or " + MCAP_PLAN), (torque, "--torque", "a plan's CSV or MCAP file")],
         lambda: cmd.run(
             source, outputs=output, as_json=json_, quiet=quiet, progress=progress,
             overrides=dict(N=elements, order=order, T=duration), integrator=integrator, method=method,
             torque=torque, check=check, tol=tol, max_iter=max_iter,
-        ),
+        )),
         debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
@@ -192,7 +207,9 @@ def inspect(
     """
     from hoc_cli.commands import inspect as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(robot, as_json=json_, collision=collision), debug=debug))
+    raise typer.Exit(run_guarded(_inputs_checked([(robot, None, "a URDF file")],
+                                                 lambda: cmd.run(robot, as_json=json_, collision=collision)),
+                                 debug=debug))
 
 
 @app.command()
@@ -227,7 +244,9 @@ def plot(
     """
     from hoc_cli.commands import plot as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(files, output, robot=robot, normalized=normalized), debug=debug))
+    inputs = [(f, None, "a plan's CSV or MCAP file") for f in files] + [(robot, "--robot", "a URDF file")]
+    raise typer.Exit(run_guarded(_inputs_checked(
+        inputs, lambda: cmd.run(files, output, robot=robot, normalized=normalized)), debug=debug))
 
 
 @app.command()
@@ -246,7 +265,9 @@ def new(
     """
     from hoc_cli.commands import new as cmd
 
-    raise typer.Exit(run_guarded(lambda: cmd.run(robot, output, force=force, quiet=quiet), debug=debug, quiet=quiet))
+    raise typer.Exit(run_guarded(_inputs_checked([(robot, None, "a URDF file")],
+                                                 lambda: cmd.run(robot, output, force=force, quiet=quiet)),
+                                 debug=debug, quiet=quiet))
 
 
 @app.command()

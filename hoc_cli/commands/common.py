@@ -31,6 +31,7 @@ from hoc_cli.commands.files import (  # noqa: F401  (re-exported: the commands i
     what_changed,
 )
 from hoc_cli.errors import HocError, HocWarning, InputFileError, JointSelectionError, OutputError, TaskError
+from hoc_cli.io.inputs import file_problem
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
 _SIGNAL_WORDS = {getattr(signal, "SIGHUP", -1): "hung up (SIGHUP)", signal.SIGTERM: "terminated"}
@@ -174,7 +175,7 @@ def check_sample_times(targets: list[OutputTarget], T: float, rate: float, *, fi
         if rate > 1e9:
             why = f"{rate:g} Hz puts samples less than 1 ns apart"
         else:
-            why = f"T = {T!r} s leaves the last sample within 1 ns of the one before it"
+            why = f"T = {float(T)!r} s leaves the last sample within 1 ns of the one before it"
         raise TaskError(f"{why}, and MCAP time stamps are whole nanoseconds (expected a rate <= 1e9 Hz and "
                         "T not within 1 ns of a multiple of 1/rate)", file=file, key=key)
 
@@ -248,9 +249,27 @@ def _jsonable(x: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
+def refuse_irregular(inputs: list[tuple[Path | str | None, str | None, str]], *, missing_ok: bool = False) -> None:
+    """InputFileError (exit 2) for an input that is not a regular file, before anything opens it.
+
+    ``inputs``: (path or None, the option that gave it or None for an argument, what was expected,
+    e.g. "a plan's MCAP file"). A FIFO would block the open and ``/dev/zero`` would be read forever.
+    With ``missing_ok`` a path that does not exist is left to the command (a glob, say).
+    """
+    for path, key, expected in inputs:
+        if path is None:
+            continue
+        problem = file_problem(path)
+        if problem is None or (missing_ok and problem.startswith("file not found")):
+            continue
+        raise InputFileError(f"{problem} (expected {expected})", file=path, key=key)
+
+
 def refuse_urdf_task(path: Path) -> None:
     """InputFileError (exit 2) when a URDF is given where a task YAML is expected, pointing to ``hoc new``."""
     path = Path(path)
+    if file_problem(path) is not None:
+        return  # load_task reports a missing file, a directory, a FIFO or a device without opening it
     looks_like_xml = path.suffix.lower() in (".urdf", ".xml")
     if not looks_like_xml:
         try:

@@ -18,7 +18,18 @@ from hoc_cli.io.task.yaml12 import YAML11_NUMBER
 Values = list[float] | dict[str, float]
 Check = Callable[["Checker", Any, str], Any]  # (checker, raw value, key path) -> validated value
 
-_REPR = reprlib.Repr()
+class _Repr(reprlib.Repr):
+    """``reprlib.Repr`` that shows a numpy scalar as the Python number it holds (``1.49``, not
+    ``np.float64(1.49)``): sweep values and overrides may come from numpy.
+    """
+
+    def repr1(self, x: Any, level: int) -> str:
+        if type(x).__module__ == "numpy" and hasattr(x, "item") and getattr(x, "ndim", None) == 0:
+            x = x.item()
+        return super().repr1(x, level)
+
+
+_REPR = _Repr()
 _REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 2, 4, 4, 4
 _REPR.maxstring, _REPR.maxlong, _REPR.maxother = 48, 40, 48
 SHOW_CHARS = 60

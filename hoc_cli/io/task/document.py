@@ -9,6 +9,7 @@ from typing import Any
 import yaml
 
 from hoc_cli.errors import TaskError
+from hoc_cli.io.inputs import file_problem
 from hoc_cli.io.task.checks import Checker, Values
 from hoc_cli.io.task.collision import CollisionSpec, parse_collision
 from hoc_cli.io.task.goals import Via, parse_via
@@ -27,7 +28,6 @@ from hoc_cli.io.task.sections import (
     parse_solver,
     parse_time,
     parse_torque,
-    path_exists,
 )
 from hoc_cli.io.task.yaml12 import load_yaml
 
@@ -104,10 +104,9 @@ class Task:
 def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
     """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
     path = Path(path)
-    if not path_exists(path):
-        raise TaskError("file not found (expected a task YAML file)", file=path)
-    if path.is_dir():
-        raise TaskError("is a directory (expected a task YAML file)", file=path)
+    problem = file_problem(path)  # before opening it: a FIFO or /dev/zero would block or never end
+    if problem is not None:
+        raise TaskError(f"{problem} (expected a task YAML file)", file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from hoc_cli.costs import COSTS
+from hoc_cli.io.inputs import file_problem
 from hoc_cli.io.task.checks import Checker, Values, join, show
 from hoc_cli.io.task.goals import FreeTime, LinkGoal, parse_free_time, parse_link_goal
 
@@ -110,8 +111,11 @@ def parse_robot(c: Checker, top: dict, parsed: dict) -> RobotSpec:
     robot_path = Path(robot)
     if not robot_path.is_absolute():
         robot_path = c.path.parent / robot_path
-    if not path_exists(robot_path) or not robot_path.is_file():
+    problem = file_problem(robot_path)
+    if problem is not None and problem.startswith("file not found"):
         raise c.error("robot", f"URDF file not found: {str(robot_path)[:200]!r}")
+    if problem is not None:
+        raise c.error("robot", f"{str(robot_path)[:200]!r} {problem} (expected a URDF file)")
 
     joints = None
     if top.get("joints") is not None:
