@@ -425,8 +425,22 @@ def test_debug_shows_a_traceback_and_its_absence_shows_one_line(workdir):
 
 
 # --------------------------------------------------------------------------- numerical failures: exit 1
-def test_a_cost_that_overflows_exits_1_with_one_line_and_writes_nothing(workdir):
-    write_task(workdir, TASK + "gravity: [0.0, 0.0, -1.0e+308]\n")
+def test_a_cost_that_overflows_exits_1_with_one_line_and_writes_nothing(workdir, monkeypatch):
+    """Task values that overflow the cost are refused as input (gravity beyond any physical size: exit 2,
+    tests/test_reliability_inputs.py); the overflow itself, from torques scaled to 1e200 here, exits 1."""
+    from hoc_cli.system import RobotSystem
+
+    real = RobotSystem.inverse_dynamics
+    monkeypatch.setattr(RobotSystem, "inverse_dynamics", lambda self, q, dq, ddq: 1e200 * real(self, q, dq, ddq))
+    real_terms = RobotSystem.covariant_gradient_terms
+
+    def huge(self, q, dq, ddq):
+        return tuple(1e200 * np.asarray(x) for x in real_terms(self, q, dq, ddq))
+
+    monkeypatch.setattr(RobotSystem, "covariant_gradient_terms", huge)
+    real_id = RobotSystem.id_derivatives
+    monkeypatch.setattr(RobotSystem, "id_derivatives",
+                        lambda self, q, dq, ddq: tuple(1e200 * np.asarray(x) for x in real_id(self, q, dq, ddq)))
     before = snapshot(workdir)
     r = invoke(plan_args())
     assert r.exit_code == 1

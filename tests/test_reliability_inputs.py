@@ -129,3 +129,81 @@ def test_a_robot_that_is_not_a_regular_file(workdir, robot, needle):
     _fifo(workdir)
     (workdir / "t.yaml").write_text(TASK.replace("arm.urdf", robot))
     one_error_line(invoke(["plan", "t.yaml", "-o", "none"]), "t.yaml: robot:", needle)
+
+
+# --------------------------------------------------------------------------- §1 goals and limits checked before any solve
+def _plan_text(workdir: Path, text: str, *args: str):
+    (workdir / "t.yaml").write_text(text)
+    return invoke(["plan", "t.yaml", *(() if "--check-gradient" in args else ("-o", "none")), *args])
+
+
+VIA_BASE = TASK.replace("N: 4", "N: 6")
+
+
+@pytest.mark.parametrize("vias, needles", [
+    ("[{t: 0.5, q: [0.3, 0.1]}, {t: 0.5, q: [1.5, 0.1]}]", ("via[1]", "via[0]", "same instant", "shoulder")),
+    ("[{t: 0.5, q: [0.3, 0.1]}, {s: 0.3333333333333333, q: [0.3, 0.9]}]", ("via[1]", "via[0]", "same instant", "elbow")),
+    ("[{t: 0.5, q: [0.3, 0.1]}, {t: 0.5000000001, q: [1.5, 0.1]}]", ("via[1]", "same instant")),
+    ("[{t: 0.5, q: [0.3, 0.1], dq: [0, 0]}, {t: 0.5, q: [0.3, 0.1], dq: [1, 0]}]", ("via[1]", "different dq")),
+    ("[{t: 0.7, link: tool, position: [1, 0, 1]}, {t: 0.7, link: tool, position: [1, 0, 0.5]}]",
+     ("via[1]", "different positions of tool")),
+    ("[{t: 1.0e-12, q: [1.5, 0.1]}]", ("via[0]", "x0", "different q")),
+    ("[{s: 0.9999999999999, q: [1.5, 0.1]}]", ("via[0]", "x1", "different q")),
+    ("[{t: 1.0e-12, q: [0.0, 0.0]}]", ("via[0]", "instant of x0")),
+])
+def test_vias_that_contradict_each_other_or_the_boundary_exit_2(workdir, vias, needles):
+    one_error_line(_plan_text(workdir, VIA_BASE + f"via: {vias}\n"), "t.yaml", *needles)
+
+
+def test_vias_that_repeat_each_other_are_not_a_contradiction(workdir):
+    r = _plan_text(workdir, VIA_BASE + "via: [{t: 0.5, q: [0.3, 0.1]}, {s: 0.3333333333333333, q: [0.3, 0.1]}]\n",
+                   "--check-gradient")
+    assert r.exit_code == 0, r.stderr
+
+
+@pytest.mark.parametrize("extra, needles", [
+    ("via: [{t: 0.5, q: [0.3, 3.5]}]\n", ("via[0].q.elbow", "position limits [-3.14159, 3.14159]")),
+    ("via: [{t: 0.5, q: {shoulder: -4.0, elbow: 0.0}}]\n", ("via[0].q.shoulder", "position limits")),
+    ("via: [{t: 0.5, q: [0.3, 0.5], dq: [20, 0]}]\n", ("via[0].dq.shoulder", "velocity limit 10")),
+    ("via: [{t: 0.5, q: [2.5, 0.5]}]\nlimits: {position: {shoulder: [-0.1, 2.0]}}\n",
+     ("via[0].q.shoulder", "[-0.1, 2]")),
+    ("joints: [elbow]\nlocked: {shoulder: 4.0}\n", ("locked.shoulder", "[-3.14159, 3.14159]")),
+])
+def test_vias_and_locked_values_outside_the_limits_exit_2_when_enforced(workdir, extra, needles):
+    text = VIA_BASE + extra
+    if "joints: [elbow]" in extra:
+        text = text.replace("[0.0, 0.0]", "[0.0]").replace("[1.2, -0.6]", "[-0.6]")
+    one_error_line(_plan_text(workdir, text), "t.yaml", *needles)
+    r = _plan_text(workdir, text, "--limits", "report", "--check-gradient")  # reported, not refused
+    assert r.exit_code == 0, r.stderr
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("x1: {q: [1.2, -0.6]}", "x1: {q: [1.0e+300, -0.6]}", "x1.q[0]"),
+    ("x0: {q: [0.0, 0.0]}", "x0: {q: [0.0, 0.0], dq: {shoulder: 0.0, elbow: -2.0e+7}}", "x0.dq.elbow"),
+    ("N: 6", "N: 6\nvia: [{t: 0.5, q: [0.3, 1.0e+300]}]", "via[0].q[1]"),
+    ("N: 6", "N: 6\nvia: [{t: 0.5, link: tool, position: [1.0e+300, 0, 0]}]", "via[0].position[0]"),
+    ("x1: {q: [1.2, -0.6]}", "x1: {link: tool, position: [0.5, 0.0, 1.0e+7]}", "x1.position[2]"),
+    ("x1: {q: [1.2, -0.6]}", "x1: {link: tool, target: {position: [1, 0, 0], velocity: [0, 0, -1.0e+300]}, "
+     "match_velocity: true}", "x1.target.velocity[2]"),
+    ("N: 6", "N: 6\ngravity: [0.0, 0.0, -1.0e+308]", "gravity[2]"),
+    ("N: 6", "N: 6\njoints: [shoulder]\nlocked: {elbow: 1.0e+9}", "locked.elbow"),
+])
+def test_values_of_no_physical_size_exit_2(workdir, old, new, key):
+    text = VIA_BASE.replace(old, new)
+    if "joints: [shoulder]" in new:
+        text = text.replace("[0.0, 0.0]", "[0.0]").replace("[1.2, -0.6]", "[1.2]")
+    one_error_line(_plan_text(workdir, text), f"t.yaml: {key}:", "physical size")
+
+
+@pytest.mark.parametrize("text, key, needles", [
+    (VIA_BASE.replace("x1: {q: [1.2, -0.6]}", "x1: {link: base, position: [1.0, 0.0, 0.5]}"), "x1.link",
+     ("'base'", "shoulder, elbow")),
+    (VIA_BASE.replace("x0: {q: [0.0, 0.0]}", "joints: [elbow]\nx0: {q: [0.0]}")
+     .replace("x1: {q: [1.2, -0.6]}", "x1: {link: upper_arm, position: [1.0, 0.0, 0.0]}"), "x1.link",
+     ("'upper_arm'", "elbow", "locked joints: shoulder")),
+    (VIA_BASE.replace("x0: {q: [0.0, 0.0]}", "joints: [elbow]\nx0: {q: [0.0]}").replace("[1.2, -0.6]", "[1.0]")
+     + "via: [{t: 0.5, link: upper_arm, position: [1.0, 0.0, 0.0]}]\n", "via[0].link", ("'upper_arm'", "elbow")),
+])
+def test_a_link_goal_that_no_task_joint_moves_exits_2(workdir, text, key, needles):
+    one_error_line(_plan_text(workdir, text), f"t.yaml: {key}:", "not moved by any task joint", *needles)

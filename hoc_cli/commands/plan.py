@@ -38,7 +38,7 @@ from hoc_cli.commands.plan_collision import (
     warn_collisions,
 )
 from hoc_cli.commands.plan_goals import goal_summary
-from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
+from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside
 from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import HocError, InputFileError, OutputError
@@ -350,6 +350,9 @@ def _warn_outside_limits(console, task: Task, model, states) -> None:
             if q[i] < model.lower[i] or q[i] > model.upper[i]:
                 console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "
                               f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False, markup=False, soft_wrap=True)
+    for name, value, lo, hi in locked_outside(task):
+        console.print(f"hoc: warning: {task.path}: locked.{name} = {value:g} is outside the URDF limits [{lo:g}, {hi:g}]",
+                      highlight=False, markup=False, soft_wrap=True)
 
 
 def _init_plan(path: Path, joints) -> tuple[HermiteMesh, np.ndarray, int | None]:

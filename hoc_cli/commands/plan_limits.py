@@ -14,21 +14,47 @@ from hoc_cli.planner import PlanResult
 
 
 def check_boundary_states(task, limits: JointLimits, states) -> None:
-    """In enforce mode x0 and x1 must lie within the position and velocity limits (TaskError, exit 2)."""
-    for label, q, dq in (("x0", states.q0, states.dq0), ("x1", states.q1, states.dq1)):
-        if q is None:  # a link goal: its final q is planned within the limits
+    """In enforce mode x0, x1 and every joint via must lie within the position and velocity limits,
+    and every locked joint within its URDF position limits (TaskError naming the key and the limit, exit 2).
+    """
+    points = [("x0", states.q0, states.dq0), ("x1", states.q1, states.dq1)]
+    points += [(v.key, v.q, v.dq) for v in getattr(states, "vias", ())]
+    for label, q, dq in points:
+        if q is None:  # a link goal or link via: its q is planned within the limits
             continue
         for i, name in enumerate(limits.joints):
             lo, hi = limits.lower[i], limits.upper[i]
             if not lo <= q[i] <= hi:
-                raise TaskError(f"{name} = {q[i]:g} is outside its position limits [{lo:g}, {hi:g}] "
+                raise TaskError(f"{name} = {float(q[i]):g} is outside its position limits [{lo:g}, {hi:g}] "
                                 "(limits are enforced; widen them under limits.position or use --limits report)",
                                 file=task.path, key=f"{label}.q.{name}")
             v = limits.velocity[i]
-            if abs(dq[i]) > v:
-                raise TaskError(f"{name} = {dq[i]:g} exceeds its velocity limit {v:g} "
+            if dq is not None and abs(dq[i]) > v:
+                raise TaskError(f"{name} = {float(dq[i]):g} exceeds its velocity limit {v:g} "
                                 "(limits are enforced; raise it under limits.velocity or use --limits report)",
                                 file=task.path, key=f"{label}.dq.{name}")
+    for name, value, lo, hi in locked_outside(task):
+        raise TaskError(f"{name} = {value:g} is outside its URDF position limits [{lo:g}, {hi:g}] (limits are "
+                        "enforced; lock it within them, or use --limits report)", file=task.path, key=f"locked.{name}")
+
+
+def locked_outside(task) -> list[tuple[str, float, float, float]]:
+    """(joint, value, lower, upper) of every ``locked:`` value outside its joint's URDF position limits."""
+    if not task.locked:
+        return []
+    from hoc_cli.model import urdf_joint_table
+
+    rows = {r["name"]: r for r in urdf_joint_table(task.robot)}
+    out = []
+    for name, value in task.locked.items():
+        row = rows.get(name)
+        if row is None:
+            continue  # an unknown joint is reported by load_model
+        lo = -np.inf if row["lower"] is None else row["lower"]
+        hi = np.inf if row["upper"] is None else row["upper"]
+        if not lo <= value <= hi:
+            out.append((name, float(value), float(lo), float(hi)))
+    return out
 
 
 def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, states) -> dict:

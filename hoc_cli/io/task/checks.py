@@ -33,6 +33,9 @@ _REPR = _Repr()
 _REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 2, 4, 4, 4
 _REPR.maxstring, _REPR.maxlong, _REPR.maxother = 48, 40, 48
 SHOW_CHARS = 60
+#: no joint position, rate, torque, link position or gravity of a physical task comes near this
+#: (rad, m, rad/s, N·m, m/s²...); beyond it the cost overflows or loses every digit
+MAX_MAGNITUDE = 1e6
 NAME_CHARS = 60  # a joint name or key from the file, as part of a key path
 
 
@@ -122,13 +125,23 @@ class Checker:
                 raise self.fail(key, "joint names (strings) as keys", name)
         return value
 
-    def values(self, value: Any, key: str) -> Values:
-        """A list of finite numbers, a single number, or a mapping joint name -> finite number."""
+    def physical(self, value: Any, key: str, what: str = "a finite number") -> float:
+        """A finite float of physical size: |x| <= ``MAX_MAGNITUDE`` (a joint value, a position, a torque)."""
+        x = self.number(value, key, what=what)
+        if abs(x) > MAX_MAGNITUDE:
+            raise self.fail(key, f"{what} of physical size, |value| <= {MAX_MAGNITUDE:g}", x)
+        return x
+
+    def values(self, value: Any, key: str, physical: bool = True) -> Values:
+        """A list of numbers, a single number, or a mapping joint name -> number; each finite and, with
+        ``physical`` (joint positions and rates), of physical size (``physical``).
+        """
+        check = self.physical if physical else self.number
         if isinstance(value, dict):
             m = self.names(value, key, "a list of numbers or a mapping joint -> number")
-            return {name: self.number(v, join(key, name)) for name, v in m.items()}
+            return {name: check(v, join(key, name)) for name, v in m.items()}
         if isinstance(value, (list, tuple)):
-            return [self.number(v, f"{key}[{i}]") for i, v in enumerate(value)]
+            return [check(v, f"{key}[{i}]") for i, v in enumerate(value)]
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return [self.number(value, key)]
+            return [check(value, key)]
         raise self.fail(key, "a list of numbers or a mapping joint -> number", value)

@@ -67,7 +67,7 @@ class FreeTime:
 def _vec(c: Checker, value: Any, key: str, size: int, what: str) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != size:
         raise c.fail(key, f"a list of {size} numbers ({what})", value)
-    return tuple(c.number(v, f"{key}[{i}]") for i, v in enumerate(value))
+    return tuple(c.physical(v, f"{key}[{i}]") for i, v in enumerate(value))
 
 
 def _quaternion(c: Checker, value: Any, key: str) -> tuple[float, float, float, float]:

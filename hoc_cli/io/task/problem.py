@@ -1,7 +1,8 @@
 """A task file read into one ``OptimalControlProblem`` (``hoc_cli.ocp``) and its ``JointLimits``.
 
 ``hoc plan`` and ``hoc batch`` both build their problem here and hand it to ``hoc_cli.solve``. Errors
-(an unknown link, a limit on a joint that is not a task joint, a jerk limit on cubic elements) are
+(an unknown link, a link goal on a link no task joint moves, a limit on a joint that is not a task joint,
+a jerk limit on cubic elements) are
 ``TaskError``s naming the task file and the key.
 """
 from __future__ import annotations
@@ -54,6 +55,11 @@ def frame_goal(task: Task, model, link: str, key: str, position, orientation, ta
     """A link's pose (or a moving target) as a ``FrameResidual``; TaskError naming ``key`` for an unknown link."""
     if link not in model.link_names:
         raise TaskError(f"unknown link {link[:60]!r} (links: {', '.join(model.link_names)})", file=task.path, key=key)
+    if model.link_body[model.link_names.index(link)] < 0:  # carried by the fixed base: no task joint moves it
+        locked = f"; locked joints: {', '.join(model.locked)}" if model.locked else ""
+        raise TaskError(f"link {link[:60]!r} is not moved by any task joint (its pose depends on none of "
+                        f"{', '.join(model.joint_names)}{locked}); expected a link downstream of a task joint",
+                        file=task.path, key=key)
     R = None if orientation is None else quaternion_matrix(orientation)
     if target is not None:
         return FrameResidual(model, link, np.array(target.position), R, np.array(target.velocity),

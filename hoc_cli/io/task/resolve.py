@@ -11,13 +11,15 @@ from hoc_cli.io.task.checks import Checker, Values, join, show
 from hoc_cli.io.task.document import Task
 from hoc_cli.io.task.goals import LinkGoal
 from hoc_cli.io.task.limits import LimitOverrides, resolve_limits
+from hoc_cli.io.task.vias import ResolvedVia, check_vias
 
 
 @dataclass(frozen=True, eq=False)
 class ResolvedStates:
     """x0, x1 (and a constant torque) as arrays in the model's joint order; shapes (n,).
 
-    ``limits`` holds the task's limit overrides in the same order (NaN where none is given).
+    ``limits`` holds the task's limit overrides in the same order (NaN where none is given); ``vias``
+    the task's vias with their time as a fraction of T and their joint values (None for a link via).
     """
 
     q0: np.ndarray
@@ -26,6 +28,7 @@ class ResolvedStates:
     dq1: np.ndarray | None
     torque: np.ndarray | None
     limits: LimitOverrides | None = None
+    vias: tuple[ResolvedVia, ...] = ()
 
 
 def joint_vector(c: Checker, values: Values | None, key: str, joints: tuple[str, ...]) -> np.ndarray | None:
@@ -51,7 +54,8 @@ def resolve(task: Task, joints: tuple[str, ...] | list[str]) -> ResolvedStates:
     Raises
     ------
     TaskError
-        A joint name that is not in ``joints``, a missing joint, or a list of the wrong length.
+        A joint name that is not in ``joints``, a missing joint, a list of the wrong length, or vias
+        that contradict each other or the boundary (``hoc_cli.io.task.vias``).
     """
     joints = tuple(joints)
     c = Checker(task.path)
@@ -69,5 +73,8 @@ def resolve(task: Task, joints: tuple[str, ...] | list[str]) -> ResolvedStates:
     elif task.torque is not None:
         torque = joint_vector(c, task.torque, "torque", joints)  # type: ignore[arg-type]
     limits = resolve_limits(c, task.limits, joints, task.locked)
-    return ResolvedStates(q0=q0, dq0=zeros.copy() if dq0 is None else dq0, q1=q1, dq1=dq1, torque=torque,
-                          limits=limits)
+    dq0 = zeros.copy() if dq0 is None else dq0
+    vias = tuple(ResolvedVia(i, v.s if v.s is not None else v.t / task.T, joint_vector(c, v.q, f"via[{i}].q", joints),
+                             joint_vector(c, v.dq, f"via[{i}].dq", joints)) for i, v in enumerate(task.via))
+    check_vias(c, task, list(vias), joints, q0, dq0, q1, dq1)
+    return ResolvedStates(q0=q0, dq0=dq0, q1=q1, dq1=dq1, torque=torque, limits=limits, vias=vias)

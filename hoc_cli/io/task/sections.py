@@ -134,14 +134,14 @@ def parse_robot(c: Checker, top: dict, parsed: dict) -> RobotSpec:
         for name, v in lk.items():
             if joints is not None and name in joints:
                 raise c.error(join("locked", name), "joint is both in 'joints' and 'locked'")
-            locked[name] = c.number(v, join("locked", name))
+            locked[name] = c.physical(v, join("locked", name))
 
     gravity = DEFAULT_GRAVITY
     if top.get("gravity") is not None:
         g = top["gravity"]
         if not isinstance(g, list) or len(g) != 3:
             raise c.fail("gravity", "a list of 3 numbers (m/s^2)", g)
-        gravity = tuple(c.number(v, f"gravity[{i}]") for i, v in enumerate(g))  # type: ignore[assignment]
+        gravity = tuple(c.physical(v, f"gravity[{i}]") for i, v in enumerate(g))  # type: ignore[assignment]
     return RobotSpec(robot=robot_path, joints=joints, locked=locked, gravity=gravity)
 
 
@@ -301,4 +301,4 @@ def parse_torque(c: Checker, top: dict, parsed: dict) -> str | Values | None:
         if tq != "zero":
             raise c.fail("torque", "'zero' or a list of constant torques (N·m or N)", tq)
         return "zero"
-    return c.values(tq, "torque")
+    return c.values(tq, "torque", physical=False)  # hoc simulate reports the overflow of a huge torque (exit 1)
