@@ -68,5 +68,11 @@ class NumericalError(HocError):
     exit_code = 1
 
 
+class Infeasible(HocError):
+    """The task is provably infeasible within its limits, found before any solve (exit 1, nothing written)."""
+
+    exit_code = 1
+
+
 class HocWarning(UserWarning):
     """Something the user should know but that does not stop the run (printed as one line)."""

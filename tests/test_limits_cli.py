@@ -63,7 +63,16 @@ def test_an_infeasible_move_exits_1_names_the_binding_joint_and_the_shortest_dur
     r, s = plan(workdir, TASK.replace("T: 1.5", "T: 0.5") + "limits: {velocity: {shoulder: 2.0}}\n")
     assert r.exit_code == 1
     assert s["status"] == "infeasible" and not s["converged"]
-    assert "shoulder velocity" in s["message"] and "T >= 0.6 s" in s["message"]  # |Δq|/v = 1.2/2
+    assert "shoulder's velocity limit" in s["message"] and "T >= 0.6 s" in s["message"]  # |Δq|/v = 1.2/2
+    assert not (workdir / "out.csv").exists()  # proven before any solve: nothing to write
+
+
+def test_an_infeasible_move_found_by_the_solve_writes_the_least_violating_plan(workdir):
+    """Gravity alone breaks the shoulder's effort limit at x0, but with no acceleration limit that is no proof
+    (the arm may start by falling: hoc_cli.constraints.feasibility); the solve finds the task infeasible."""
+    r, s = plan(workdir, TASK.replace("N: 16", "N: 4") + "limits: {effort: {shoulder: 1.0e-3}}\n")
+    assert r.exit_code == 1
+    assert s["status"] == "infeasible" and not s["converged"] and "shoulder effort binds" in s["message"]
     assert (workdir / "out.csv").exists()  # the least-violating plan is written
 
 

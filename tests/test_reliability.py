@@ -442,7 +442,7 @@ def test_a_cost_that_overflows_exits_1_with_one_line_and_writes_nothing(workdir,
     monkeypatch.setattr(RobotSystem, "id_derivatives",
                         lambda self, q, dq, ddq: tuple(1e200 * np.asarray(x) for x in real_id(self, q, dq, ddq)))
     before = snapshot(workdir)
-    r = invoke(plan_args())
+    r = invoke(plan_args("task.yaml", "--limits", "report"))  # enforced, the scaled torques prove it infeasible
     assert r.exit_code == 1
     assert r.stderr == "hoc: error: the cost is not finite (NaN or inf) along the trajectory\n"  # no RuntimeWarning
     assert snapshot(workdir) == before

@@ -6,6 +6,7 @@ small N; each class is checked on several members, not only the issue's example.
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
@@ -207,3 +208,181 @@ def test_values_of_no_physical_size_exit_2(workdir, old, new, key):
 ])
 def test_a_link_goal_that_no_task_joint_moves_exits_2(workdir, text, key, needles):
     one_error_line(_plan_text(workdir, text), f"t.yaml: {key}:", "not moved by any task joint", *needles)
+
+
+# --------------------------------------------------------------------------- §1 provably infeasible: exit 1 at once
+def _lp_shortest_time(d, v0, v1, a, v=np.inf, K=400):
+    """Independent reference: the shortest T for which piecewise-constant accelerations |u| <= a on K
+    steps take (0, v0) to (d, v1) with the step-end rates within ±v, by bisection on LP feasibility.
+    """
+    from scipy.optimize import linprog
+
+    def feasible(T):
+        h = T / K
+        # rate after step k: v0 + h Σ_{j<=k} u_j; position at T: v0 T + h² Σ_j (K - j - ½) u_j
+        pos = h * h * (K - np.arange(K) - 0.5)
+        A_eq = np.vstack([pos, np.full(K, h)])
+        b_eq = [d - v0 * T, v1 - v0]
+        A_ub = b_ub = None
+        if np.isfinite(v):
+            L = np.tril(np.ones((K, K))) * h
+            A_ub, b_ub = np.vstack([L, -L]), np.concatenate([np.full(K, v - v0), np.full(K, v + v0)])
+        r = linprog(np.zeros(K), A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=[(-a, a)] * K, method="highs")
+        return r.status == 0
+
+    lo, hi = 0.0, 50.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if feasible(mid) else (mid, hi)
+    return hi
+
+
+@pytest.mark.parametrize("d, v0, v1, a", [(1.0, 0.0, 0.0, 2.0), (1.0, 1.0, 0.0, 2.0), (-0.5, 1.0, -1.0, 3.0),
+                                          (0.2, -1.0, 2.0, 1.5), (2.0, 0.5, 0.5, 1.0)])
+def test_the_acceleration_bound_is_the_double_integrators_shortest_time(d, v0, v1, a):
+    from hoc_cli.constraints.feasibility import double_integrator_time
+
+    t = double_integrator_time(np.array([d]), np.array([v0]), np.array([v1]), np.array([a]))[0]
+    ref = _lp_shortest_time(d, v0, v1, a)
+    assert t <= ref * (1 + 1e-6) and t == pytest.approx(ref, rel=2e-2)  # a lower bound, and tight
+
+
+@pytest.mark.parametrize("d, v, a", [(1.0, 0.5, 2.0), (1.0, 5.0, 2.0), (3.0, 1.0, 1.0)])
+def test_the_rest_to_rest_bound_with_velocity_and_acceleration_limits(d, v, a):
+    from hoc_cli.constraints.feasibility import rest_to_rest_time
+
+    t = rest_to_rest_time(np.array([d]), np.array([v]), np.array([a]))[0]
+    ref = _lp_shortest_time(d, 0.0, 0.0, a, v=v, K=150)
+    assert t <= ref * (1 + 1e-6) and t == pytest.approx(ref, rel=2e-2)
+
+
+def _two_link():
+    from hoc_cli.model import load_robot
+    from hoc_cli.system import RobotSystem
+
+    model = load_robot(ROBOTS / "two_link.urdf")
+    return model, RobotSystem(model)
+
+
+def test_the_potential_energy_difference_matches_the_two_link_arms_closed_form():
+    from hoc_cli.constraints.feasibility import potential_difference
+
+    _, system = _two_link()
+    q0, q1 = np.array([0.0, 0.0]), np.array([1.2, -0.6])
+
+    def V(q):  # 1 kg links of 1 m, centres of mass at mid-length; a positive angle lifts the arm
+        return 9.81 * (0.5 * np.sin(q[0]) + np.sin(q[0]) + 0.5 * np.sin(q[0] + q[1]))
+
+    assert potential_difference(system, q0, q1) == pytest.approx(V(q1) - V(q0), rel=1e-12)
+
+
+def test_an_effort_limit_at_a_pinned_state_is_infeasible_only_within_acceleration_limits():
+    from hoc_cli.constraints import JointLimits
+    from hoc_cli.constraints.feasibility import Pinned, instant_bound
+
+    model, system = _two_link()
+    rest = Pinned(0.0, np.zeros(2), np.zeros(2), "x0")
+    gravity = system.inverse_dynamics(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)))[0]
+    assert gravity == pytest.approx([19.62, 4.905])  # m g l/2 + m g 3l/2 at the shoulder, m g l/2 at the elbow
+
+    def limits(effort, acceleration):
+        return JointLimits.from_arrays(model.joint_names, effort=effort, acceleration=acceleration)
+
+    tiny = [1e-9, 1e-9]  # q̈ ≈ 0: u ≈ gravity
+    assert instant_bound(system, limits([19.0, 100.0], tiny), rest).joint == "shoulder"
+    assert instant_bound(system, limits([100.0, 4.8], tiny), rest).joint == "elbow"
+    assert instant_bound(system, limits([19.7, 5.0], tiny), rest) is None
+    assert instant_bound(system, limits([1e-3, 1e-3], None), rest) is None  # the arm may start by falling
+    # with room to accelerate the torques can be lowered: shoulder 1 N·m needs q̈ the limits allow, or not
+    assert instant_bound(system, limits([1.0, 50.0], [1.0, 1.0]), rest) is not None
+    assert instant_bound(system, limits([1.0, 50.0], [100.0, 100.0]), rest) is None
+
+
+@pytest.mark.parametrize("text, args, needles", [
+    (TASK, ["-T", "1.0e-6"], ("T:", "0.12 s", "shoulder's velocity limit")),
+    (TASK.replace("T: 1.5", "T: 1.0e-6"), [], ("T:", "0.12 s")),
+    (TASK, ["-T", "0.11"], ("T:", "shorter than 0.12 s")),
+    (TASK + "limits: {velocity: {elbow: 0.1}}\n", [], ("T:", "6 s", "elbow's velocity limit")),
+    (TASK + "limits: {acceleration: {shoulder: 1.0}, velocity: {shoulder: 1.0}}\n", [],
+     ("T:", "2.2 s", "shoulder's velocity and acceleration limits")),
+    (TASK.replace("N: 4", "N: 6") + "via: [{t: 0.01, q: [0.5, 0.0]}]\n", [], ("T:", "between x0 (t = 0) and via[0]",)),
+    (TASK.replace("T: 1.5", "T: {free: true, min: 0.01, max: 0.1}"), [], ("T.max:", "T.max = 0.1 s", "0.12 s")),
+    (TASK + "limits: {acceleration: {shoulder: 1.0, elbow: 1.0}, effort: {shoulder: 1.0}}\n", [],
+     ("limits:", "at x0", "shoulder needs |u| >=", "no duration T helps")),
+    ("robot: pend.urdf\nx0: {q: [0.0]}\nx1: {q: [1.0]}\nT: 1.0\nN: 4\nlimits: {effort: {pivot: 1.0e-3}}\n", [],
+     ("T:", "energy", "effort and velocity limits")),
+])
+def test_provably_infeasible_tasks_exit_1_at_once(workdir, text, args, needles):
+    shutil.copy(ROBOTS / "pendulum.urdf", workdir / "pend.urdf")
+    (workdir / "t.yaml").write_text(text)
+    before = sorted(os.listdir(workdir))
+    start = time.perf_counter()
+    r = invoke(["plan", "t.yaml", *args])
+    assert time.perf_counter() - start < 5
+    line = one_error_line(r, "t.yaml", "infeasible", *needles, code=1)
+    assert "hoc: error: t.yaml: " + needles[0] in line
+    assert sorted(os.listdir(workdir)) == before  # nothing written
+    r = invoke(["plan", "t.yaml", *args, "--json", "-o", "none"])
+    summary = json.loads(r.stdout)
+    assert r.exit_code == 1 and summary["status"] == "infeasible" and summary["converged"] is False
+    assert "infeasible" in summary["message"]
+
+
+def test_limits_in_report_mode_are_never_a_proof(workdir):
+    r = invoke(["plan", "task.yaml", "-T", "0.05", "--limits", "report", "--check-gradient"])
+    assert r.exit_code == 0, r.stderr
+
+
+def test_the_duration_bound_is_claimed_only_below_it():
+    """Shoulder at a constant 10 rad/s (its limit) covers 1.2 rad in exactly 0.12 s: T = 0.12 s is feasible."""
+    from hoc_cli.constraints import JointLimits
+    from hoc_cli.constraints.feasibility import Pinned, infeasibility
+
+    model, system = _two_link()
+    limits = JointLimits.from_model(model)
+    pinned = [Pinned(0.0, np.array([0.0, 0.0]), np.array([10.0, 0.0]), "x0"),
+              Pinned(1.0, np.array([1.2, -0.6]), np.array([10.0, 0.0]), "x1")]
+    assert infeasibility(system, limits, pinned, 0.12) is None
+    bound = infeasibility(system, limits, pinned, 0.119)
+    assert bound is not None and bound.T_min == pytest.approx(0.12) and bound.joint == "shoulder"
+
+
+# --------------------------------------------------------------------------- §5 messages that tell the truth
+@pytest.mark.parametrize("outputs, said", [(["-o", "none"], "best iterate was not written (-o none)"),
+                                           (["-o", "out.csv"], "best iterate was written")])
+def test_a_run_that_did_not_converge_says_whether_it_wrote_anything(workdir, outputs, said):
+    r = invoke(["plan", "task.yaml", "--max-iter", "1", "--limits", "report", *outputs])
+    assert r.exit_code == 1 and said in r.stderr and ("was written" in r.stderr) == ("out.csv" in outputs)
+    assert (workdir / "out.csv").exists() == ("out.csv" in outputs)
+
+
+def test_a_cold_free_time_plan_does_not_call_itself_a_warm_replan(workdir):
+    (workdir / "t.yaml").write_text(TASK.replace("T: 1.5", "T: {free: true, min: 0.5, max: 3.0, weight: 20}")
+                                    + "via: [{s: 0.5, q: [0.8, 0.2]}]\n")
+    r = invoke(["plan", "t.yaml", "-o", "none", "--json"])
+    s = json.loads(r.stdout)
+    assert r.exit_code == 0 and s["converged"] and "warm" not in s["message"] and "warm_start" not in s
+    assert s["message"].startswith("Newton steps in x and T from the plan at the guess")
+
+
+class _Result:
+    def __init__(self, violation):
+        self.violation = violation
+
+
+@pytest.mark.parametrize("violation, summary, expected", [
+    (0.0, {"status": "converged", "message": "the stopping test held", "vias": [{"t": 0.5, "error": 0.0}]}, {}),
+    (0.0, {"status": "converged", "message": "the stopping test held", "vias": [{"t": 0.5, "error": 0.0},
+                                                                              {"t": 0.5, "error": 1.2}]},
+     {"status": "goal_missed", "message": "goal missed by 1.2 (via[1])", "converged": False}),
+    (3e-4, {"status": "converged", "message": "the stopping test held",
+            "reached": {"link": "tool", "position_error": 3e-4}},
+     {"status": "goal_missed", "message": "goal missed by 0.0003 (x1)", "converged": False}),
+    (2e-2, {"status": "max_iter", "message": "the maximum number of iterations was reached",
+            "reached": {"link": "tool", "position_error": 2e-2, "orientation_error": 1e-3}},
+     {"message": "goal missed by 0.02 (x1); the maximum number of iterations was reached", "converged": False}),
+])
+def test_a_missed_goal_is_reported_as_missed_not_as_a_stopping_test(violation, summary, expected):
+    from hoc_cli.commands.plan_goals import goal_miss
+
+    assert goal_miss(_Result(violation), summary) == expected

@@ -37,11 +37,11 @@ from hoc_cli.commands.plan_collision import (
     task_collision,
     warn_collisions,
 )
-from hoc_cli.commands.plan_goals import goal_summary
-from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside
+from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
+from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside, refuse_infeasible
 from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import HocError, InputFileError, OutputError
+from hoc_cli.errors import HocError, Infeasible, InputFileError, OutputError
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
@@ -113,6 +113,13 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         return _check_goal_gradient(task, model, states, problem, console, as_json)
     if gradient_check:
         return _check_gradient(task, model, states, mesh, None if warm is None else warm.coeffs, console, as_json)
+    if mode == "enforce":  # after every input check: a task no trajectory within the limits can meet exits 1
+        try:  # at once (constraints/feasibility.py)
+            refuse_infeasible(task, RobotSystem(model), limits, states)
+        except Infeasible as exc:
+            if as_json:
+                print_json(json_ready(exc.summary))
+            raise
     check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
 
     start = time.perf_counter()
@@ -139,6 +146,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         planned: Plan = _with_file(task, lambda: solve(problem, options, warm))
     # wall_time_s: the whole solve (every start, mesh and T tried; the error estimate apart)
     result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
+    if task.time.free is not None and warm is None:
+        result = cold(result)  # its last solve says "warm replan": there was no --init
     extra, error, multi, found = dict(planned.details), planned.error, planned.multi, planned.auto
     goals = planned.goals
     with beat.phase("sampling the plan and checking its limits"):
@@ -150,6 +159,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         summary.update(collision_summary(model, collision, task.collision.mode, result))
         summary.update(starts_summary(multi, seed))
         summary.update(extra | goal_summary(model, result, goals))
+        summary.update(goal_miss(result, summary))  # "goal missed by X (key)", not "the stopping test held"
         summary = json_ready(summary)  # an absent limit (inf) is null
         validate_json(summary)  # before any output is written
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
@@ -163,15 +173,16 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         print_json(summary)
     if show:
         console.print(summary_table(summary))
+    written = "was written" if targets else "was not written (-o none)"
     if auto and result.converged and not found.reached:
         console.print(f"hoc: accuracy not reached: estimated relative error of J {error.relative:.2g} > "
                       f"{task.accuracy:g} at N = {result.mesh.N} (N: auto stops at {AUTO_MAX_ELEMENTS} elements); "
-                      "the plan was written", highlight=False, markup=False, soft_wrap=True)
+                      f"the plan {written}", highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
-    if not result.converged:
-        why = summary["message"] if result.limits is not None else result.optimizer.message
+    if not summary["converged"]:  # a missed goal too (goal_miss)
+        why = summary["message"]
         head = "infeasible" if summary["status"] == "infeasible" else "not converged"
-        tail = "" if head == "infeasible" else "; the best iterate was written"
+        tail = f"; the {'least-violating plan' if head == 'infeasible' else 'best iterate'} {written}"
         console.print(f"hoc: {head}: {why}{tail}",
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET

@@ -1,8 +1,11 @@
-"""``hoc plan``'s goal summary keys: ``final_q`` and, per link goal or via, the reached pose and its error.
+"""``hoc plan``'s goal summary keys: ``final_q`` and, per link goal or via, the reached pose and its error;
+a missed goal's ``status``/``message``; the message of a free-T plan solved from scratch.
 
 The task's goals are read by ``hoc_cli.io.task.problem`` and solved by ``hoc_cli.solve`` (docs/goals.md).
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -13,6 +16,47 @@ from hoc_cli.goals import (
     JointResidual,
     rotation_angle,
 )
+from hoc_cli.goals.plan import EQ_ACCEPT
+
+WARM = "warm replan: "
+COLD = "Newton steps in x and T from the plan at the guess: "
+#: a goal error in the summary (recomputed from the plan) above this is a miss (m, rad, m/s): the rows
+#: are accepted at ``EQ_ACCEPT``, and recomputing the link pose adds rounding
+GOAL_MISS = 10 * EQ_ACCEPT
+
+
+def cold(result):
+    """A free-T plan solved from scratch says so: its last solve's "warm replan" message (the Newton
+    steps in x and T reuse the replan) names the steps, not a warm start (there was no --init).
+    """
+    def retold(message: str) -> str:
+        return COLD + message[len(WARM):] if isinstance(message, str) and message.startswith(WARM) else message
+
+    changes = {"optimizer": dataclasses.replace(result.optimizer, message=retold(result.optimizer.message))}
+    if result.limits is not None:
+        changes["limits"] = dataclasses.replace(result.limits, message=retold(result.limits.message))
+    return dataclasses.replace(result, **changes)
+
+
+def goal_miss(result, summary: dict) -> dict:
+    """``status``/``message`` keys for a plan whose goal rows are not met (``GoalResult.violation`` above
+    ``EQ_ACCEPT``, or an error in ``summary``'s ``reached`` and ``vias`` above ``GOAL_MISS``): "goal missed
+    by X (key)" with the largest error (m, rad, m/s), never the optimiser's "stopping test held", and
+    ``converged: false``; {} when every goal is met.
+    """
+    violation = float(getattr(result, "violation", 0.0))
+    candidates = [("x1", summary.get("reached") or {})]
+    candidates += [(f"via[{i}]", v) for i, v in enumerate(summary.get("vias") or [])]
+    found = [(float(d[k]), label) for label, d in candidates
+             for k in ("error", "position_error", "orientation_error", "velocity_error") if d.get(k) is not None]
+    worst, key = max(found) if found else (violation, "goals")
+    if not (violation > EQ_ACCEPT or worst > GOAL_MISS):
+        return {}
+    worst = max(worst, violation)  # the rows' max |c| and the summary's errors measure the same goals
+    message = f"goal missed by {worst:.3g} ({key})"
+    if summary.get("status") == "converged":
+        return {"status": "goal_missed", "message": message, "converged": False}
+    return {"message": f"{message}; {summary.get('message', '')}", "converged": False}
 
 
 def goal_summary(model, result, goals: Goals | None) -> dict:

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from hoc_cli.constraints import JointLimits, check_limits, shortest_duration
-from hoc_cli.errors import TaskError
+from hoc_cli.constraints.feasibility import Bound, Pinned, infeasibility
+from hoc_cli.errors import Infeasible, TaskError
 from hoc_cli.planner import PlanResult
 
 
@@ -57,6 +58,40 @@ def locked_outside(task) -> list[tuple[str, float, float, float]]:
     return out
 
 
+def feasibility_proof(task, system, limits: JointLimits, states) -> tuple[Bound, str, str] | None:
+    """(bound, key, one-line message) when ``hoc_cli.constraints.feasibility`` proves the task infeasible
+    within ``limits`` before any solve (x0, a joint goal x1 and the joint vias are the pinned states), else None.
+    """
+    pinned = [Pinned(0.0, states.q0, states.dq0, "x0 (t = 0)")]
+    if states.q1 is not None:
+        pinned.append(Pinned(1.0, states.q1, states.dq1, "x1 (t = T)"))
+    pinned += [Pinned(v.s, v.q, v.dq, v.key) for v in getattr(states, "vias", ()) if v.q is not None]
+    free = task.time.free
+    T_max = task.T if free is None else free.max
+    bound = infeasibility(system, limits, pinned, T_max)
+    if bound is None:
+        return None
+    if bound.T_min == np.inf:
+        return bound, "limits", f"infeasible: {bound.why}; no duration T helps (limits are enforced)"
+    what = f"T = {T_max:.6g} s" if free is None else f"T.max = {T_max:.6g} s"
+    return bound, "T" if free is None else "T.max", (
+        f"infeasible: {what} is shorter than {bound.T_min:.6g} s, the shortest duration allowed by {bound.why} "
+        f"(expected T >= {bound.T_min:.6g} s, or wider limits)")
+
+
+def refuse_infeasible(task, system, limits: JointLimits, states) -> dict | None:
+    """``Infeasible`` (exit 1) when ``feasibility_proof`` finds a proof; its JSON summary is the error's ``summary``."""
+    proof = feasibility_proof(task, system, limits, states)
+    if proof is None:
+        return None
+    bound, key, message = proof
+    err = Infeasible(message, file=task.path, key=key)
+    err.summary = {"status": "infeasible", "converged": False, "message": message, "limits_mode": "enforce",
+                   "T_min": None if bound.T_min == np.inf else bound.T_min,
+                   "binding": {"kind": bound.kind, "joint": bound.joint}, "outputs": []}
+    raise err
+
+
 def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, states) -> dict:
     """Summary keys: ``limits_mode``, ``limit_violations`` (exact check), ``active_limits``, and for an
     infeasible task ``status: infeasible`` with a message naming the binding joint and kind.
@@ -81,7 +116,7 @@ def infeasible_message(limits: JointLimits, check, result: PlanResult, states) -
     from hoc_cli.constraints import KINDS
 
     msg = (f"no trajectory within the limits was found in T = {result.mesh.T:g} s: {limits.joints[j]} "
-           f"{KINDS[k]} binds; the least-violating plan was written")
+           f"{KINDS[k]} binds")
     bound = None if states.q1 is None else shortest_duration(limits, states.q0, states.dq0, states.q1, states.dq1)
     if bound is not None and bound[0] >= result.mesh.T:
         msg += f" (T >= {bound[0]:.6g} s is needed for {bound[1]} {bound[2]})"
