@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import time
 from pathlib import Path
@@ -386,3 +387,54 @@ def test_a_missed_goal_is_reported_as_missed_not_as_a_stopping_test(violation, s
     from hoc_cli.commands.plan_goals import goal_miss
 
     assert goal_miss(_Result(violation), summary) == expected
+
+
+def test_the_readmes_task_file_example_plans_as_printed(tmp_path, monkeypatch):
+    """The first YAML block under '## Task file' in README.md, byte for byte, beside robots/two_link.urdf."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("## Task file"):]
+    block = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)
+    assert block.startswith("robot: ../robots/two_link.urdf")
+    (tmp_path / "robots").mkdir()
+    shutil.copy(ROBOTS / "two_link.urdf", tmp_path / "robots" / "two_link.urdf")
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "task.yaml").write_text(block, encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    r = invoke(["plan", "configs/task.yaml", "--json"])
+    assert r.exit_code == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["converged"] and s["N"] == 16 and s["limits_mode"] == "enforce"
+    assert (tmp_path / "task.mcap").exists() and (tmp_path / "task.csv").exists()
+
+
+def test_a_limited_plan_reports_its_reduced_gradient(workdir):
+    """The SQP's plan with the shoulder's velocity limit active: the cost gradient alone is large there; the
+    reported grad_norm is what is left after the active rows' gradients (a replan's idea, goals/replan.py)."""
+    from hoc_cli.model import load_robot
+    from hoc_cli.problem import ControlProblem
+    from hoc_cli.system import RobotSystem
+
+    (workdir / "t.yaml").write_text(TASK.replace("N: 4", "N: 16") + "limits: {velocity: {shoulder: 1.2}}\n")
+    r = invoke(["plan", "t.yaml", "-o", "none", "--json"])
+    s = json.loads(r.stdout)
+    assert r.exit_code == 0 and s["converged"] and s["active_limits"]
+    # the plain cost gradient at the same plan, computed here from the plan's coefficients
+    invoke(["plan", "t.yaml", "-o", "p.mcap", "-q"])
+    from hoc_cli.io.mcap import read_plan
+
+    tr = read_plan(workdir / "p.mcap").trajectory
+    problem = ControlProblem(RobotSystem(load_robot(workdir / "arm.urdf")), tr.mesh, np.zeros(2), np.zeros(2),
+                             np.array([1.2, -0.6]), np.zeros(2), G=s["gauss_points"])
+    g = problem.evaluate(problem.layout.pack(np.asarray(tr.coeffs))).grad
+    assert np.max(np.abs(g)) > 1.0
+    assert 0 < s["grad_norm"] <= 1e-6 * np.max(np.abs(g))
+
+
+def test_wall_time_is_the_whole_solve_of_starts_and_auto(workdir):
+    r = invoke(["plan", "task.yaml", "-o", "none", "--json", "--starts", "3"])
+    s = json.loads(r.stdout)
+    assert r.exit_code == 0 and s["wall_time_s"] > s["plan_solve_wall_time_s"] > 0
+    (workdir / "auto.yaml").write_text(TASK.replace("N: 4\n", "accuracy: 1.0e-12\n"))
+    r = invoke(["plan", "auto.yaml", "-o", "none", "--json"])
+    s = json.loads(r.stdout)
+    assert r.exit_code == 0 and len(s["N_auto"]) > 1 and s["wall_time_s"] > s["plan_solve_wall_time_s"] > 0

@@ -92,6 +92,32 @@ def refuse_infeasible(task, system, limits: JointLimits, states) -> dict | None:
     raise err
 
 
+def reduced_gradient_norm(limits: JointLimits, result: PlanResult) -> float | None:
+    """‖g − Dᵀw‖∞ for a plan the SQP decided (``EnforceResult.sqp == "converged"``): the cost gradient g (on
+    the free coefficients) minus its least-squares fit by the gradients D of the kinematic rows active at the
+    plan (positive multiplier), as ``hoc_cli.goals.replan`` reports a replan's; zero at a constrained
+    optimum, where g alone is not. None for other plans (an augmented-Lagrangian plan already reports
+    the gradient of I + Φ, whose multiplier terms play Dᵀw's part; goal plans report their own).
+    """
+    from hoc_cli.constraints.qp import QPRows
+
+    er = result.limits
+    if er is None or er.sqp != "converged" or er.penalty is None or not er.working.any():
+        return None
+    problem = result.problem
+    if type(problem).__name__ != "ControlProblem":
+        return None
+    x = problem.layout.pack(result.coeffs)
+    g = problem.evaluate(x).grad
+    rows = QPRows.build(er.rows, limits, er.working, problem.layout.free, 0.0)
+    active = rows.gather(er.penalty.mu_lo, er.penalty.mu_hi) > 0
+    if not active.any():
+        return float(np.max(np.abs(g), initial=0.0))
+    D = rows.A[active].toarray()
+    w = np.linalg.lstsq(D.T, g, rcond=None)[0]
+    return float(np.max(np.abs(g - D.T @ w), initial=0.0))
+
+
 def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, states) -> dict:
     """Summary keys: ``limits_mode``, ``limit_violations`` (exact check), ``active_limits``, and for an
     infeasible task ``status: infeasible`` with a message naming the binding joint and kind.
@@ -100,6 +126,9 @@ def limits_summary(mode: str, limits: JointLimits, system, result: PlanResult, s
              else check_limits(system, limits, result.mesh, result.coeffs))
     out: dict = {"limits_mode": mode, "limit_violations": check.violations(),
                  "active_limits": result.limits.active_limits() if result.limits is not None else []}
+    reduced = reduced_gradient_norm(limits, result)
+    if reduced is not None:  # the SQP's g is the cost's alone: its active rows' part removed
+        out["grad_norm"] = reduced
     er = result.limits
     if er is not None and er.status == "infeasible":
         out["status"] = "infeasible"
