@@ -425,27 +425,44 @@ def test_debug_shows_a_traceback_and_its_absence_shows_one_line(workdir):
 
 
 # --------------------------------------------------------------------------- numerical failures: exit 1
-def test_a_cost_that_overflows_exits_1_with_one_line_and_writes_nothing(workdir, monkeypatch):
-    """Task values that overflow the cost are refused as input (gravity beyond any physical size: exit 2,
-    tests/test_reliability_inputs.py); the overflow itself, from torques scaled to 1e200 here, exits 1."""
+def _overflowing_dynamics(monkeypatch, after: int = 0) -> None:
+    """Torques scaled to 1e200 (their squares overflow) from the ``after``-th dynamics evaluation on."""
     from hoc_cli.system import RobotSystem
 
-    real = RobotSystem.inverse_dynamics
-    monkeypatch.setattr(RobotSystem, "inverse_dynamics", lambda self, q, dq, ddq: 1e200 * real(self, q, dq, ddq))
-    real_terms = RobotSystem.covariant_gradient_terms
+    calls = {"n": 0}
 
-    def huge(self, q, dq, ddq):
-        return tuple(1e200 * np.asarray(x) for x in real_terms(self, q, dq, ddq))
+    def scaled(real):
+        def run(self, q, dq, ddq):
+            calls["n"] += 1
+            out = real(self, q, dq, ddq)
+            if calls["n"] <= after:
+                return out
+            return 1e200 * out if isinstance(out, np.ndarray) else tuple(1e200 * np.asarray(x) for x in out)
+        return run
 
-    monkeypatch.setattr(RobotSystem, "covariant_gradient_terms", huge)
-    real_id = RobotSystem.id_derivatives
-    monkeypatch.setattr(RobotSystem, "id_derivatives",
-                        lambda self, q, dq, ddq: tuple(1e200 * np.asarray(x) for x in real_id(self, q, dq, ddq)))
+    for name in ("inverse_dynamics", "covariant_gradient_terms", "id_derivatives"):
+        monkeypatch.setattr(RobotSystem, name, scaled(getattr(RobotSystem, name)))
+
+
+def test_a_cost_that_overflows_during_the_solve_exits_1_with_one_line_and_writes_nothing(workdir, monkeypatch):
+    """Task values that overflow the cost are refused as input (gravity beyond any physical size: exit 2,
+    tests/test_reliability_inputs.py); an overflow during the solve (torques scaled to 1e200 after the
+    start's evaluation here) exits 1."""
+    _overflowing_dynamics(monkeypatch, after=1)
     before = snapshot(workdir)
     r = invoke(plan_args("task.yaml", "--limits", "report"))  # enforced, the scaled torques prove it infeasible
     assert r.exit_code == 1
     assert r.stderr == "hoc: error: the cost is not finite (NaN or inf) along the trajectory\n"  # no RuntimeWarning
     assert snapshot(workdir) == before
+
+
+def test_a_cost_not_finite_where_the_solve_starts_exits_2(workdir, monkeypatch):
+    _overflowing_dynamics(monkeypatch)
+    before = snapshot(workdir)
+    r = invoke(plan_args("task.yaml", "--limits", "report"))
+    assert r.exit_code == 2
+    assert r.stderr.startswith("hoc: error: task.yaml: the covariant cost is not finite at the start of the solve")
+    assert r.stderr.count("\n") == 1 and snapshot(workdir) == before
 
 
 def test_a_singular_mass_matrix_along_the_path_exits_1_with_one_line(workdir, monkeypatch):

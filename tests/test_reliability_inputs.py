@@ -438,3 +438,14 @@ def test_wall_time_is_the_whole_solve_of_starts_and_auto(workdir):
     r = invoke(["plan", "auto.yaml", "-o", "none", "--json"])
     s = json.loads(r.stdout)
     assert r.exit_code == 0 and len(s["N_auto"]) > 1 and s["wall_time_s"] > s["plan_solve_wall_time_s"] > 0
+
+
+@pytest.mark.parametrize("text, args, key", [
+    (TASK.replace("T: 1.5", "T: 1.0e-12"), [], "T"),
+    (TASK, ["-T", "1e-10"], "--duration"),
+    (TASK.replace("T: 1.5", "T: {free: true, min: 1.0e-15, max: 2.0}"), [], "T.min"),
+])
+def test_a_duration_of_no_physical_size_exits_2(workdir, text, args, key):
+    (workdir / "t.yaml").write_text(text)
+    one_error_line(invoke(["plan", "t.yaml", "-o", "none", "--limits", "report", *args]), f"t.yaml: {key}:",
+                   "at least 1e-09 s")

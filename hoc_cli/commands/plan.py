@@ -41,7 +41,7 @@ from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside, refuse_infeasible
 from hoc_cli.commands.workload import Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import HocError, Infeasible, InputFileError, OutputError
+from hoc_cli.errors import HocError, Infeasible, InputFileError, OutputError, TaskError
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
@@ -113,6 +113,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         return _check_goal_gradient(task, model, states, problem, console, as_json)
     if gradient_check:
         return _check_gradient(task, model, states, mesh, None if warm is None else warm.coeffs, console, as_json)
+    if not has_goals:
+        _refuse_nonfinite_cost(task, model, states, mesh, None if warm is None else warm.coeffs)
     if mode == "enforce":  # after every input check: a task no trajectory within the limits can meet exits 1
         try:  # at once (constraints/feasibility.py)
             refuse_infeasible(task, RobotSystem(model), limits, states)
@@ -354,6 +356,21 @@ def summary_table(summary: dict) -> Table:
             f"{'-' if o['cost'] is None else format(o['cost'], '.6g')} {o['status']}" for o in summary["starts"]))
     table.add_row("outputs", Text(", ".join(summary["outputs"])))
     return table
+
+
+def _refuse_nonfinite_cost(task: Task, model, states, mesh: HermiteMesh, C_init) -> None:
+    """TaskError (exit 2) when the cost is not finite where the solve starts (the minimum-jerk guess, or
+    --init's plan): values of the task (or its URDF) far beyond physical size; one cost evaluation.
+    """
+    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
+    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+    with np.errstate(all="ignore"):  # the torques and ½ Σ w uᵀu: a singular M is the solve's to report (exit 1)
+        q, dq, ddq = problem.op.apply(problem.coefficients(x))
+        u = problem.system.inverse_dynamics(q, dq, ddq)
+        finite = bool(np.all(np.isfinite(u))) and math.isfinite(float(np.dot(problem.op.w, np.sum(u * u, axis=1))))
+    if not finite:
+        raise TaskError(f"the {task.cost} cost is not finite at the start of the solve (expected T, x0, x1, gravity "
+                        "and the URDF's masses and lengths of physical size)", file=task.path)
 
 
 def _warn_outside_limits(console, task: Task, model, states) -> None:

@@ -16,6 +16,7 @@ TARGET_KEYS = ("position", "velocity", "acceleration")
 VIA_KEYS = ("t", "s", "q", "dq", "link", "position", "orientation")
 FREE_TIME_KEYS = ("free", "min", "max", "guess", "weight")
 MAX_VIAS = 1000
+MIN_T = 1e-9  # s: no motion of a physical arm is shorter; far below it the cost overflows
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,8 @@ def parse_free_time(c: Checker, value: dict, key: str = "T") -> FreeTime:
             raise c.error(f"{key}.{k}", f"missing required key '{k}' (a free T needs its range)")
     lo = c.number(m["min"], f"{key}.min", positive=True, what="a duration > 0 in seconds")
     hi = c.number(m["max"], f"{key}.max", positive=True, what="a duration > 0 in seconds")
+    if lo < MIN_T:
+        raise c.fail(f"{key}.min", f"a duration > 0 in seconds, at least {MIN_T:g} s (a physical duration)", lo)
     if hi < lo:
         raise c.error(f"{key}.max", f"expected max >= min = {lo:g} s, got {hi:g}")
     guess = None

@@ -19,7 +19,7 @@ from typing import Any
 from hoc_cli.costs import COSTS
 from hoc_cli.io.inputs import file_problem
 from hoc_cli.io.task.checks import Checker, Values, join, show
-from hoc_cli.io.task.goals import FreeTime, LinkGoal, parse_free_time, parse_link_goal
+from hoc_cli.io.task.goals import MIN_T, FreeTime, LinkGoal, parse_free_time, parse_link_goal
 
 ORDERS = ("quintic", "cubic")
 METHODS = ("pr-cg", "newton")
@@ -37,8 +37,11 @@ DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
 # ------------------------------------------------------------------ key checkers (file and CLI)
 def check_T(c: Checker, value: Any, key: str, what: str = "a duration T > 0 in seconds") -> float:
-    """The duration T (s), > 0."""
-    return c.number(value, key, positive=True, what=what)
+    """The duration T (s), > 0 and at least ``MIN_T``."""
+    T = c.number(value, key, positive=True, what=what)
+    if T < MIN_T:
+        raise c.fail(key, f"{what}, at least {MIN_T:g} s (a physical duration)", T)
+    return T
 
 
 def check_N(c: Checker, value: Any, key: str) -> int:
