@@ -152,14 +152,19 @@ VIA_BASE = TASK.replace("N: 4", "N: 6")
     ("[{t: 1.0e-12, q: [1.5, 0.1]}]", ("via[0]", "x0", "different q")),
     ("[{s: 0.9999999999999, q: [1.5, 0.1]}]", ("via[0]", "x1", "different q")),
     ("[{t: 1.0e-12, q: [0.0, 0.0]}]", ("via[0]", "instant of x0")),
+    ("[{t: 0.5, q: [0.0, 0.0]}, {t: 0.5, link: tool, position: [1.0, 0.0, 1.0]}]",
+     ("via[1]", "same instant", "tool at [2.0, 0.0, 0.0] m")),
+    ("[{t: 0.5, link: tool, position: [2.0, 0.0, 0.0], orientation: [0.7071067811865476, 0, 0, 0.7071067811865476]}, "
+     "{s: 0.3333333333333333, q: [0.0, 0.0]}]", ("via[1]", "same instant", "orientation 1.57 rad")),
 ])
 def test_vias_that_contradict_each_other_or_the_boundary_exit_2(workdir, vias, needles):
     one_error_line(_plan_text(workdir, VIA_BASE + f"via: {vias}\n"), "t.yaml", *needles)
 
 
-def test_vias_that_repeat_each_other_are_not_a_contradiction(workdir):
-    r = _plan_text(workdir, VIA_BASE + "via: [{t: 0.5, q: [0.3, 0.1]}, {s: 0.3333333333333333, q: [0.3, 0.1]}]\n",
-                   "--check-gradient")
+@pytest.mark.parametrize("vias", ["[{t: 0.5, q: [0.3, 0.1]}, {s: 0.3333333333333333, q: [0.3, 0.1]}]",
+                                  "[{t: 0.5, q: [0.0, 0.0]}, {t: 0.5, link: tool, position: [2.0, 0.0, 0.0]}]"])
+def test_vias_that_agree_at_one_instant_are_not_a_contradiction(workdir, vias):
+    r = _plan_text(workdir, VIA_BASE + f"via: {vias}\n", "--check-gradient")
     assert r.exit_code == 0, r.stderr
 
 

@@ -10,13 +10,16 @@ from __future__ import annotations
 import numpy as np
 
 from hoc_cli.constraints.bounds import JointLimits
+from hoc_cli.dynamics import link_poses
 from hoc_cli.errors import TaskError
-from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix
+from hoc_cli.goals.mesh import NODE_TOL
+from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix, rotation_angle
 from hoc_cli.goals.terms import GoalPoint
 from hoc_cli.io.task.checks import Checker
 from hoc_cli.io.task.document import Task
 from hoc_cli.io.task.goals import LinkGoal
 from hoc_cli.io.task.resolve import ResolvedStates, joint_vector
+from hoc_cli.io.task.vias import VALUE_TOL
 from hoc_cli.ocp.problem import Fixed, Free, OptimalControlProblem
 from hoc_cli.system import RobotSystem
 
@@ -80,7 +83,34 @@ def task_vias(task: Task, model) -> tuple[GoalPoint, ...]:
         else:
             vias.append(GoalPoint(s, frame_goal(task, model, v.link, f"via[{i}].link", v.position, v.orientation),
                                   f"via[{i}]"))
+    check_same_instant(task, model, vias)
     return tuple(vias)
+
+
+def check_same_instant(task: Task, model, vias: list[GoalPoint]) -> None:
+    """TaskError when a joint via and a link via name the same instant (``NODE_TOL`` of T apart) and the link's
+    pose at the joint via's q is not the link via's (the joint-only pairs: ``hoc_cli.io.task.vias``).
+    """
+    for a in vias:
+        if not isinstance(a.residual, JointResidual):
+            continue
+        for b in vias:
+            if not isinstance(b.residual, FrameResidual) or abs(a.s - b.s) > NODE_TOL:
+                continue
+            res = b.residual
+            P = link_poses(model, a.residual.q)[res.link]
+            p = res.target(b.s * task.T)[0]
+            tol = VALUE_TOL * max(1.0, float(np.max(np.abs(p))))
+            gap = float(np.max(np.abs(P[:3, 3] - p)))
+            what = f"{res.link} at {[round(float(v), 9) for v in P[:3, 3]]} m, not {[float(v) for v in p]}"
+            if gap <= tol and res.orientation is not None:
+                gap = rotation_angle(P[:3, :3], res.orientation)
+                what = f"{res.link}'s orientation {gap:.3g} rad from the link via's"
+            if gap > tol:
+                first, second = sorted((a.label, b.label), key=lambda k: int(k[4:-1]))
+                raise TaskError(f"{first} and {second} name the same instant and disagree: the joint via's q puts "
+                                f"{what} (expected one pose per instant, or times more than {NODE_TOL:g}·T apart)",
+                                file=task.path, key=second)
 
 
 def problem_from_task(task: Task, model, states: ResolvedStates, limits: JointLimits | None) -> OptimalControlProblem:
