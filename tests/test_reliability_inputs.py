@@ -454,3 +454,9 @@ def test_a_duration_of_no_physical_size_exits_2(workdir, text, args, key):
     (workdir / "t.yaml").write_text(text)
     one_error_line(invoke(["plan", "t.yaml", "-o", "none", "--limits", "report", *args]), f"t.yaml: {key}:",
                    "at least 1e-09 s")
+
+
+def test_a_task_file_far_larger_than_any_task_is_refused_before_it_is_read(workdir):
+    with open(workdir / "big.yaml", "wb") as fh:
+        fh.truncate(17 << 20)  # sparse: 17 MiB of zeros
+    one_error_line(invoke(["plan", "big.yaml", "-o", "none"]), "big.yaml", "17 MiB", "at most 16 MiB")

@@ -31,6 +31,8 @@ from hoc_cli.io.task.sections import (
 )
 from hoc_cli.io.task.yaml12 import load_yaml
 
+MAX_TASK_BYTES = 16 << 20  # a task file is a few kB; a larger one is not a task (read whole, before parsing)
+
 
 @dataclass(frozen=True)
 class Section:
@@ -107,6 +109,10 @@ def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
     problem = file_problem(path)  # before opening it: a FIFO or /dev/zero would block or never end
     if problem is not None:
         raise TaskError(f"{problem} (expected a task YAML file)", file=path)
+    size = path.stat().st_size
+    if size > MAX_TASK_BYTES:
+        raise TaskError(f"is {size / 2**20:.0f} MiB (expected a task YAML file of at most {MAX_TASK_BYTES >> 20} MiB)",
+                        file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
