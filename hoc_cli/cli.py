@@ -52,10 +52,12 @@ DurationOpt = Annotated[Optional[float], typer.Option("-T", "--duration", help="
 MCAP_PLAN = "a plan's MCAP file written by hoc plan"
 
 
-def _inputs_checked(inputs: list, body, *, missing_ok: bool = False):
-    """``body`` run after every input file is found to be a regular file (``refuse_irregular``)."""
+def _inputs_checked(inputs: list, body):
+    """``body`` run after every input file that exists is found to be a regular file (``refuse_irregular``;
+    a missing one is the command's to report, in its own order of checks).
+    """
     def run() -> int:
-        refuse_irregular(inputs, missing_ok=missing_ok)
+        refuse_irregular(inputs, missing_ok=True)
         return body()
     return run
 
@@ -146,7 +148,7 @@ def batch(
     code = run_guarded(_inputs_checked(
         [(p, None, "a batch spec or task YAML file") for p in spec],
         lambda: cmd.run(spec, out_dir=output, workers=workers, scheduler=scheduler, resume=resume, as_json=json_,
-                        quiet=quiet, progress=progress), missing_ok=True),  # a path that is not there: a glob
+                        quiet=quiet, progress=progress)),
         debug=debug,
     )
     raise typer.Exit(code)
