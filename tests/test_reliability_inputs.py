@@ -460,3 +460,15 @@ def test_a_task_file_far_larger_than_any_task_is_refused_before_it_is_read(workd
     with open(workdir / "big.yaml", "wb") as fh:
         fh.truncate(17 << 20)  # sparse: 17 MiB of zeros
     one_error_line(invoke(["plan", "big.yaml", "-o", "none"]), "big.yaml", "17 MiB", "at most 16 MiB")
+
+
+def test_a_link_via_the_limits_keep_out_of_reach_is_reported_as_a_missed_goal(workdir):
+    """The tool straight up needs the shoulder at π/2; its position limit is ±0.3 rad (enforced)."""
+    (workdir / "t.yaml").write_text(TASK.replace("[1.2, -0.6]", "[0.2, 0.0]")
+                                    + "via: [{t: 0.75, link: tool, position: [0.0, 0.0, 2.0]}]\n"
+                                    + "limits: {position: {shoulder: [-0.3, 0.3], elbow: [-0.3, 0.3]}}\n")
+    r = invoke(["plan", "t.yaml", "-o", "none", "--json", "--max-iter", "30"])
+    s = json.loads(r.stdout)
+    assert r.exit_code == 1 and not s["converged"]
+    assert s["message"].startswith(f"goal missed by {s['vias'][0]['position_error']:.3g} (via[0])")
+    assert "goal missed by" in r.stderr and "(via[0])" in r.stderr
