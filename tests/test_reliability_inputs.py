@@ -67,13 +67,24 @@ def one_error_line(r, *needles: str, code: int = 2) -> str:
     (["plan"], ("TASK.yaml", "missing argument")),
     (["inspect"], ("ROBOT.urdf", "missing argument")),
     (["plan", "task.yaml", "other.yaml"], ("unexpected extra argument", "other.yaml")),
-    (["plan", "task.yaml", "--order"], ("--order", "requires an argument")),
+    (["plan", "task.yaml", "--order"], ("--order", "requires an argument", "see hoc plan --help")),
+    (["plan", "task.yaml", "--json=3"], ("--json", "does not take a value", "see hoc plan --help")),
     (["nosuch"], ("no such command", "nosuch")),
 ])
 def test_usage_errors_are_one_line(workdir, args, needles):
     before = sorted(os.listdir(workdir))
     one_error_line(invoke(args), *needles)
     assert sorted(os.listdir(workdir)) == before
+
+
+def test_a_usage_error_in_a_real_process_is_one_line_and_exit_2(workdir):
+    import subprocess
+    import sys
+
+    hoc = [sys.executable, "-c", "from hoc_cli.cli import app; app()"]
+    r = subprocess.run(hoc + ["plan", "task.yaml", "--starts", "0"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == "hoc: error: --starts: expected an integer >= 1 (see hoc plan --help)\n"
 
 
 def test_help_still_shows_the_usage(workdir):

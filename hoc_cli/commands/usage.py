@@ -74,14 +74,16 @@ def _wanted(param: Any) -> str | None:
     return " and ".join([kind + (" " + bounds[0] if bounds[0] else "")] + ([bounds[1]] if bounds[1] else []))
 
 
-def _command(exc: BaseException) -> str:
+def _command(exc: BaseException, default: str) -> str:
     ctx = getattr(exc, "ctx", None)
-    return getattr(ctx, "command_path", None) or "hoc"
+    return getattr(ctx, "command_path", None) or default
 
 
-def usage_line(exc: BaseException) -> str:
-    """The one-line message for a command-line error (without the ``hoc: error:`` prefix)."""
-    command = _command(exc)
+def usage_line(exc: BaseException, command: str = "hoc") -> str:
+    """The one-line message for a command-line error (without the ``hoc: error:`` prefix); ``command``
+    names the command when the exception does not (click's parser raises some without a context).
+    """
+    command = _command(exc, command)
     see = f"see {command} --help"
     name = type(exc).__name__
     param = getattr(exc, "param", None)
@@ -113,17 +115,20 @@ class OneLineGroup(typer.core.TyperGroup):
     def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
              standalone_mode: bool = True, **extra: Any) -> Any:
         errors = _usage_exceptions()
+        words = list(sys.argv[1:] if args is None else args)
+        sub = next((w for w in words if not w.startswith("-")), None)
+        command = f"hoc {sub}" if sub in self.commands else "hoc"
         try:
-            code = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+            code = super().main(args=words, prog_name=prog_name or "hoc", complete_var=complete_var,
                                 standalone_mode=False, **extra)
         except errors as exc:  # type: ignore[misc]
-            code = self._report(exc)
+            code = self._report(exc, command)
         if not standalone_mode:
             return code
         sys.exit(code if isinstance(code, int) else 0)
 
     @staticmethod
-    def _report(exc: BaseException) -> int:
+    def _report(exc: BaseException, command: str) -> int:
         name = type(exc).__name__
         if name == "NoArgsIsHelpError":  # `hoc` alone: the help, as before
             exc.show()  # type: ignore[attr-defined]
@@ -133,7 +138,7 @@ class OneLineGroup(typer.core.TyperGroup):
             return EXIT_UNMET
         code = int(getattr(exc, "exit_code", EXIT_INPUT))
         if code == EXIT_INPUT:
-            report_error(usage_line(exc))
+            report_error(usage_line(exc, command))
         else:
             format_message = getattr(exc, "format_message", None)
             report_error(format_message() if callable(format_message) else str(exc))
