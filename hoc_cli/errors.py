@@ -69,9 +69,17 @@ class NumericalError(HocError):
 
 
 class Infeasible(HocError):
-    """The task is provably infeasible within its limits, found before any solve (exit 1, nothing written)."""
+    """The task is provably infeasible within its limits, found before any solve (exit 1, nothing written).
+
+    ``summary``: the JSON summary of the run (``status: infeasible``, what binds), for ``--json``.
+    """
 
     exit_code = 1
+
+    def __init__(self, message: str, *, file: str | Path | None = None, key: str | None = None,
+                 summary: dict | None = None) -> None:
+        super().__init__(message, file=file, key=key)
+        self.summary = summary or {}
 
 
 class HocWarning(UserWarning):

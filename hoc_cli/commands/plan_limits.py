@@ -79,17 +79,16 @@ def feasibility_proof(task, system, limits: JointLimits, states) -> tuple[Bound,
         f"(expected T >= {bound.T_min:.6g} s, or wider limits)")
 
 
-def refuse_infeasible(task, system, limits: JointLimits, states) -> dict | None:
+def refuse_infeasible(task, system, limits: JointLimits, states) -> None:
     """``Infeasible`` (exit 1) when ``feasibility_proof`` finds a proof; its JSON summary is the error's ``summary``."""
     proof = feasibility_proof(task, system, limits, states)
     if proof is None:
         return None
     bound, key, message = proof
-    err = Infeasible(message, file=task.path, key=key)
-    err.summary = {"status": "infeasible", "converged": False, "message": message, "limits_mode": "enforce",
-                   "T_min": None if bound.T_min == np.inf else bound.T_min,
-                   "binding": {"kind": bound.kind, "joint": bound.joint}, "outputs": []}
-    raise err
+    raise Infeasible(message, file=task.path, key=key, summary={
+        "status": "infeasible", "converged": False, "message": message, "limits_mode": "enforce",
+        "T_min": None if bound.T_min == np.inf else bound.T_min, "binding": {"kind": bound.kind, "joint": bound.joint},
+        "outputs": []})
 
 
 def reduced_gradient_norm(limits: JointLimits, result: PlanResult) -> float | None:
@@ -100,12 +99,13 @@ def reduced_gradient_norm(limits: JointLimits, result: PlanResult) -> float | No
     the gradient of I + Φ, whose multiplier terms play Dᵀw's part; goal plans report their own).
     """
     from hoc_cli.constraints.qp import QPRows
+    from hoc_cli.problem import ControlProblem
 
     er = result.limits
     if er is None or er.sqp != "converged" or er.penalty is None or not er.working.any():
         return None
     problem = result.problem
-    if type(problem).__name__ != "ControlProblem":
+    if type(problem) is not ControlProblem:  # a goal plan's problem has its own rows
         return None
     x = problem.layout.pack(result.coeffs)
     g = problem.evaluate(x).grad
