@@ -227,6 +227,30 @@ def test_a_link_goal_that_no_task_joint_moves_exits_2(workdir, text, key, needle
     one_error_line(_plan_text(workdir, text), f"t.yaml: {key}:", "not moved by any task joint", *needles)
 
 
+@pytest.mark.parametrize("joints, goal, key, needles", [
+    ("joints: [elbow]\n", "x1: {link: forearm, position: [1.0, 0.0, 0.5]}", "x1.position",
+     ("position of link 'forearm'", "stays at [1.0, 0.0, 0.0] m")),  # the elbow turns the forearm about its origin
+    ("", "x1: {link: upper_arm, position: [0.5, 0.0, 0.5]}", "x1.position", ("'upper_arm'", "[0.0, 0.0, 0.0]")),
+    ("joints: [elbow]\n", "x1: {q: [0.5]}\nvia: [{t: 0.5, link: forearm, position: [0.0, 0.0, 1.0]}]",
+     "via[0].position", ("'forearm'",)),
+])
+def test_a_link_position_no_task_joint_moves_exits_2(workdir, joints, goal, key, needles):
+    text = joints + VIA_BASE.replace("x1: {q: [1.2, -0.6]}", goal)
+    if joints:
+        text = text.replace("x0: {q: [0.0, 0.0]}", "x0: {q: [0.0]}")
+    one_error_line(_plan_text(workdir, text), f"t.yaml: {key}:", "not moved by any task joint", *needles)
+
+
+def test_a_goal_at_the_position_no_task_joint_moves_is_kept(workdir):
+    """The forearm's origin stays at (1, 0, 0) m when only the elbow moves; its orientation is the goal."""
+    text = ("joints: [elbow]\n" + VIA_BASE.replace("x0: {q: [0.0, 0.0]}", "x0: {q: [0.0]}")
+            .replace("x1: {q: [1.2, -0.6]}", "x1: {link: forearm, position: [1.0, 0.0, 0.0], "
+                     "orientation: [0.9238795325112867, 0, -0.3826834323650898, 0]}"))
+    r = _plan_text(workdir, text, "--json")
+    assert r.exit_code == 0, r.stderr
+    assert json.loads(r.stdout)["final_q"]["elbow"] == pytest.approx(np.pi / 4, abs=1e-8)
+
+
 # --------------------------------------------------------------------------- §1 provably infeasible: exit 1 at once
 def _lp_shortest_time(d, v0, v1, a, v=np.inf, K=400):
     """Independent reference: the shortest T for which piecewise-constant accelerations |u| <= a on K

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from hoc_cli.constraints.bounds import JointLimits
-from hoc_cli.dynamics import link_poses
+from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.errors import TaskError
 from hoc_cli.goals.mesh import NODE_TOL
 from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix, rotation_angle
@@ -64,10 +64,42 @@ def frame_goal(task: Task, model, link: str, key: str, position, orientation, ta
                         f"{', '.join(model.joint_names)}{locked}); expected a link downstream of a task joint",
                         file=task.path, key=key)
     R = None if orientation is None else quaternion_matrix(orientation)
+    _check_moved(task, model, link, key, None if target is not None else position, R)
     if target is not None:
         return FrameResidual(model, link, np.array(target.position), R, np.array(target.velocity),
                              np.array(target.acceleration), match_velocity=match)
     return FrameResidual(model, link, np.array(position, float), R)
+
+
+FIXED_SAMPLES = 3  # random configurations at which a link's position (orientation) must not move to be fixed
+
+
+def _check_moved(task: Task, model, link: str, key: str, position, R) -> None:
+    """TaskError when the goal's position (or orientation) of ``link`` is one the task joints cannot change
+    (its Jacobian rows vanish at ``FIXED_SAMPLES`` random configurations, e.g. the origin of the link that
+    the only task joint turns about) and the goal asks for another one.
+    """
+    rng = np.random.default_rng(0)
+    lo = np.where(np.isfinite(model.lower), model.lower, -np.pi)
+    hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
+    q = rng.uniform(lo, hi, (FIXED_SAMPLES, len(model.joint_names)))
+    J = frame_jacobian(model, q, link)
+    pose = link_poses(model, q[0])[link]
+    scale = 1.0 + float(np.max(np.abs(pose[:3, 3])))
+    if position is not None and np.max(np.abs(J[:, :3])) <= 1e-12 * scale:
+        p = pose[:3, 3]
+        if np.max(np.abs(p - np.asarray(position, float))) > VALUE_TOL * scale:
+            raise TaskError(f"the position of link {link[:60]!r} is not moved by any task joint "
+                            f"({', '.join(model.joint_names)}): it stays at {[round(float(v), 9) for v in p]} m "
+                            "(expected that position, or a link whose position the task joints move)",
+                            file=task.path, key=key.removesuffix(".link") + ".position")
+    if R is not None and np.max(np.abs(J[:, 3:])) <= 1e-12:
+        angle = rotation_angle(pose[:3, :3], R)
+        if angle > VALUE_TOL:
+            raise TaskError(f"the orientation of link {link[:60]!r} is not turned by any task joint "
+                            f"({', '.join(model.joint_names)}): the goal is {angle:.6g} rad from it (expected "
+                            "that orientation, or a link the task joints turn)", file=task.path,
+                            key=key.removesuffix(".link") + ".orientation")
 
 
 def task_vias(task: Task, model) -> tuple[GoalPoint, ...]:
