@@ -507,3 +507,16 @@ def test_a_link_via_the_limits_keep_out_of_reach_is_reported_as_a_missed_goal(wo
     assert r.exit_code == 1 and not s["converged"]
     assert s["message"].startswith(f"goal missed by {s['vias'][0]['position_error']:.3g} (via[0])")
     assert "goal missed by" in r.stderr and "(via[0])" in r.stderr
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo") or not Path("/dev/zero").exists(), reason="POSIX only")
+@pytest.mark.parametrize("section, needles", [
+    ("collision: {srdf: /dev/zero}", ("collision.srdf:", "character device")),
+    ("collision: {scene: pipe.yaml}", ("collision.scene:", "FIFO")),
+])
+def test_files_a_task_names_that_are_not_regular_files(workdir, section, needles):
+    _fifo(workdir)
+    (workdir / "t.yaml").write_text(TASK + section + "\n")
+    start = time.perf_counter()
+    one_error_line(invoke(["plan", "t.yaml", "-o", "none"]), "t.yaml", *needles)
+    assert time.perf_counter() - start < 10

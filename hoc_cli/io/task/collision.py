@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from hoc_cli.errors import TaskError
+from hoc_cli.io.inputs import file_problem
 from hoc_cli.io.task.checks import Checker, join, show
 from hoc_cli.io.task.yaml12 import load_yaml
 
@@ -181,12 +182,11 @@ def _path(c: Checker, value: Any, key: str, what: str) -> Path:
     path = Path(value)
     if not path.is_absolute():
         path = c.path.parent / path
-    try:
-        ok = path.is_file()
-    except (OSError, ValueError):
-        ok = False
-    if not ok:
+    problem = file_problem(path)  # a FIFO or a device is refused before anything opens it
+    if problem is not None and problem.startswith("file not found"):
         raise c.error(key, f"{what} not found: {str(path)[:200]!r}")
+    if problem is not None:
+        raise c.error(key, f"{str(path)[:200]!r} {problem} (expected {what})")
     return path
 
 
