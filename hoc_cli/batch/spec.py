@@ -32,12 +32,14 @@ from typing import Any
 import numpy as np
 import yaml
 
+from hoc_cli.commands.starts import MAX_STARTS
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task import load_task, load_yaml
 
 SPEC_KEYS = ("base", "sweep", "tasks", "outputs", "starts", "seed")
 OUTPUT_KINDS = ("csv", "mcap")
 MAX_JOBS = 1_000_000
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # libyaml's emitter when present: 5x faster
 _PART = re.compile(r"^([A-Za-z_][\w-]*)((?:\[\d+\])*)$")
 
 
@@ -68,6 +70,16 @@ class Batch:
     sweep_keys: list[str]
     outputs: tuple[str, ...]
     duplicates: int = 0
+
+    @property
+    def identity(self) -> str:
+        """The spec's identity: a hash of what it asks for (its plans' ids and the per-plan outputs).
+
+        Two specs with the same identity solve the same plans into the same files, however they are
+        written (key order, comments, file names, a sweep or the same tasks listed); it is stored with
+        the results so that ``--resume`` never merges another spec's rows.
+        """
+        return _digest({"plans": sorted(job.id for job in self.jobs), "outputs": sorted(self.outputs)})
 
 
 def load_spec(spec: str | Path | dict | list, *, where: Path | None = None) -> Batch:
@@ -108,7 +120,7 @@ def expand(doc: Any, *, path: Path | None, where: Path) -> Batch:
         raise TaskError("expected exactly one of 'base' (with 'sweep') or 'tasks'", file=label)
     outputs = _outputs(doc.get("outputs"), fail)
     # absent: each task's own solver.starts / solver.seed (default 1 and 0)
-    starts = _integer(doc["starts"], "starts", 1, fail) if "starts" in doc else None
+    starts = _integer(doc["starts"], "starts", 1, fail, MAX_STARTS) if "starts" in doc else None
     seed = _integer(doc["seed"], "seed", 0, fail) if "seed" in doc else None
     if "tasks" in doc:
         if "sweep" in doc:
@@ -131,9 +143,11 @@ def _failer(label):
     return fail
 
 
-def _integer(value: Any, key: str, minimum: int, fail) -> int:
+def _integer(value: Any, key: str, minimum: int, fail, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise fail(key, f"an integer >= {minimum}", value)
+        raise fail(key, f"an integer >= {minimum}" + (f" and <= {maximum}" if maximum else ""), value)
+    if maximum is not None and value > maximum:
+        raise fail(key, f"an integer >= {minimum} and <= {maximum}", value)
     return int(value)
 
 
@@ -206,15 +220,42 @@ def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, la
     if total > MAX_JOBS:
         raise TaskError(f"the sweep has {total} plans (expected at most {MAX_JOBS})", file=label, key="sweep")
     paths = [_key_path(k, k, label) for k in keys]
+    for key, parts, values in zip(keys, paths, axes):  # each value alone on the base: a wrong key names itself
+        for value in values:
+            alone = copy.deepcopy(base_doc)
+            _set(alone, parts, value, f"sweep.{key}", label)
+            _refuse_unknown_keys(alone, base_path, [key], label)
     jobs = []
     for combo in itertools.product(*axes):
         resolved = copy.deepcopy(base_doc)
         for key, parts, value in zip(keys, paths, combo):
             _set(resolved, parts, value, f"sweep.{key}", label)
-        text = yaml.safe_dump(resolved, sort_keys=False, default_flow_style=None)
+        if len(keys) > 1:  # every variant, as its worker will parse it (one axis: each value was checked above)
+            _refuse_unknown_keys(resolved, base_path, keys, label)
+        text = yaml.dump(resolved, Dumper=_DUMPER, sort_keys=False, default_flow_style=None)
         jobs.append(Job(id=task_id(resolved, base_path, starts, seed), source=str(base_path), doc=resolved,
                         text=text, swept=dict(zip(keys, combo)), starts=starts, seed=seed))
     return jobs, keys
+
+
+def _refuse_unknown_keys(doc: dict, base_path: Path, keys: list[str], label) -> None:
+    """TaskError (exit 2) when the swept task ``doc`` has a key the task schema does not know.
+
+    The task is parsed as its worker will parse it (``hoc_cli.io.task.parse_task``, about 60 µs);
+    only a key (or joint name) the schema does not know is refused here, naming the sweep key(s)
+    that set it: an invalid value (``T: -1``) is left to become that plan's error row.
+    """
+    from hoc_cli.io.task import parse_task
+
+    try:
+        parse_task(copy.deepcopy(doc), path=base_path, text="", purpose="plan")
+    except TaskError as exc:
+        if not exc.detail.startswith("unknown "):
+            return
+        where = exc.key or ""
+        named = [k for k in keys if where == k or where.startswith((k + ".", k + "[")) or k.startswith(where + ".")]
+        swept = ", ".join(f"sweep.{k}" for k in (named or keys))
+        raise TaskError(f"in the swept task, {where}: {exc.detail}", file=label, key=swept) from None
 
 
 def _key_path(key: Any, where_key: str, label) -> list[str | int]:

@@ -10,7 +10,8 @@ from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNM
 
 
 def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None = None, scheduler: str | None = None,
-        resume: bool = False, as_json: bool = False, quiet: bool = False, progress: bool = False) -> int:
+        resume: bool = False, as_json: bool = False, quiet: bool = False, progress: bool = False,
+        connect_timeout: float | None = None) -> int:
     from hoc_cli.batch import execute_batch
 
     spec, stem = _spec_argument(specs)
@@ -21,7 +22,7 @@ def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None =
     reporter = _Reporter(console) if not quiet and (progress or console.is_terminal) else None
     try:
         result = execute_batch(spec, out_dir=out, resume=resume, workers=workers, scheduler=scheduler,
-                               reporter=reporter)
+                               reporter=reporter, connect_timeout=connect_timeout, estimate=True)
     finally:
         if reporter is not None:
             reporter.close()

@@ -22,10 +22,17 @@ def starts_summary(multi, seed: int) -> dict:
     return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
 
 
+#: the most starts of one multi-start solve (each is a whole solve; beyond a few dozen they rarely find a
+#: better optimum, and a count like 10^6 would only keep the machine busy for days)
+MAX_STARTS = 1000
+
+
 def check_starts(starts: int, seed: int, init: Path | None, key: str = "--starts") -> None:
-    """Refuse a starts count < 1, a seed < 0, and multi-start with --init; ``key`` names where ``starts`` came from."""
-    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise TaskError(f"expected an integer >= 1, got {starts!r}", key=key)
+    """Refuse a starts count < 1 or > MAX_STARTS, a seed < 0, and multi-start with --init; ``key`` names where
+    ``starts`` came from.
+    """
+    if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= MAX_STARTS:
+        raise TaskError(f"expected an integer from 1 to {MAX_STARTS}, got {starts!r}", key=key)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
     if starts > 1 and init is not None:

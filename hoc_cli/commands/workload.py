@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 from hoc_cli.commands.common import warn
 
@@ -196,3 +197,77 @@ class Heartbeat:
                                soft_wrap=True)
         except (OSError, ValueError):  # a closed terminal or pipe is not a failure of the plan
             pass
+
+
+# --- hoc batch ----------------------------------------------------------------------------------
+
+CLUSTER_START_S = (1.0, 0.5)  # a local cluster's start: a + b per worker process [s]
+WORKER_BYTES = 150e6  # resident memory of one idle worker process [B]
+
+
+@dataclass(frozen=True)
+class BatchWorkload:
+    """The expected cost of the plans of a batch, before the cluster is known.
+
+    plans : how many; seconds : their solve times summed (each without the interpreter's start-up) [s];
+    bytes : the largest peak of one plan [B]; invalid : plans whose task could not be parsed here (their
+    worker reports why; counted as nothing).
+    """
+
+    plans: int
+    seconds: float
+    bytes: float
+    invalid: int = 0
+
+    def on(self, workers: int, *, local: bool) -> tuple[float, float]:
+        """(wall time [s], peak memory [B]) of the batch on ``workers`` single-threaded workers."""
+        workers = max(int(workers), 1)
+        wall = self.seconds / min(workers, max(self.plans, 1))
+        if local:
+            wall += CLUSTER_START_S[0] + CLUSTER_START_S[1] * workers
+        return wall, BASE_BYTES + workers * (WORKER_BYTES + max(self.bytes - BASE_BYTES, 0.0))
+
+
+def plan_workloads(jobs) -> BatchWorkload:
+    """The summed estimate of batch jobs (``hoc_cli.batch.spec.Job``), each as ``estimate_workload``
+    would give for ``hoc plan`` of its task, with its per-plan outputs; the URDF of each robot is read once.
+    """
+    from hoc_cli.accuracy import AUTO_START
+    from hoc_cli.errors import HocError
+    from hoc_cli.io.task import parse_task
+
+    joints: dict = {}
+    seconds = peak = 0.0
+    invalid = 0
+    for job in jobs:
+        try:
+            task = parse_task(job.doc, path=Path(job.source), text="", purpose="plan")
+            key = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
+            if key not in joints:
+                from hoc_cli.commands.common import load_model
+
+                joints[key] = load_model(task).n
+        except (HocError, TypeError, ValueError, AttributeError):
+            invalid += 1
+            continue
+        starts = job.starts if job.starts is not None else task.solver.starts
+        T = task.T if task.time.free is None else task.time.free.max
+        work = estimate_workload(n=joints[key], N=task.N or AUTO_START, order=task.order, T=T, rate=task.rate,
+                                 max_iter=task.max_iter, starts=starts)
+        seconds += work.seconds - STARTUP_S
+        peak = max(peak, work.bytes)
+    return BatchWorkload(plans=len(jobs), seconds=seconds, bytes=peak, invalid=invalid)
+
+
+def check_batch_workload(work: BatchWorkload, workers: int, *, local: bool) -> tuple[float, float]:
+    """Warn (``hoc: warning:``, silenced by ``-q``) when a batch is expected to take more than
+    ``WARN_SECONDS`` or ``WARN_BYTES`` on ``workers`` workers; returns (seconds, bytes).
+    """
+    seconds, nbytes = work.on(workers, local=local)
+    if seconds > WARN_SECONDS or nbytes > WARN_BYTES:
+        each = work.seconds / max(work.plans - work.invalid, 1)
+        warn(f"this batch is expected to take about {duration(seconds)} and {size(nbytes)} of memory ({work.plans} "
+             f"plans of about {duration(each) if each >= 1 else f'{each:.2g} s'} each on {workers} worker"
+             f"{'s' if workers != 1 else ''}; a rough estimate, see docs/design.md); Ctrl-C stops it and keeps "
+             "the plans done (then --resume)")
+    return seconds, nbytes
