@@ -32,7 +32,7 @@ from hoc_cli.commands.outputs import write_outputs
 from hoc_cli.commands.plan_goals import goal_mesh, goal_summary, task_goals
 from hoc_cli.commands.plan_goals import solve as solve_goals
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
-from hoc_cli.commands.workload import Heartbeat, check_workload
+from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
@@ -103,10 +103,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         return _check_goal_gradient(task, model, states, goals, console, as_json)
     if gradient_check:
         return _check_gradient(task, model, states, mesh, C_init, console, as_json)
-    check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
+    work = check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
 
     start = time.perf_counter()
-    beat = Heartbeat(console, show, start=start)  # a progress line at least every 3 s with --progress
+    # a progress line at least every 3 s with --progress; a warning at 10 s if the estimate promised less
+    beat = Heartbeat(console, show, start=start, overdue=None if work.heavy else WARN_SECONDS)
 
     def report(log) -> None:
         beat.tick(f"solving (after iteration {log.iteration} on N = {log.level})")
