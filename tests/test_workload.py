@@ -31,7 +31,7 @@ def test_the_shipped_tasks_are_light(path):
 
 
 def test_the_heavy_runs_of_the_issue_are_heavy():
-    """N = 100 000 on two_link (measured 250 s, 2.7 GB on a loaded machine) and a 150-DOF chain at N = 8 (> 300 s)."""
+    """N = 100 000 on two_link (peak 11.8 GB, issue 24) and a 150-DOF chain at N = 8 (> 300 s)."""
     big_n = estimate_workload(n=2, N=100_000, order="quintic", T=1.5, rate=100)
     assert big_n.heavy and big_n.seconds > 30 and big_n.bytes > WARN_BYTES
     chain = estimate_workload(n=150, N=8, order="quintic", T=1.5, rate=100)

@@ -87,10 +87,11 @@ def run(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, res
 def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, resume: bool = False,
                   workers: int | None = None, scheduler: str | None = None, reporter: Any = None,
                   checkpoint_s: float = CHECKPOINT_S, connect_timeout: float | None = None,
-                  estimate: bool = False) -> BatchRun:
+                  estimate: bool = False, scheduler_key: str = "--scheduler") -> BatchRun:
     """``run`` with the details: counts, interruption, written paths; ``reporter`` follows progress.
 
-    ``reporter`` (optional) has ``begin(total, skipped, threads)`` and ``row(row)``. Everything that
+    ``reporter`` (optional) has ``begin(total, skipped, threads)`` and ``row(row)``; ``scheduler_key``
+    names where ``scheduler`` came from in messages. Everything that
     can be checked is checked before a cluster starts or a plan is solved, with nothing written:
     the spec (every swept task's keys), the worker count, the scheduler address (it must answer as
     a Dask scheduler within ``connect_timeout`` seconds), the results folder (writable; not in use by
@@ -137,7 +138,7 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
             if client is None and not scheduler:
                 check_batch_workload(work, workers or available_cores(), local=True)
         if todo and client is None and scheduler:
-            probe_scheduler(scheduler, connect_timeout)  # a wrong address is refused before anything is written
+            probe_scheduler(scheduler, connect_timeout, scheduler_key)  # a wrong address is refused before anything is written
         if out is not None and not out.is_dir():
             try:
                 out.mkdir(parents=True, exist_ok=True)
@@ -173,7 +174,7 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
         if todo:
             args = (os.path.abspath(out) if out is not None else None, batch.outputs)
             cm = (_borrowed(client) if client is not None
-                  else connect(workers=workers, scheduler=scheduler, timeout=connect_timeout))
+                  else connect(workers=workers, scheduler=scheduler, timeout=connect_timeout, key=scheduler_key))
             with cm as c:
                 n_threads = threads(c)
                 if work is not None and (client is not None or scheduler):

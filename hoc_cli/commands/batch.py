@@ -16,13 +16,15 @@ def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None =
 
     spec, stem = _spec_argument(specs)
     out = out_dir if out_dir is not None else Path(f"{stem}_batch")
+    key = "--scheduler" if scheduler else "DASK_SCHEDULER_ADDRESS"
     scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     logging.getLogger("distributed").setLevel(logging.ERROR)  # the client's own chatter; errors are rows
     console = stderr_console(quiet=quiet, progress=progress)
     reporter = _Reporter(console) if not quiet and (progress or console.is_terminal) else None
     try:
         result = execute_batch(spec, out_dir=out, resume=resume, workers=workers, scheduler=scheduler,
-                               reporter=reporter, connect_timeout=connect_timeout, estimate=True)
+                               reporter=reporter, connect_timeout=connect_timeout, estimate=True,
+                               scheduler_key=key)
     finally:
         if reporter is not None:
             reporter.close()

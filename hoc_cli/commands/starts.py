@@ -54,5 +54,5 @@ def starts_pool(t0: float, remaining: int):
     if not scheduler and (cores < 2 or remaining < 2 or t0 * remaining < PARALLEL_STARTS_MIN_S):
         yield None
         return
-    with connect(workers=min(cores, remaining), scheduler=scheduler) as client:
+    with connect(workers=min(cores, remaining), scheduler=scheduler, key="DASK_SCHEDULER_ADDRESS") as client:
         yield client
