@@ -177,7 +177,7 @@ def test_every_row_equals_a_single_hoc_plan_and_invalid_plans_are_error_rows(swe
     jobs = {j.id: j for j in __import__("hoc_cli.batch.spec", fromlist=["x"]).load_spec(spec).jobs}
     for r in ok:
         task = tmp_path / f"{r['id']}.yaml"
-        task.write_text(jobs[r["id"]].text)
+        task.write_text(jobs[r["id"]].yaml_text())
         p = invoke("plan", task, "-o", tmp_path / "single.csv", "--json")
         assert p.exit_code == 0, p.output
         single = json.loads(p.stdout)

@@ -185,6 +185,13 @@ def test_absurd_counts_are_refused_up_front(tmp_path, no_cluster):
     big = write_spec(tmp_path, name="big.yaml", extra="starts: 1000000\n")
     r = invoke("batch", big, "-o", tmp_path / "out")
     assert r.exit_code == 2 and "starts: expected an integer >= 1 and <= 1000" in r.output
+    huge = write_spec(tmp_path, "x1.q: {random: {count: 1000000000, within: limits}}", name="huge.yaml")
+    r = invoke("batch", huge, "-o", tmp_path / "out")  # refused before a billion draws are made
+    assert r.exit_code == 2 and "sweep.x1.q.random.count: expected an integer >= 1 and <= 1000000" in r.output
+    axes = write_spec(tmp_path, "T: {grid: {start: 1.0, stop: 2.0, num: 2000}}\n  N: {grid: {start: 4, stop: 8, num: 1000}}",
+                      name="axes.yaml")
+    r = invoke("batch", axes, "-o", tmp_path / "out")
+    assert r.exit_code == 2 and "the sweep has more than 1000000 plans" in r.output
     (tmp_path / "many.yaml").write_text((tmp_path / "arm.yaml").read_text() + "solver: {starts: 5000}\n")
     r = invoke("plan", tmp_path / "many.yaml", "-o", "none")
     assert r.exit_code == 2 and "solver.starts: expected an integer from 1 to 1000" in r.output
@@ -199,11 +206,14 @@ def test_absurd_counts_are_refused_up_front(tmp_path, no_cluster):
     ("t: [1.0, 2.0]", "sweep.t"),
     ("solver.tols: [1.0e-6]", "sweep.solver.tols"),
     ("x1: [{q: [1.0, 2.0]}, {q: [1.0, 2.0], ddq: [0, 0]}]", "sweep.x1"),
-], ids=["top", "nested", "t-for-T", "solver", "in-a-value"])
+    ("limits.velocity.nojoint: [1.0]", "sweep.limits.velocity.nojoint"),
+    ("x1.q: [{shoulder: 1.0, nojoint: 2.0}]", "sweep.x1.q"),
+    ("locked.nojoint: [0.1]", "sweep.locked.nojoint"),
+], ids=["top", "nested", "t-for-T", "solver", "in-a-value", "limit-joint", "goal-joint", "locked-joint"])
 def test_a_swept_key_the_task_schema_does_not_know_is_refused_before_any_cluster(tmp_path, no_cluster, sweep, key):
     r = invoke("batch", write_spec(tmp_path, sweep), "-o", tmp_path / "out")
     assert r.exit_code == 2, r.output
-    assert f"sweep.yaml: {key}: in the swept task" in r.output and "unknown key" in r.output
+    assert f"sweep.yaml: {key}: in the swept task" in r.output and r.output.count("\n") == 1
     assert not (tmp_path / "out").exists()
 
 

@@ -70,7 +70,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     if job.doc is None:
         task = load_task(source, purpose="plan")  # raises the reason the file is not a task
     else:
-        task = parse_task(job.doc, path=source, text=job.text, purpose="plan")
+        task = parse_task(job.doc, path=source, text=job.yaml_text(), purpose="plan")
     names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
     targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
     check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)

@@ -16,7 +16,12 @@ def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None =
 
     spec, stem = _spec_argument(specs)
     out = out_dir if out_dir is not None else Path(f"{stem}_batch")
-    key = "--scheduler" if scheduler else "DASK_SCHEDULER_ADDRESS"
+    from hoc_cli.batch.engine import check_timeout, parse_address
+
+    check_timeout(connect_timeout)  # given without --scheduler too: a wrong value is still an error
+    key = "--scheduler" if scheduler is not None else "DASK_SCHEDULER_ADDRESS"
+    if scheduler is not None:
+        parse_address(scheduler, key)  # '' or '  ' is not an address either
     scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     logging.getLogger("distributed").setLevel(logging.ERROR)  # the client's own chatter; errors are rows
     console = stderr_console(quiet=quiet, progress=progress)
