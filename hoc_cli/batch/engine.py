@@ -191,11 +191,12 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
     # at 128 KiB: every larger numpy temporary is then mmapped and faulted in afresh, and hoc's solves
     # run about 2x slower (measured: benchmarks/bench_batch.py). Unset it for hoc's workers.
     cluster = None
+    preloads = list(dask.config.get("distributed.worker.preload", None) or [])
     try:
         # The workers ignore SIGINT (hoc_cli.batch.worker_init): a Ctrl-C on a terminal reaches the whole
         # process group, and only hoc acts on it (it cancels, keeps the rows done and closes the workers).
         with _signals_deferred(), dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-                                                   "distributed.worker.preload": ["hoc_cli.batch.worker_init"]}):
+                                                   "distributed.worker.preload": [*preloads, "hoc_cli.batch.worker_init"]}):
             cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
                                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})

@@ -61,7 +61,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.plan_goals import goal_summary, task_goals
     from hoc_cli.commands.plan_goals import solve as solve_goals
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, task_limits
-    from hoc_cli.commands.starts import starts_summary
+    from hoc_cli.commands.starts import check_starts, starts_summary
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import load_task, parse_task, resolve
     from hoc_cli.system import RobotSystem
@@ -82,6 +82,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
+    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts")
     goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
     extra: dict = {}
     if goals is not None:  # as ``hoc plan``: a link goal, vias, a free T
