@@ -6,6 +6,9 @@ Columns: ``id``, ``task``, one column per sweep key (its key path; a sweep over 
 ``boundary_error``, ``limits`` (ok | violated), ``limit_violations`` (JSON text), [``best_start``,
 ``start_costs`` with multi-start],
 ``outputs`` (paths relative to the results directory), ``error``, ``solve_time_s``.
+
+The Parquet file's metadata holds the identity of the spec the rows come from (``IDENTITY_KEY``:
+``hoc_cli.batch.spec.Batch.identity``), which ``read`` checks for ``--resume``.
 """
 from __future__ import annotations
 
