@@ -140,13 +140,17 @@ def read(out_dir: Path, identity: str | None = None) -> list[dict]:
     path = out_dir / PARQUET
     if not path.exists():
         return []
-    try:
-        tab = pq.read_table(path)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
-        raise InputFileError(f"cannot be read as a results table ({type(exc).__name__}); move it away or drop "
-                             "--resume", file=path, key="--resume") from None
+
+    def unreadable(exc: Exception) -> InputFileError:
+        return InputFileError(f"cannot be read as a results table ({type(exc).__name__}); move it away or drop "
+                              "--resume", file=path, key="--resume")
+
     if identity is not None:
-        stored = (tab.schema.metadata or {}).get(IDENTITY_KEY)
+        try:
+            schema = pq.read_schema(path)  # the metadata first: another table is not read whole
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
+            raise unreadable(exc) from None
+        stored = (schema.metadata or {}).get(IDENTITY_KEY)
         if stored is None:
             raise InputFileError("was not written by 'hoc batch' (it records no spec); move it away or write to "
                                  "another folder (expected the results of this spec)", file=path, key="--resume")
@@ -154,6 +158,10 @@ def read(out_dir: Path, identity: str | None = None) -> list[dict]:
             raise InputFileError("holds the results of another spec (a different set of plans or outputs); rerun "
                                  "without --resume, or write to another folder (expected the results of this spec)",
                                  file=path, key="--resume")
+    try:
+        tab = pq.read_table(path)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
+        raise unreadable(exc) from None
     rows = tab.to_pylist()
     if "id" not in tab.column_names or not all(isinstance(r.get("id"), str) for r in rows):
         raise InputFileError("has no id column of text (expected a table written by 'hoc batch')", file=path,
