@@ -139,10 +139,14 @@ def test_a_scheduler_address_that_is_not_a_dask_scheduler_is_one_line_within_the
     assert took < 10 and not (tmp_path / "out").exists()
 
 
-def test_the_scheduler_address_from_the_environment_is_named_so(tmp_path, monkeypatch):
+def test_the_scheduler_address_from_the_environment_is_named_so_and_checked_before_any_start(tmp_path, monkeypatch):
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "not a url")
     r = invoke("batch", write_spec(tmp_path), "-o", tmp_path / "out")
     assert r.exit_code == 2 and one_error_line(r.output).startswith("hoc: error: DASK_SCHEDULER_ADDRESS: expected")
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:1")
+    monkeypatch.setattr("hoc_cli.commands.plan.solve", lambda *a, **k: pytest.fail("start 0 was solved"), raising=False)
+    r = invoke("plan", tmp_path / "arm.yaml", "-o", "none", "--starts", "3")
+    assert r.exit_code == 2 and "DASK_SCHEDULER_ADDRESS: cannot connect" in one_error_line(r.output)
 
 
 @pytest.mark.parametrize("address,said", [("not a url", "expected a Dask scheduler address"),

@@ -82,7 +82,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
-    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts")
+    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts", scheduler=False)
     goals = task_goals(task, model, states)  # None: a joint goal in a fixed T
     extra: dict = {}
     if goals is not None:  # as ``hoc plan``: a link goal, vias, a free T
