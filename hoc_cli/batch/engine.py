@@ -181,7 +181,8 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
                                          "--connect-timeout sets the wait)", key=key) from None
             yield client
         finally:
-            client.close()
+            with _dask_quiet():
+                client.close()
         return
     check_workers(workers)
     import dask
@@ -200,11 +201,36 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
             cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
                                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
-        with Client(cluster, set_as_default=False) as client:
+        client = Client(cluster, set_as_default=False)
+        try:
             yield client
+        finally:
+            with _dask_quiet():
+                client.close()
     finally:
         if cluster is not None:
-            cluster.close()
+            with _dask_quiet():
+                cluster.close()
+
+
+@contextmanager
+def _dask_quiet() -> Iterator[None]:
+    """No log records of Dask's while a client or cluster closes (every handler on the way raised above
+    CRITICAL): closing after cancelled work, e.g. on Ctrl-C, makes its scheduler log every message it can
+    no longer send; what hoc has to say about the run is its own one line.
+    """
+    handlers = [*logging.getLogger("distributed").handlers, *logging.getLogger().handlers]
+    levels = [h.level for h in handlers]
+    last_resort = logging.lastResort
+    for h in handlers:
+        h.setLevel(logging.CRITICAL + 1)
+    logging.lastResort = None
+    try:
+        yield
+    finally:
+        for h, level in zip(handlers, levels):
+            h.setLevel(level)
+        logging.lastResort = last_resort
 
 
 @contextmanager
