@@ -245,6 +245,9 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
             time.sleep(0.1)
         address = json.loads(sched_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
+        # issue 24: a scheduler without workers is refused once --connect-timeout has passed, not waited on
+        r = invoke("batch", spec, "-o", tmp_path / "idle", "--scheduler", address, "--connect-timeout", "1")
+        assert r.exit_code == 2 and "has no workers (none joined within 1 s" in r.output
         procs.append(subprocess.Popen([DASK, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
                                        "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       env=env))
