@@ -438,3 +438,17 @@ def test_a_long_batch_is_announced_before_its_cluster_starts_and_a_short_one_is_
     assert len(warning) == 1 and "1000 plans" in warning[0] and "on 2 workers" in warning[0]
     r = invoke("batch", write_spec(tmp_path), "-o", tmp_path / "out2", "--workers", "2")
     assert r.exit_code == 130 and "hoc: warning" not in r.output
+
+
+def test_a_batch_that_outlasts_an_estimate_under_the_threshold_says_so_while_it_runs(tmp_path, monkeypatch):
+    from hoc_cli.batch import execute_batch
+    from hoc_cli.commands.workload import BatchWorkload
+    from hoc_cli.errors import HocWarning
+
+    monkeypatch.setattr("hoc_cli.commands.workload.WARN_SECONDS", 0.5)  # the cluster's start alone is longer
+    monkeypatch.setattr("hoc_cli.commands.workload.plan_workloads", lambda jobs: BatchWorkload(len(jobs), 0.0, 0.0))
+    monkeypatch.setattr("hoc_cli.commands.workload.CLUSTER_START_S", (0.0, 0.0))  # an estimate of nothing
+    with pytest.warns(HocWarning) as caught:
+        result = execute_batch(write_spec(tmp_path), out_dir=tmp_path / "out", workers=1, estimate=True)
+    said = [str(w.message) for w in caught]
+    assert result.solved == 2 and len(said) == 1 and said[0].startswith("this run has taken") and "estimate" in said[0]

@@ -97,9 +97,10 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
     a Dask scheduler within ``connect_timeout`` seconds), the results folder (writable; not in use by
     another batch: it is locked for the run, ``hoc_cli.commands.locks.FolderLock``) and, with
     ``resume``, that its results come from this spec. ``estimate`` warns (``hoc: warning:``) when
-    the batch is expected to take long (``hoc_cli.commands.workload.check_batch_workload``).
+    the batch is expected to take long (``hoc_cli.commands.workload.check_batch_workload``), or
+    when it was not and still runs after ``WARN_SECONDS``.
     """
-    from contextlib import ExitStack
+    from contextlib import ExitStack, nullcontext
 
     from hoc_cli.batch import results
     from hoc_cli.batch.engine import available_cores, check_timeout, check_workers, connect, execute, probe_scheduler, threads
@@ -131,12 +132,13 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
         done = {r["id"] for r in kept}
         todo = [job for job in batch.jobs if job.id not in done]
         work = None
+        warned = False
         if todo and estimate:
-            from hoc_cli.commands.workload import check_batch_workload, plan_workloads
+            from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_batch_workload, plan_workloads
 
             work = plan_workloads(todo)
             if client is None and not scheduler:
-                check_batch_workload(work, workers or available_cores(), local=True)
+                warned = check_batch_workload(work, workers or available_cores(), local=True)
         if todo and client is None and scheduler:
             probe_scheduler(scheduler, connect_timeout, scheduler_key)  # a wrong address is refused before anything is written
         if out is not None and not out.is_dir():
@@ -178,15 +180,18 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
             with cm as c:
                 n_threads = threads(c)
                 if work is not None and (client is not None or scheduler):
-                    check_batch_workload(work, n_threads, local=False)
+                    warned = check_batch_workload(work, n_threads, local=False)
+                # a batch the estimate did not announce says so if it still runs after WARN_SECONDS
+                overdue = Heartbeat(None, False, start=start, overdue=WARN_SECONDS) if work is not None and not warned else None
                 if reporter is not None:
                     reporter.begin(len(todo), len(kept), n_threads)
                 chunks, i = [], 0
                 for size in chunk_sizes(len(todo), n_threads):
                     chunks.append(todo[i:i + size])
                     i += size
-                interrupted = execute(c, solve_jobs, chunks, key=lambda ch: ch[0].id, args=args,
-                                      on_result=on_chunk, on_error=on_error)
+                with overdue or nullcontext():
+                    interrupted = execute(c, solve_jobs, chunks, key=lambda ch: ch[0].id, args=args,
+                                          on_result=on_chunk, on_error=on_error)
         elif reporter is not None:
             reporter.begin(0, len(kept), 0)
         paths = save()

@@ -302,15 +302,16 @@ def plan_workloads(jobs, sample: int = 2000) -> BatchWorkload:
     return BatchWorkload(plans=len(jobs), seconds=seconds, bytes=peak, invalid=invalid)
 
 
-def check_batch_workload(work: BatchWorkload, workers: int, *, local: bool) -> tuple[float, float]:
+def check_batch_workload(work: BatchWorkload, workers: int, *, local: bool) -> bool:
     """Warn (``hoc: warning:``, silenced by ``-q``) when a batch is expected to take more than
-    ``WARN_SECONDS`` or ``WARN_BYTES`` on ``workers`` workers; returns (seconds, bytes).
+    ``WARN_SECONDS`` or ``WARN_BYTES`` on ``workers`` workers; returns whether it warned.
     """
     seconds, nbytes = work.on(workers, local=local)
-    if seconds > WARN_SECONDS or nbytes > WARN_BYTES:
+    heavy = seconds > WARN_SECONDS or nbytes > WARN_BYTES
+    if heavy:
         each = work.seconds / max(work.plans - work.invalid, 1)
         warn(f"this batch is expected to take about {duration(seconds)} and {size(nbytes)} of memory ({work.plans} "
              f"plans of about {duration(each) if each >= 1 else f'{each:.2g} s'} each on {workers} worker"
              f"{'s' if workers != 1 else ''}; a rough estimate, see docs/design.md); Ctrl-C stops it and keeps "
              "the plans done (then --resume)")
-    return seconds, nbytes
+    return heavy
