@@ -323,7 +323,7 @@ def test_two_batch_processes_into_one_folder_one_is_refused_the_other_keeps_ever
 
     write_base(tmp_path, N=20)
     spec = tmp_path / "long.yaml"
-    spec.write_text("base: arm.yaml\nsweep:\n  T: {grid: {start: 1.0, stop: 3.0, num: 12}}\n")
+    spec.write_text("base: arm.yaml\nsweep:\n  T: {grid: {start: 1.0, stop: 3.0, num: 20}}\n")
     out = tmp_path / "out"
     first = subprocess.Popen(hoc_command() + ["batch", str(spec), "-o", str(out), "--workers", "1", "--json"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -337,7 +337,7 @@ def test_two_batch_processes_into_one_folder_one_is_refused_the_other_keeps_ever
         first.kill()
     assert second.returncode == 2 and "is in use by another 'hoc batch' run" in one_error_line(second.stderr)
     assert first.returncode == 0, err
-    assert json.loads(stdout)["solved"] == 12 and pq.read_table(out / "results.parquet").num_rows == 12
+    assert json.loads(stdout)["solved"] == 20 and pq.read_table(out / "results.parquet").num_rows == 20
 
 
 def test_two_plans_writing_the_same_files_leave_one_run_s_whole_set(tmp_path):
