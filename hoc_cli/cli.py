@@ -130,9 +130,11 @@ def batch(
     output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="DIR", help="Results directory (results.parquet, results.csv, plans/). "
                                                                        "Default: <spec stem>_batch.")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Worker processes of the embedded local cluster "
-                                                                         "(default: one per core).")] = None,
+                                                                         "(default: one per core; at most 4 per core).")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", metavar="ADDRESS", help="Use a running Dask scheduler (e.g. tcp://host:8786; "
                                                                   "default: $DASK_SCHEDULER_ADDRESS, else a local cluster).")] = None,
+    connect_timeout: Annotated[Optional[float], typer.Option("--connect-timeout", metavar="SECONDS", help="How long to wait for the "
+                                                             "--scheduler to answer as a Dask scheduler (default 10).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Keep the rows already in DIR/results.parquet and solve only the plans not in it.")] = False,
     json_: JsonOpt = False,
     quiet: QuietOpt = False,
@@ -148,8 +150,8 @@ def batch(
     code = run_guarded(_inputs_checked(
         [(p, None, "a batch spec or task YAML file") for p in spec],
         lambda: cmd.run(spec, out_dir=output, workers=workers, scheduler=scheduler, resume=resume, as_json=json_,
-                        quiet=quiet, progress=progress)),
-        debug=debug,
+                        quiet=quiet, progress=progress, connect_timeout=connect_timeout)),
+        debug=debug, quiet=quiet,
     )
     raise typer.Exit(code)
 

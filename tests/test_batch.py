@@ -177,7 +177,7 @@ def test_every_row_equals_a_single_hoc_plan_and_invalid_plans_are_error_rows(swe
     jobs = {j.id: j for j in __import__("hoc_cli.batch.spec", fromlist=["x"]).load_spec(spec).jobs}
     for r in ok:
         task = tmp_path / f"{r['id']}.yaml"
-        task.write_text(jobs[r["id"]].text)
+        task.write_text(jobs[r["id"]].yaml_text())
         p = invoke("plan", task, "-o", tmp_path / "single.csv", "--json")
         assert p.exit_code == 0, p.output
         single = json.loads(p.stdout)
@@ -249,6 +249,9 @@ def test_a_scheduler_and_a_worker_started_as_processes_give_the_same_table(sweep
                 time.sleep(0.1)
         assert address is not None, "the scheduler wrote no address in 60 s"
         assert address.startswith("tcp://127.0.0.1:")
+        # issue 24: a scheduler without workers is refused once --connect-timeout has passed, not waited on
+        r = invoke("batch", spec, "-o", tmp_path / "idle", "--scheduler", address, "--connect-timeout", "1")
+        assert r.exit_code == 2 and "has no workers (none joined within 1 s" in r.output
         procs.append(subprocess.Popen([DASK, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
                                        "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       env=env))
@@ -414,7 +417,7 @@ def test_hoc_plan_runs_the_other_starts_on_a_local_cluster_when_worth_it_with_th
     r = invoke("plan", base, "--starts", "3", "--seed", "4", "-o", "b.csv", "--json")
     assert r.exit_code == 0, r.output
     parallel = json.loads(r.stdout)
-    assert used == [{"workers": 2, "scheduler": None}]
+    assert [(kw["workers"], kw["scheduler"]) for kw in used] == [(2, None)]
     assert parallel["starts"] == serial["starts"] and parallel["cost"] == serial["cost"]
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
 

@@ -61,7 +61,7 @@ class BatchRun:
 
 
 def run(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, resume: bool = False,
-        workers: int | None = None, scheduler: str | None = None):
+        workers: int | None = None, scheduler: str | None = None, connect_timeout: float | None = None):
     """Solve every plan of ``spec`` and return the results as a ``pyarrow.Table`` (one row per plan, by id).
 
     Parameters
@@ -72,11 +72,13 @@ def run(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, res
         ``workers`` processes (or ``scheduler``'s cluster), closed at the end.
     out_dir : directory for results.parquet, results.csv and the per-plan outputs; None writes
         nothing (and a spec asking for per-plan outputs is then refused).
-    resume : keep the rows already in ``out_dir``'s results and solve only the others.
+    resume : keep the rows already in ``out_dir``'s results (written from the same spec) and solve only the others.
+    connect_timeout : seconds to wait for ``scheduler`` to answer (default 10).
 
     Raises the KeyboardInterrupt after writing the completed rows when interrupted.
     """
-    result = execute_batch(spec, client, out_dir=out_dir, resume=resume, workers=workers, scheduler=scheduler)
+    result = execute_batch(spec, client, out_dir=out_dir, resume=resume, workers=workers, scheduler=scheduler,
+                           connect_timeout=connect_timeout)
     if result.interrupted is not None:
         raise result.interrupted
     return result.table
@@ -84,15 +86,28 @@ def run(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, res
 
 def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None = None, resume: bool = False,
                   workers: int | None = None, scheduler: str | None = None, reporter: Any = None,
-                  checkpoint_s: float = CHECKPOINT_S) -> BatchRun:
+                  checkpoint_s: float = CHECKPOINT_S, connect_timeout: float | None = None,
+                  estimate: bool = False, scheduler_key: str = "--scheduler") -> BatchRun:
     """``run`` with the details: counts, interruption, written paths; ``reporter`` follows progress.
 
-    ``reporter`` (optional) has ``begin(total, skipped, threads)`` and ``row(row)``.
+    ``reporter`` (optional) has ``begin(total, skipped, threads)`` and ``row(row)``; ``scheduler_key``
+    names where ``scheduler`` came from in messages. Everything that
+    can be checked is checked before a cluster starts or a plan is solved, with nothing written:
+    the spec (every swept task's keys), the worker count, the scheduler address (it must answer as
+    a Dask scheduler within ``connect_timeout`` seconds), the results folder (writable; not in use by
+    another batch: it is locked for the run, ``hoc_cli.commands.locks.FolderLock``) and, with
+    ``resume``, that its results come from this spec. ``estimate`` warns (``hoc: warning:``) when
+    the batch is expected to take long (``hoc_cli.commands.workload.check_batch_workload``), or
+    when it was not and still runs after ``WARN_SECONDS``.
     """
+    from contextlib import ExitStack, nullcontext
+
     from hoc_cli.batch import results
-    from hoc_cli.batch.engine import connect, execute, threads
+    from hoc_cli.batch.engine import available_cores, check_timeout, check_workers, connect, execute, probe_scheduler, threads
+    from hoc_cli.batch.folder import check_folder
     from hoc_cli.batch.job import error_row, solve_jobs
     from hoc_cli.batch.spec import load_spec
+    from hoc_cli.commands.locks import FolderLock
     from hoc_cli.errors import OutputError
 
     start = time.perf_counter()
@@ -102,54 +117,84 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
         raise OutputError("per-plan outputs need a results directory (out_dir / -o DIR)", key="outputs")
     if out is None and resume:
         raise OutputError("--resume needs a results directory (out_dir / -o DIR)", key="--resume")
+    if client is None:
+        if scheduler:
+            connect_timeout = check_timeout(connect_timeout)
+        else:
+            check_workers(workers)
     if out is not None:
-        if out.exists() and not out.is_dir():
-            raise OutputError("exists and is not a directory (expected a results directory)", file=out, key="--output")
-        out.mkdir(parents=True, exist_ok=True)
-    kept = results.read(out) if (resume and out is not None) else []
-    done = {r["id"] for r in kept}
-    todo = [job for job in batch.jobs if job.id not in done]
-    new: list[dict] = []
-    last_write = [time.perf_counter()]
+        check_folder(out, plans=bool(batch.outputs), names=(results.PARQUET, results.CSV))
+    identity = batch.identity
+    with ExitStack() as held:
+        if out is not None and out.is_dir():
+            held.enter_context(FolderLock(out))  # before its results are read: no other run changes them
+        kept = results.read(out, identity) if (resume and out is not None) else []
+        done = {r["id"] for r in kept}
+        todo = [job for job in batch.jobs if job.id not in done]
+        work = None
+        warned = False
+        if todo and estimate:
+            from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_batch_workload, plan_workloads
 
-    def save() -> list[Path]:
-        if out is None:
-            return []
-        last_write[0] = time.perf_counter()
-        return results.write(out, results.table(kept + new, _sweep_columns(batch)))
+            work = plan_workloads(todo)
+            if client is None and not scheduler:
+                warned = check_batch_workload(work, workers or available_cores(), local=True)
+        if todo and client is None and scheduler:
+            probe_scheduler(scheduler, connect_timeout, scheduler_key)  # a wrong address is refused before anything is written
+        if out is not None and not out.is_dir():
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OutputError(f"cannot be created ({exc.strerror or type(exc).__name__})", file=out,
+                                  key="--output") from None
+            held.enter_context(FolderLock(out))
+        new: list[dict] = []
+        last_write = [time.perf_counter()]
 
-    def on_row(job, row: dict) -> None:
-        new.append(row)
-        if reporter is not None:
-            reporter.row(row)
-        if out is not None and time.perf_counter() - last_write[0] > checkpoint_s:
-            save()
+        def save() -> list[Path]:
+            if out is None:
+                return []
+            last_write[0] = time.perf_counter()
+            return results.write(out, results.table(kept + new, _sweep_columns(batch)), identity)
 
-    def on_chunk(chunk, rows: list[dict]) -> None:
-        for job, row in zip(chunk, rows):
-            on_row(job, row)
-
-    def on_error(chunk, exc: BaseException) -> None:
-        for job in chunk:
-            on_row(job, error_row(job, f"the Dask task failed ({type(exc).__name__}: {str(exc)[:200]})"))
-
-    interrupted = None
-    if todo:
-        args = (os.path.abspath(out) if out is not None else None, batch.outputs)
-        cm = _borrowed(client) if client is not None else connect(workers=workers, scheduler=scheduler)
-        with cm as c:
-            n_threads = threads(c)
+        def on_row(job, row: dict) -> None:
+            new.append(row)
             if reporter is not None:
-                reporter.begin(len(todo), len(kept), n_threads)
-            chunks, i = [], 0
-            for size in chunk_sizes(len(todo), n_threads):
-                chunks.append(todo[i:i + size])
-                i += size
-            interrupted = execute(c, solve_jobs, chunks, key=lambda ch: ch[0].id, args=args, on_result=on_chunk,
-                                  on_error=on_error)
-    elif reporter is not None:
-        reporter.begin(0, len(kept), 0)
-    paths = save()
+                reporter.row(row)
+            if out is not None and time.perf_counter() - last_write[0] > checkpoint_s:
+                save()
+
+        def on_chunk(chunk, rows: list[dict]) -> None:
+            for job, row in zip(chunk, rows):
+                on_row(job, row)
+
+        def on_error(chunk, exc: BaseException) -> None:
+            for job in chunk:
+                on_row(job, error_row(job, f"the Dask task failed ({type(exc).__name__}: {str(exc)[:200]})"))
+
+        interrupted = None
+        if todo:
+            args = (os.path.abspath(out) if out is not None else None, batch.outputs)
+            cm = (_borrowed(client) if client is not None
+                  else connect(workers=workers, scheduler=scheduler, timeout=connect_timeout, key=scheduler_key))
+            with cm as c:
+                n_threads = threads(c)
+                if work is not None and (client is not None or scheduler):
+                    warned = check_batch_workload(work, n_threads, local=False)
+                # a batch the estimate did not announce says so if it still runs after WARN_SECONDS
+                overdue = Heartbeat(None, False, start=start, overdue=WARN_SECONDS) if work is not None and not warned else None
+                if reporter is not None:
+                    reporter.begin(len(todo), len(kept), n_threads)
+                chunks, i = [], 0
+                for size in chunk_sizes(len(todo), n_threads):
+                    chunks.append(todo[i:i + size])
+                    i += size
+                with overdue or nullcontext():
+                    interrupted = execute(c, solve_jobs, chunks, key=lambda ch: ch[0].id, args=args,
+                                          on_result=on_chunk, on_error=on_error)
+        elif reporter is not None:
+            reporter.begin(0, len(kept), 0)
+        paths = save()
     rows = kept + new
     return BatchRun(
         table=results.table(rows, _sweep_columns(batch)), total=len(batch.jobs), solved=len(new), skipped=len(kept),

@@ -59,7 +59,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.plan import reproducible_summary, sample_plan, summarise
     from hoc_cli.commands.plan_goals import goal_summary
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
-    from hoc_cli.commands.starts import starts_summary
+    from hoc_cli.commands.starts import check_starts, starts_summary
     from hoc_cli.errors import HocError
     from hoc_cli.io.task import load_task, parse_task, resolve
     from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
@@ -70,7 +70,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     if job.doc is None:
         task = load_task(source, purpose="plan")  # raises the reason the file is not a task
     else:
-        task = parse_task(job.doc, path=source, text=job.text, purpose="plan")
+        task = parse_task(job.doc, path=source, text=job.yaml_text(), purpose="plan")
     names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
     targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
     check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)
@@ -83,6 +83,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
+    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts", scheduler=False)
     problem = problem_from_task(task, model, states, limits if task.limits.mode == "enforce" else None)
     if problem.has_goals and starts > 1:
         raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",

@@ -6,6 +6,9 @@ Columns: ``id``, ``task``, one column per sweep key (its key path; a sweep over 
 ``boundary_error``, ``limits`` (ok | violated), ``limit_violations`` (JSON text), [``best_start``,
 ``start_costs`` with multi-start],
 ``outputs`` (paths relative to the results directory), ``error``, ``solve_time_s``.
+
+The Parquet file's metadata holds the identity of the spec the rows come from (``IDENTITY_KEY``:
+``hoc_cli.batch.spec.Batch.identity``), which ``read`` checks for ``--resume``.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ TAIL = ("status", "converged", "cost", "T_optimal", "iterations", "evaluations",
 OPTIONAL = ("T_optimal", "best_start", "start_costs")
 RENAMED = {"cost": "cost_type"}  # sweep key -> column, where the key is also a result column
 TIMING = ("solve_time_s",)  # the only columns that differ between runs of the same batch
+IDENTITY_KEY = b"hoc.batch.spec"  # Parquet metadata: the identity of the spec the rows come from
 
 
 def column_name(sweep_key: str) -> str:
@@ -71,12 +75,18 @@ def table(rows: list[dict], sweep_columns: Iterable[str] = ()):
     return pa.Table.from_arrays(arrays, names=names)
 
 
-def write(out_dir: Path, tab) -> list[Path]:
-    """Write ``results.parquet`` and ``results.csv`` into ``out_dir`` (both replaced, or neither)."""
+def write(out_dir: Path, tab, identity: str | None = None) -> list[Path]:
+    """Write ``results.parquet`` and ``results.csv`` into ``out_dir`` (both replaced, or neither).
+
+    ``identity`` (the spec's, ``hoc_cli.batch.spec.Batch.identity``) is stored in the Parquet file's
+    metadata under ``IDENTITY_KEY``, for ``read`` to check.
+    """
     import pyarrow.parquet as pq
 
     from hoc_cli.commands.common import atomic_output, output_transaction
 
+    if identity is not None:
+        tab = tab.replace_schema_metadata({**(tab.schema.metadata or {}), IDENTITY_KEY: identity.encode("ascii")})
     paths = [out_dir / PARQUET, out_dir / CSV]
     with output_transaction():
         with atomic_output(paths[0]) as fh:
@@ -116,8 +126,13 @@ def _finite(v: Any) -> bool:
     return True
 
 
-def read(out_dir: Path) -> list[dict]:
-    """The rows of an existing ``results.parquet`` ([] when there is none)."""
+def read(out_dir: Path, identity: str | None = None) -> list[dict]:
+    """The rows of an existing ``results.parquet`` ([] when there is none).
+
+    With ``identity``, the file must have been written by ``hoc batch`` from a spec of that identity
+    (``write``); anything else (another spec's results, a table not written by hoc batch, a file
+    that is not Parquet) is an InputFileError (exit 2), so that ``--resume`` never mixes results.
+    """
     import pyarrow.parquet as pq
 
     from hoc_cli.errors import InputFileError
@@ -125,11 +140,30 @@ def read(out_dir: Path) -> list[dict]:
     path = out_dir / PARQUET
     if not path.exists():
         return []
+
+    def unreadable(exc: Exception) -> InputFileError:
+        return InputFileError(f"cannot be read as a results table ({type(exc).__name__}); move it away or drop "
+                              "--resume", file=path, key="--resume")
+
+    if identity is not None:
+        try:
+            schema = pq.read_schema(path)  # the metadata first: another table is not read whole
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
+            raise unreadable(exc) from None
+        stored = (schema.metadata or {}).get(IDENTITY_KEY)
+        if stored is None:
+            raise InputFileError("was not written by 'hoc batch' (it records no spec); move it away or write to "
+                                 "another folder (expected the results of this spec)", file=path, key="--resume")
+        if stored != identity.encode("ascii"):
+            raise InputFileError("holds the results of another spec (a different set of plans or outputs); rerun "
+                                 "without --resume, or write to another folder (expected the results of this spec)",
+                                 file=path, key="--resume")
     try:
-        rows = pq.read_table(path).to_pylist()
+        tab = pq.read_table(path)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is one input error
-        raise InputFileError(f"cannot be read as a results table ({type(exc).__name__}); move it away or drop "
-                             "--resume", file=path, key="--resume") from None
-    if rows and "id" not in rows[0]:
-        raise InputFileError("has no id column (expected a table written by 'hoc batch')", file=path, key="--resume")
+        raise unreadable(exc) from None
+    rows = tab.to_pylist()
+    if "id" not in tab.column_names or not all(isinstance(r.get("id"), str) for r in rows):
+        raise InputFileError("has no id column of text (expected a table written by 'hoc batch')", file=path,
+                             key="--resume")
     return rows

@@ -32,12 +32,16 @@ from typing import Any
 import numpy as np
 import yaml
 
+from hoc_cli.commands.starts import MAX_STARTS
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task import load_task, load_yaml
 
 SPEC_KEYS = ("base", "sweep", "tasks", "outputs", "starts", "seed")
 OUTPUT_KINDS = ("csv", "mcap")
 MAX_JOBS = 1_000_000
+EXPAND_S = 1e-4  # expanding and checking one swept plan [s] (measured: 0.9 s for 10 000)
+EXPAND_WARN_PLANS = 100_000  # warn before expanding a sweep larger than this (over about 10 s)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # libyaml's emitter when present: 5x faster
 _PART = re.compile(r"^([A-Za-z_][\w-]*)((?:\[\d+\])*)$")
 
 
@@ -47,8 +51,8 @@ class Job:
 
     id : content hash of the resolved task (the URDF by its SHA-256), 16 hex digits;
     source : absolute path of the task file the plan comes from (the base of a sweep), against which
-    a relative ``robot`` is resolved; text : the task as YAML text (stored in MCAP outputs);
-    swept : key path -> value.
+    a relative ``robot`` is resolved; text : the task file's text ("" for a swept task: see
+    ``yaml_text``); swept : key path -> value.
     """
 
     id: str
@@ -59,6 +63,14 @@ class Job:
     starts: int | None = None
     seed: int | None = None
 
+    def yaml_text(self) -> str:
+        """The task as YAML text (stored in MCAP outputs): the file's text, or a swept task's document
+        written out (on the worker: it is most of the cost of expanding a sweep).
+        """
+        if self.text or self.doc is None:
+            return self.text
+        return yaml.dump(self.doc, Dumper=_DUMPER, sort_keys=False, default_flow_style=None)
+
 
 @dataclass(frozen=True, eq=False)
 class Batch:
@@ -68,6 +80,16 @@ class Batch:
     sweep_keys: list[str]
     outputs: tuple[str, ...]
     duplicates: int = 0
+
+    @property
+    def identity(self) -> str:
+        """The spec's identity: a hash of what it asks for (its plans' ids and the per-plan outputs).
+
+        Two specs with the same identity solve the same plans into the same files, however they are
+        written (key order, comments, file names, a sweep or the same tasks listed); it is stored with
+        the results so that ``--resume`` never merges another spec's rows.
+        """
+        return _digest({"plans": sorted(job.id for job in self.jobs), "outputs": sorted(self.outputs)})
 
 
 def load_spec(spec: str | Path | dict | list, *, where: Path | None = None) -> Batch:
@@ -108,7 +130,7 @@ def expand(doc: Any, *, path: Path | None, where: Path) -> Batch:
         raise TaskError("expected exactly one of 'base' (with 'sweep') or 'tasks'", file=label)
     outputs = _outputs(doc.get("outputs"), fail)
     # absent: each task's own solver.starts / solver.seed (default 1 and 0)
-    starts = _integer(doc["starts"], "starts", 1, fail) if "starts" in doc else None
+    starts = _integer(doc["starts"], "starts", 1, fail, MAX_STARTS) if "starts" in doc else None
     seed = _integer(doc["seed"], "seed", 0, fail) if "seed" in doc else None
     if "tasks" in doc:
         if "sweep" in doc:
@@ -131,9 +153,11 @@ def _failer(label):
     return fail
 
 
-def _integer(value: Any, key: str, minimum: int, fail) -> int:
+def _integer(value: Any, key: str, minimum: int, fail, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise fail(key, f"an integer >= {minimum}", value)
+        raise fail(key, f"an integer >= {minimum}" + (f" and <= {maximum}" if maximum else ""), value)
+    if maximum is not None and value > maximum:
+        raise fail(key, f"an integer >= {minimum} and <= {maximum}", value)
     return int(value)
 
 
@@ -201,20 +225,76 @@ def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, la
         else:
             raise fail(where_key, "a non-empty list of values, {random: {...}} or {grid: {...}}", spec)
         axes.append(values)
+        if math.prod(len(a) for a in axes) > MAX_JOBS:  # before the next axis is drawn
+            raise TaskError(f"the sweep has more than {MAX_JOBS} plans (expected at most {MAX_JOBS})", file=label,
+                            key=where_key)
         keys.append(str(key))
     total = math.prod(len(a) for a in axes)
     if total > MAX_JOBS:
         raise TaskError(f"the sweep has {total} plans (expected at most {MAX_JOBS})", file=label, key="sweep")
+    if total > EXPAND_WARN_PLANS:
+        from hoc_cli.commands.common import warn
+
+        warn(f"the sweep has {total} plans: checking and expanding them takes about {total * EXPAND_S:.0f} s "
+             "before the batch starts")
     paths = [_key_path(k, k, label) for k in keys]
+    models: dict = {}
+    for key, parts, values in zip(keys, paths, axes):  # each value alone on the base: a wrong key names itself
+        for value in values:
+            alone = copy.deepcopy(base_doc)
+            _set(alone, parts, value, f"sweep.{key}", label)
+            _refuse_unknown_keys(alone, base_path, [key], label, models)
     jobs = []
     for combo in itertools.product(*axes):
         resolved = copy.deepcopy(base_doc)
         for key, parts, value in zip(keys, paths, combo):
             _set(resolved, parts, value, f"sweep.{key}", label)
-        text = yaml.safe_dump(resolved, sort_keys=False, default_flow_style=None)
+        if len(keys) > 1:  # every variant, as its worker will parse it (one axis: each value was checked above)
+            _refuse_unknown_keys(resolved, base_path, keys, label, models)
         jobs.append(Job(id=task_id(resolved, base_path, starts, seed), source=str(base_path), doc=resolved,
-                        text=text, swept=dict(zip(keys, combo)), starts=starts, seed=seed))
+                        text="", swept=dict(zip(keys, combo)), starts=starts, seed=seed))
     return jobs, keys
+
+
+#: the messages of ``hoc_cli.io.task`` and ``load_model`` for a key or joint name that does not exist
+#: (as opposed to a value that is invalid, which becomes the plan's error row)
+_NAME_ERRORS = ("unknown ", "is not a task joint", "not a movable joint", "no such joint")
+
+
+def _refuse_unknown_keys(doc: dict, base_path: Path, keys: list[str], label, models: dict | None = None) -> None:
+    """TaskError (exit 2) when the swept task ``doc`` has a key the task schema does not know.
+
+    The task is parsed as its worker will parse it (``hoc_cli.io.task.parse_task``, about 60 µs)
+    and its joint-indexed keys resolved against its robot (loaded once per robot, joints and locked
+    joints into ``models``): a key (or a joint name used as a key) that does not exist is refused
+    here, naming the sweep key(s) that set it; an invalid value (``T: -1``) is left to become that
+    plan's error row.
+    """
+    from hoc_cli.errors import HocError
+    from hoc_cli.io.task import parse_task, resolve
+
+    try:
+        task = parse_task(copy.deepcopy(doc), path=base_path, text="", purpose="plan")
+        if models is not None:
+            spec = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
+            if spec not in models:
+                from hoc_cli.commands.common import load_model
+
+                try:
+                    models[spec] = load_model(task)
+                except TaskError:
+                    raise
+                except HocError:  # a URDF that cannot be used: the plan's error row says why
+                    models[spec] = None
+            if models[spec] is not None:
+                resolve(task, models[spec].joint_names)
+    except TaskError as exc:
+        if not any(m in exc.detail if m != "unknown " else exc.detail.startswith(m) for m in _NAME_ERRORS):
+            return
+        where = exc.key or ""
+        named = [k for k in keys if where == k or where.startswith((k + ".", k + "[")) or k.startswith(where + ".")]
+        swept = ", ".join(f"sweep.{k}" for k in (named or keys))
+        raise TaskError(f"in the swept task, {where}: {exc.detail}", file=label, key=swept) from None
 
 
 def _key_path(key: Any, where_key: str, label) -> list[str | int]:
@@ -273,7 +353,7 @@ def _random(spec: dict, parts: list, base_doc: dict, model, where_key: str, fail
     if len(spec) != 1 or not isinstance(r, dict) or set(r) - {"count", "within", "seed"}:
         raise fail(where_key, "{random: {count: K, within: limits | [low, high] | [[low, high], ...], seed: S}}",
                    spec)
-    count = _integer(r.get("count"), f"{where_key}.random.count", 1, fail)
+    count = _integer(r.get("count"), f"{where_key}.random.count", 1, fail, MAX_JOBS)
     seed = _integer(r.get("seed", 0), f"{where_key}.random.seed", 0, fail)
     low, high = _bounds(r.get("within"), parts, base_doc, model, f"{where_key}.random.within", fail)
     rng = np.random.default_rng(seed)
@@ -329,7 +409,7 @@ def _grid(spec: dict, where_key: str, fail) -> list:
         raise fail(f"{where_key}.grid", "numbers (or equal-length lists) for start and stop", [a, b])
     integral = all(isinstance(v, int) for v in np.ravel([a, b]).tolist() + ([g.get("step")] if "step" in g else []))
     if "num" in g:
-        num = _integer(g["num"], f"{where_key}.grid.num", 1, fail)
+        num = _integer(g["num"], f"{where_key}.grid.num", 1, fail, MAX_JOBS)
         pts = np.linspace(np.asarray(a, float), np.asarray(b, float), num)
     else:
         h = g["step"]

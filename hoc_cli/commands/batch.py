@@ -10,18 +10,26 @@ from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNM
 
 
 def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None = None, scheduler: str | None = None,
-        resume: bool = False, as_json: bool = False, quiet: bool = False, progress: bool = False) -> int:
+        resume: bool = False, as_json: bool = False, quiet: bool = False, progress: bool = False,
+        connect_timeout: float | None = None) -> int:
     from hoc_cli.batch import execute_batch
 
     spec, stem = _spec_argument(specs)
     out = out_dir if out_dir is not None else Path(f"{stem}_batch")
+    from hoc_cli.batch.engine import check_timeout, parse_address
+
+    check_timeout(connect_timeout)  # given without --scheduler too: a wrong value is still an error
+    key = "--scheduler" if scheduler is not None else "DASK_SCHEDULER_ADDRESS"
+    if scheduler is not None:
+        parse_address(scheduler, key)  # '' or '  ' is not an address either
     scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     logging.getLogger("distributed").setLevel(logging.ERROR)  # the client's own chatter; errors are rows
     console = stderr_console(quiet=quiet, progress=progress)
     reporter = _Reporter(console) if not quiet and (progress or console.is_terminal) else None
     try:
         result = execute_batch(spec, out_dir=out, resume=resume, workers=workers, scheduler=scheduler,
-                               reporter=reporter)
+                               reporter=reporter, connect_timeout=connect_timeout, estimate=True,
+                               scheduler_key=key)
     finally:
         if reporter is not None:
             reporter.close()

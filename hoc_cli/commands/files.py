@@ -3,7 +3,9 @@
 Every output is written to a temporary file beside its target (``.<name>.<random>.tmp``) and
 renamed into place only when complete; inside ``output_transaction`` the renames wait until every
 output is complete and run with SIGINT, SIGTERM and SIGHUP blocked. On any failure every temporary
-file is removed and every existing target is left as it was.
+file is removed and every existing target is left as it was. The renames of one transaction hold a
+lock on the folders they go to (``hoc_cli.commands.locks``), so two runs writing the same files
+leave one run's whole set, never a mix of both.
 """
 from __future__ import annotations
 
@@ -176,17 +178,29 @@ def output_transaction() -> Iterator[None]:
         raise
     finally:
         _pending = outer
-    with _signals_blocked():
-        for i, (tmp, path) in enumerate(mine):
-            try:
-                os.replace(tmp, path)
-            except BaseException as exc:
-                for rest, _ in mine[i:]:
-                    _unlink(rest)
-                if isinstance(exc, OSError):
-                    raise _write_error(path, exc) from None
-                raise
-            _committed.append(str(path))
+    from hoc_cli.commands.locks import directories_locked
+
+    lock = directories_locked(path for _, path in mine)  # another run's renames into these folders: before or after
+    try:
+        lock.__enter__()
+    except BaseException:
+        for tmp, _ in mine:
+            _unlink(tmp)
+        raise
+    try:
+        with _signals_blocked():
+            for i, (tmp, path) in enumerate(mine):
+                try:
+                    os.replace(tmp, path)
+                except BaseException as exc:
+                    for rest, _ in mine[i:]:
+                        _unlink(rest)
+                    if isinstance(exc, OSError):
+                        raise _write_error(path, exc) from None
+                    raise
+                _committed.append(str(path))
+    finally:
+        lock.__exit__(None, None, None)
 
 
 @contextmanager

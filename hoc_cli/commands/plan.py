@@ -39,7 +39,7 @@ from hoc_cli.commands.plan_collision import (
 )
 from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside, refuse_infeasible
-from hoc_cli.commands.workload import Heartbeat, check_workload
+from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import HocError, Infeasible, InputFileError, OutputError, TaskError
 from hoc_cli.goals.mesh import scaled_mesh
@@ -122,10 +122,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             if as_json:
                 print_json(json_ready(exc.summary))
             raise
-    check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
+    work = check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
 
     start = time.perf_counter()
-    beat = Heartbeat(console, show, start=start)  # a progress line at least every 3 s with --progress
+    # a progress line at least every 3 s with --progress; a warning at 10 s if the estimate promised less
+    beat = Heartbeat(console, show, start=start, overdue=None if work.heavy else WARN_SECONDS)
 
     def report(log) -> None:
         beat.tick(f"solving (after iteration {log.iteration} on N = {log.level})")

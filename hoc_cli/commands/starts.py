@@ -22,14 +22,27 @@ def starts_summary(multi, seed: int) -> dict:
     return {"seed": seed, "best_start": multi.best_index, "starts": [o.as_dict() for o in multi.outcomes]}
 
 
-def check_starts(starts: int, seed: int, init: Path | None, key: str = "--starts") -> None:
-    """Refuse a starts count < 1, a seed < 0, and multi-start with --init; ``key`` names where ``starts`` came from."""
-    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise TaskError(f"expected an integer >= 1, got {starts!r}", key=key)
+#: the most starts of one multi-start solve (each is a whole solve; beyond a few dozen they rarely find a
+#: better optimum, and a count like 10^6 would only keep the machine busy for days)
+MAX_STARTS = 1000
+
+
+def check_starts(starts: int, seed: int, init: Path | None, key: str = "--starts", *, scheduler: bool = True) -> None:
+    """Refuse a starts count < 1 or > MAX_STARTS, a seed < 0, and multi-start with --init; ``key`` names where
+    ``starts`` came from. With ``scheduler`` and more than one start, a ``DASK_SCHEDULER_ADDRESS`` (where
+    the starts would run) must answer as a Dask scheduler (``hoc_cli.batch.engine.probe_scheduler``).
+    """
+    if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= MAX_STARTS:
+        raise TaskError(f"expected an integer from 1 to {MAX_STARTS}, got {starts!r}", key=key)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise TaskError(f"expected an integer >= 0, got {seed!r}", key="--seed")
     if starts > 1 and init is not None:
         raise TaskError("multi-start cannot be combined with --init (a warm start is a single start)", key=key)
+    address = os.environ.get("DASK_SCHEDULER_ADDRESS")
+    if scheduler and starts > 1 and address:
+        from hoc_cli.batch.engine import CONNECT_TIMEOUT_S, probe_scheduler
+
+        probe_scheduler(address, CONNECT_TIMEOUT_S, "DASK_SCHEDULER_ADDRESS")  # before start 0 is solved
 
 
 #: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would
@@ -47,5 +60,5 @@ def starts_pool(t0: float, remaining: int):
     if not scheduler and (cores < 2 or remaining < 2 or t0 * remaining < PARALLEL_STARTS_MIN_S):
         yield None
         return
-    with connect(workers=min(cores, remaining), scheduler=scheduler) as client:
+    with connect(workers=min(cores, remaining), scheduler=scheduler, key="DASK_SCHEDULER_ADDRESS") as client:
         yield client
