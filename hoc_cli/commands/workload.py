@@ -216,7 +216,7 @@ class Heartbeat:
             self._thread = self._stop = None
 
     def _watch(self, stop: threading.Event) -> None:
-        while not stop.wait(min(0.5, self.interval / 2)):
+        while True:  # checked at once (a phase entered late may already be overdue), then every half second
             if self.overdue is not None and time.perf_counter() - self.start >= self.overdue:
                 self.overdue = None
                 warn(f"this run has taken {duration(time.perf_counter() - self.start)} so far, longer than its "
@@ -224,6 +224,8 @@ class Heartbeat:
             if self.enabled and time.perf_counter() - self.last >= self.interval:
                 self.last = time.perf_counter()
                 self._print(f"still {self.status}")
+            if stop.wait(min(0.5, self.interval / 2)):
+                return
 
     def _print(self, text: str) -> None:
         try:
