@@ -452,3 +452,15 @@ def test_a_batch_that_outlasts_an_estimate_under_the_threshold_says_so_while_it_
         result = execute_batch(write_spec(tmp_path), out_dir=tmp_path / "out", workers=1, estimate=True)
     said = [str(w.message) for w in caught]
     assert result.solved == 2 and len(said) == 1 and said[0].startswith("this run has taken") and "estimate" in said[0]
+
+
+def test_a_batch_row_tells_the_truth_as_hoc_plan_does(tmp_path):
+    """A plan proven infeasible before its solve is an `infeasible` row (velocity: 1.2 rad in 0.05 s at
+    10 rad/s cannot be done), a feasible one `converged`; every row of a batch is ``hoc plan``'s summary."""
+    from hoc_cli.batch.job import solve_job
+    from hoc_cli.batch.spec import load_spec
+
+    rows = [solve_job(job) for job in load_spec(write_spec(tmp_path, sweep="T: [0.05, 1.5]")).jobs]
+    by_T = {row["T"]: row for row in rows}
+    assert by_T[0.05]["status"] == "infeasible" and "T >=" in by_T[0.05]["error"] and not by_T[0.05]["converged"]
+    assert by_T[1.5]["status"] == "converged" and by_T[1.5]["error"] is None

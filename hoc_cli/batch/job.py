@@ -20,8 +20,12 @@ PLANS_DIR = "plans"
 def solve_job(job: Job, out_dir: str | None = None, kinds: tuple[str, ...] = ()) -> dict:
     """Solve one job; returns its results row (see ``hoc_cli.batch.results.COLUMNS``)."""
     start = time.perf_counter()
+    from hoc_cli.errors import Infeasible
+
     try:
         row = _solve(job, out_dir, kinds)
+    except Infeasible as exc:  # proven before the solve: the row says so, as ``hoc plan`` does (exit 1)
+        row = error_row(job, _message(exc)) | {"status": "infeasible"}
     except Exception as exc:  # noqa: BLE001 - every failure of one plan becomes its row
         row = error_row(job, _message(exc))
     row["solve_time_s"] = time.perf_counter() - start
@@ -57,8 +61,8 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
     from hoc_cli.commands.plan import reproducible_summary, sample_plan, summarise
-    from hoc_cli.commands.plan_goals import goal_summary
-    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary
+    from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
+    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, refuse_infeasible
     from hoc_cli.commands.starts import check_starts, starts_summary
     from hoc_cli.errors import HocError
     from hoc_cli.io.task import load_task, parse_task, resolve
@@ -88,6 +92,8 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     if problem.has_goals and starts > 1:
         raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
                         file=task.path, key="solver.starts")
+    if task.limits.mode == "enforce":  # a task no trajectory within the limits can meet: proven before the solve
+        refuse_infeasible(task, RobotSystem(model), limits, states)
     options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
                            estimate_error=False)  # as ``hoc plan``, without its error estimate
     try:
@@ -97,11 +103,14 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
             raise
         raise type(exc)(exc.detail, file=task.path, key=exc.key) from None
     result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
+    if task.time.free is not None:
+        result = cold(result)  # its last solve says "warm replan": a batch plan has no --init
     extra, multi, goals = dict(planned.details), planned.multi, planned.goals
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
     summary.update(starts_summary(multi, seed))
     summary.update(extra | goal_summary(model, result, goals))
+    summary.update(goal_miss(result, summary))  # "goal missed by X (key)", not "the stopping test held"
     summary = json_ready(summary)
     if targets:
         (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
