@@ -68,9 +68,12 @@ def test_an_infeasible_move_exits_1_names_the_binding_joint_and_the_shortest_dur
 
 
 def test_an_infeasible_move_found_by_the_solve_writes_the_least_violating_plan(workdir):
-    """Gravity alone breaks the shoulder's effort limit at x0, but with no acceleration limit that is no proof
-    (the arm may start by falling: hoc_cli.constraints.feasibility); the solve finds the task infeasible."""
-    r, s = plan(workdir, TASK.replace("N: 16", "N: 4") + "limits: {effort: {shoulder: 1.0e-3}}\n")
+    """Gravity alone breaks the shoulder's effort limit at x0 and x1, moving states (not rest states the arm holds),
+    and with no acceleration limit that is no proof (the arm may start by falling: hoc_cli.constraints.feasibility);
+    the solve finds the task infeasible."""
+    moving = (TASK.replace("N: 16", "N: 4").replace("x0: {q: [0.0, 0.0]}", "x0: {q: [0.0, 0.0], dq: [0.5, 0.0]}")
+              .replace("x1: {q: [1.2, -0.6]}", "x1: {q: [1.2, -0.6], dq: [0.5, 0.0]}"))
+    r, s = plan(workdir, moving + "limits: {effort: {shoulder: 1.0e-3}}\n")
     assert r.exit_code == 1
     assert s["status"] == "infeasible" and not s["converged"] and "shoulder effort binds" in s["message"]
     assert (workdir / "out.csv").exists()  # the least-violating plan is written

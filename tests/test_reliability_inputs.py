@@ -350,8 +350,10 @@ def test_an_effort_limit_at_a_pinned_state_is_infeasible_only_within_acceleratio
     (TASK.replace("T: 1.5", "T: {free: true, min: 0.01, max: 0.1}"), [], ("T.max:", "T.max = 0.1 s", "0.12 s")),
     (TASK + "limits: {acceleration: {shoulder: 1.0, elbow: 1.0}, effort: {shoulder: 1.0}}\n", [],
      ("limits:", "at x0", "shoulder needs |u| >=", "no duration T helps")),
+    ("robot: pend.urdf\nx0: {q: [0.0]}\nx1: {q: [1.0], dq: [0.5]}\nT: 1.0\nN: 4\nlimits: {effort: {pivot: 1.0e-3}}\n",
+     [], ("T:", "energy", "effort and velocity limits")),
     ("robot: pend.urdf\nx0: {q: [0.0]}\nx1: {q: [1.0]}\nT: 1.0\nN: 4\nlimits: {effort: {pivot: 1.0e-3}}\n", [],
-     ("T:", "energy", "effort and velocity limits")),
+     ("limits:", "x1 (t = T) is a rest state the arm holds", "pivot |u| =", "no duration T helps")),
 ])
 def test_provably_infeasible_tasks_exit_1_at_once(workdir, text, args, needles):
     shutil.copy(ROBOTS / "pendulum.urdf", workdir / "pend.urdf")

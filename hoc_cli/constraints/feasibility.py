@@ -179,6 +179,28 @@ def instant_bound(system, limits: JointLimits, p: Pinned) -> Bound | None:
     return None
 
 
+def holding_bound(system, limits: JointLimits, p: Pinned) -> Bound | None:
+    """``Bound(inf, "effort", …)`` when p is a rest state at an end of the move (x0 at s = 0, a joint goal x1 at
+    s = 1, q̇ = 0) whose gravity torque g(q) = u(q, 0, 0) breaks an effort limit, else None.
+
+    A rest state at an end is one the arm holds: before t = 0 it stands at x0, after T at x1. Holding q
+    takes u = g(q) (no q̈, no q̇), so an effort limit below |g_i(q)| leaves the arm unable to stand there
+    whatever the plan does between. (Within the move q̈(0) and q̈(T) are free, so this is the end states'
+    requirement, not a bound on the plan's own torques.)
+    """
+    if p.dq is None or p.s not in (0.0, 1.0) or np.any(p.dq != 0) or not np.isfinite(limits.effort).any():
+        return None
+    g = system.inverse_dynamics(p.q[None, :], np.zeros((1, p.q.size)), np.zeros((1, p.q.size)))[0]
+    e = limits.effort
+    over = np.isfinite(e) & (np.abs(g) > e * (1 + MARGIN) + MARGIN * 1e-6)
+    if not over.any():
+        return None
+    i = int(np.argmax(np.where(over, np.abs(g) - e, -np.inf)))
+    return Bound(math.inf, "effort", limits.joints[i],
+                 f"{p.label} is a rest state the arm holds, and holding it against gravity takes {limits.joints[i]} "
+                 f"|u| = {abs(g[i]):.6g}, over its effort limit {e[i]:.6g}")
+
+
 def _box_feasible(M: np.ndarray, h: np.ndarray, e: np.ndarray, a: np.ndarray) -> bool:
     """Whether some x with |x| <= a has |M x + h| <= e (a linear programme; True when undecided)."""
     from scipy.optimize import linprog
@@ -203,9 +225,9 @@ def infeasibility(system, limits: JointLimits, pinned: Sequence[Pinned], T_max: 
     points = sorted(pinned, key=lambda p: p.s)
     bounds: list[Bound] = []
     for p in points:
-        b = instant_bound(system, limits, p)
-        if b is not None:
-            bounds.append(b)
+        for b in (instant_bound(system, limits, p), holding_bound(system, limits, p)):
+            if b is not None:
+                bounds.append(b)
     for a, b in zip(points, points[1:]):
         bounds += segment_bounds(system, limits, a, b)
     known = [p for p in points if p.dq is not None]
