@@ -8,7 +8,7 @@ Keys (README, "Catching in real time"):
              target's acceleration), drag: k 1/m (default 0)}
     observe: {rate: Hz (100), noise: σ m (0.005), seed: int (0), latency: s (0),
              prior: {position: σ m, velocity: σ m/s} or null (default 0.05, 0.25)}
-    cycle:   {rate: Hz (50), budget: s (0.02), steps: int (3), commit: s (0.03)}
+    cycle:   {rate: Hz (50), budget: s (0.02), steps: int (3), commit: s (0.03), fix: s (0.1)}
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from hoc_cli.realtime.loop import Cycle, Observer, Throw
 TOP = ("task", "throw", "observe", "cycle")
 THROW = ("position", "velocity", "gravity", "drag")
 OBSERVE = ("rate", "noise", "seed", "latency", "prior")
-CYCLE = ("rate", "budget", "steps", "commit")
+CYCLE = ("rate", "budget", "steps", "commit", "fix")
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,4 +168,5 @@ def _cycle(c: _Keys, value: Any) -> Cycle:
     return Cycle(rate=c.number(m.get("rate", d.rate), "cycle.rate", low=0.0, strict=True),
                  budget=c.number(m.get("budget", d.budget), "cycle.budget", low=0.0, strict=True),
                  steps=c.integer(m.get("steps", d.steps), "cycle.steps", 1),
-                 commit=c.number(m.get("commit", d.commit), "cycle.commit", low=0.0))
+                 commit=c.number(m.get("commit", d.commit), "cycle.commit", low=0.0),
+                 fix=c.number(m.get("fix", d.fix), "cycle.fix", low=0.0))

@@ -79,13 +79,15 @@ class Observer:
 @dataclass(frozen=True)
 class Cycle:
     """The control cycle: ``rate`` [Hz], ``budget`` [s] of wall time per update, ``steps`` SQP steps per update at
-    most, ``commit`` [s]: no update once less than this would remain to the catch.
+    most, ``commit`` [s]: no update once less than this would remain to the catch; ``fix`` [s]: once less than this
+    remains, the updates keep the catch time (a fixed T: steps in T are far from linear on a short remaining time).
     """
 
     rate: float = 50.0
     budget: float = 0.02
     steps: int = 3
     commit: float = 0.03
+    fix: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -246,7 +248,7 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         x = (cur.state(t_next)[0], cur.state(t_next, 1)[0])
         start = (t_next, x[0], x[1])
         c0 = time.thread_time()
-        new = rp.update(t_next, x, target, cycle.budget)
+        new = rp.update(t_next, x, target, cycle.budget, free_time=cur.t_end - t_next >= cycle.fix)
         cpu = time.thread_time() - c0
         p_true, v_true = throw.states(t_next)
         rec = CycleRecord(t=t_k, t_start=t_next, plan=new, cpu_s=cpu, position=p, velocity=v, acceleration=g,

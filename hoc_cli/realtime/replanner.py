@@ -172,9 +172,11 @@ class Replanner:
                                    time=Free(span.min, span.max, span.weight, guess), link_goal=goal)
 
     # -- the update ---------------------------------------------------------------------------------------
-    def update(self, t: float, x, target: Target, budget_s: float) -> CyclePlan:
+    def update(self, t: float, x, target: Target, budget_s: float, *, free_time: bool = True) -> CyclePlan:
         """The plan from the state x = (q (n,), q̇ (n,)) at absolute time t [s] towards ``target`` (its estimate
-        at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict.
+        at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict (the first
+        step is always taken). ``free_time`` False keeps the catch time of the plan in force (T = its remaining
+        time): near the catch, where a step in T is far from linear.
         """
         start = time.perf_counter()
         deadline = start + budget_s
@@ -183,7 +185,7 @@ class Replanner:
         remaining = cur.t_end - t
         if span is None or remaining < MIN_REMAINING:
             return self._hold(start)
-        shifted = shift_plan(cur.mesh, cur.coeffs, cur.t0, t, min(max(remaining, span.min), span.max))
+        shifted = shift_plan(cur.mesh, cur.coeffs, cur.t0, t, min(max(remaining, span.min), span.max) if free_time else None)
         mesh, C = shifted.mesh, shifted.coeffs
         q, dq = (np.asarray(v, float) for v in x[:2])
         C[0, 0], C[0, 1] = q, dq
@@ -201,7 +203,7 @@ class Replanner:
             return steps >= self.max_steps or self._late(now, deadline)
 
         try:
-            out = qp_steps(self.system, plan0, goals, lam, active, free=span, limits=self.limits,
+            out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
                            tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J), 1.0),
                            floor=VIOLATION_FLOOR, stop=stop)
         except NumericalError:
