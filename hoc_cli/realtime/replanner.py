@@ -15,17 +15,20 @@ converges. ``Replanner.update(t, x, target, budget_s)``:
    shifted plan, the goal rows' and the limits' multipliers carried from the last cycle, until the
    programme's convergence test holds or the budget would be overrun: a step is started only when the
    time spent plus the largest of the last measured step times (and of the wrap-up) fits in the budget;
-4. returns a plan whose every kinematic Bernstein row holds (``limits_guard``): position, velocity,
-   acceleration and jerk within their limits on the whole plan (the Bernstein hull contains the curve).
+4. returns a plan within every joint limit by ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the
+   torque at 32 points per element): its kinematic Bernstein rows are made to hold (``limits_guard``), and a plan
+   that still fails the check (the torque limits are not rows of the steps) is not returned: the plan in force is
+   kept ("held"), which passed the same check when it was returned.
 
 What one step guarantees: the step's programme imposes the Bernstein rows within 5 % of their bound as
 linear inequalities, which they are in the coefficients at a fixed T; a full step at a fixed T therefore
 meets them exactly (to the programme's rounding), a damped step from a point that met them too (convex
 combination), and rows farther than 5 % from their bound hold unless one step crosses that gap. With a free
 T the rows' dependence on T is linearised, so a step that moves T meets them to first order only. The
-exact guarantee (every returned plan within the kinematic limits) comes from the guard: the plan after the
-steps is checked row by row; rows broken are projected back, at the plan's T, onto all the linear rows
-(a least-distance programme, ``limits_guard.project``); should that fail, the plan in force is kept.
+exact guarantee (every returned plan within its limits) comes from the guard and the check: the plan after the
+steps is checked row by row; rows broken are projected back, at the plan's T, onto all the linear rows (a
+least-distance programme, ``limits_guard.guard``), and the result must pass ``check_limits``; else the plan in
+force is kept.
 Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -38,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hoc_cli.constraints.check import check_limits
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
@@ -156,10 +160,7 @@ class Replanner:
 
     def goals_for(self, target: Target) -> Goals:
         """The link goal with the target's estimate (its time origin the update's t)."""
-        final = dataclasses.replace(self.goals.final, position=np.asarray(target.position, float),
-                                    velocity=np.asarray(target.velocity, float),
-                                    acceleration=np.asarray(target.acceleration, float))
-        return dataclasses.replace(self.goals, final=final)
+        return goals_with_target(self.goals, target)
 
     def problem_at(self, t: float, x, target: Target, T_guess: float | None = None) -> OptimalControlProblem:
         """The update's problem from the state x = (q, q̇) at t as an ``OptimalControlProblem`` (for a cold solve)."""
@@ -213,8 +214,8 @@ class Replanner:
         r = sum(v.size for v in out.lam[:npts])
         C_new, mesh_new = pt.C, pt.problem.mesh
         safe = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free) if self.limits is not None else C_new
-        if safe is None:
-            return self._hold(start)
+        if safe is None or (self.limits is not None and not check_limits(self.system, self.limits, mesh_new, safe).feasible):
+            return self._hold(start)  # no projection found, or the effort limits (not rows of the steps) broken
         guarded = safe is not C_new
         J = pt.J if not guarded else float(pt.problem.value(pt.problem.layout.pack(safe)))
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
@@ -243,6 +244,14 @@ class Replanner:
         self.current = dataclasses.replace(self.current, steps=0, status="held",
                                            wall_time_s=time.perf_counter() - start)
         return self.current
+
+
+def goals_with_target(goals: Goals, target: Target) -> Goals:
+    """``goals`` with its link goal's target replaced by ``target`` (position, velocity, acceleration at time 0)."""
+    final = dataclasses.replace(goals.final, position=np.asarray(target.position, float),
+                                velocity=np.asarray(target.velocity, float),
+                                acceleration=np.asarray(target.acceleration, float))
+    return dataclasses.replace(goals, final=final)
 
 
 def carry_rows(active: ActiveRows, mu: np.ndarray, parent: np.ndarray) -> tuple[ActiveRows, np.ndarray]:
