@@ -40,7 +40,7 @@ def test_noisy_throws_are_caught_within_the_limits_in_every_cycle(catch):
     caught = 0
     for k, throw in enumerate(family(P0, V0, 4)):
         run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.005, seed=k),
-                        Cycle(rate=100.0, budget=10.0, steps=1, commit=0.02))
+                        Cycle(rate=100.0, budget=10.0, steps=1, commit=0.01))  # configs/catch_throw.yaml's cycle
         caught += run.caught
         assert run.cycles > 30
         for rec in run.records:  # every cycle's plan, by the exact extrema check

@@ -6,15 +6,16 @@ convergence: it takes one (or a few) Newton-type steps from the previous cycle's
 current time, so the iterate tracks the moving optimum while the problem itself (here the ball's estimate)
 converges. ``Replanner.update(t, x, target, budget_s)``:
 
-1. shifts the plan in force to start at t from the robot's state x = (q, q̇) (``shift.shifted_coefficients``;
-   N elements on the remaining part; the remaining duration stays free within the task's range, which is
-   counted from the task's t = 0);
+1. shifts the plan in force to start at t from the robot's state x = (q, q̇) (``shift.shift_plan``: N elements
+   on the remaining part, exactly the plan in force when its remaining duration is kept; the remaining duration
+   stays free within the task's range, which is counted from the task's t = 0, or is held near the catch);
 2. replaces the link goal by the target's latest estimate (position, velocity at t, constant acceleration);
 3. takes the warm replan's SQP steps (``hoc_cli.goals.replan_qp.qp_steps``: exact Newton matrix, the goal
    rows linearised, the kinematic Bernstein rows near their bound as inequalities, T with them) from the
    shifted plan, the goal rows' and the limits' multipliers carried from the last cycle, until the
-   programme's convergence test holds or the budget would be overrun: a step is started only when the
-   time spent plus the largest of the last measured step times (and of the wrap-up) fits in the budget;
+   programme's convergence test holds or the budget would be overrun: the first step is always taken (the
+   real-time iteration's step; a cycle whose first step alone exceeds the budget is an overrun), a further one
+   only when the time spent plus the largest of the last measured step times (and of the wrap-up) fits in it;
 4. returns a plan within every joint limit by ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the
    torque at 32 points per element): its kinematic Bernstein rows are made to hold (``limits_guard``), and a plan
    that still fails the check (the torque limits are not rows of the steps) is not returned: the plan in force is
