@@ -96,12 +96,12 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
     sc = tmp_path / "throw.yaml"
     sc.write_text(SCENARIO.format(root=root))
     out = tmp_path / "run.mcap"
-    r = hoc("catch", str(sc), "--json", "-o", str(out), "--seed", "4")
+    r = hoc("catch", str(sc), "--json", "-o", str(out), "--seed", "4", "--noise", "0.003")
     assert r.returncode in (0, 1), r.stderr
     s = json.loads(r.stdout)
     for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "cycles"):
         assert key in s
-    assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4
+    assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4 and s["noise"] == 0.003
     assert r.returncode == (0 if s["caught"] else 1)
     from mcap.reader import make_reader
 
@@ -126,3 +126,37 @@ def test_a_bad_scenario_is_one_line_naming_the_file_and_the_key(tmp_path, reques
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"hoc: error: {sc}: {key}:"), r.stderr
+
+
+def test_a_scenario_takes_its_task_inline_with_the_robot_relative_to_it(tmp_path, request):
+    from hoc_cli.io.scenario import load_scenario
+
+    root = request.config.rootpath
+    sc = tmp_path / "inline.yaml"
+    sc.write_text(f"""\
+task:
+  robot: {root}/robots/lbr7.urdf
+  x0: {{q: [0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0]}}
+  x1: {{link: lbr_flange, target: {{position: [0.67, -0.04, 0.12], velocity: [-0.15, 0.25, 3.13],
+        acceleration: [0.0, 0.0, -9.81]}}, match_velocity: true}}
+  T: {{free: true, min: 0.3, max: 0.5}}
+  N: 8
+throw: {{position: [0.68, -0.05, 0.13], velocity: [-0.1, 0.3, 3.1], drag: 0.01}}
+observe: {{prior: null, latency: 0.02}}
+""")
+    s = load_scenario(sc)
+    assert s.task.N == 8 and s.throw.drag == 0.01 and s.observer.prior is None and s.observer.latency == 0.02
+    assert np.allclose(s.throw.gravity, [0.0, 0.0, -9.81])  # the task target's acceleration
+    assert s.cycle == Cycle()
+
+
+def test_a_throw_with_drag_rises_as_the_closed_form_says():
+    """Straight up with quadratic drag k: v(t) = √(g/k) tan(atan(v0 √(k/g)) − √(gk) t), z(t) = ln(cos(a − √(gk) t)/cos a)/k."""
+    g, k, v0 = 9.81, 0.05, 3.0
+    throw = Throw(np.zeros(3), np.array([0.0, 0.0, v0]), np.array([0.0, 0.0, -g]), drag=k)
+    t = np.array([0.05, 0.1, 0.2, 0.25])
+    p, v = throw.states(t)
+    a = np.arctan(v0 * np.sqrt(k / g))
+    w = np.sqrt(g * k)
+    assert np.abs(v[:, 2] - np.sqrt(g / k) * np.tan(a - w * t)).max() < 1e-9
+    assert np.abs(p[:, 2] - np.log(np.cos(a - w * t) / np.cos(a)) / k).max() < 1e-9
