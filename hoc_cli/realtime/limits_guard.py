@@ -47,12 +47,15 @@ def guard(system, limits, rows, C: np.ndarray, free: np.ndarray) -> np.ndarray |
         near = now if near is None else _union(near, now)
         A, A_full = near.jacobian(rows, limits, free)
         g = A_full @ flat + near.offsets(limits)
-        P = A.shape[1]
+        cols = np.flatnonzero(np.any(A != 0.0, axis=0))  # the metric is the identity: d = 0 off the rows' columns
+        P = cols.size
         try:
-            step = solve_qp(np.eye(P), np.zeros(P), np.zeros((0, P)), np.zeros(0), A, -g - PUSH)
+            step = solve_qp(np.eye(P), np.zeros(P), np.zeros((0, P)), np.zeros(0), A[:, cols], -g - PUSH)
         except NumericalError:
             return None
-        flat[free] += step.d
+        d = np.zeros(A.shape[1])
+        d[cols] = step.d
+        flat[free] += d
         if worst_row(system, limits, rows, flat.reshape(C.shape)) <= ROW_TOL:
             return flat.reshape(C.shape)
     return None
