@@ -130,3 +130,30 @@ def test_a_budget_below_one_step_still_takes_exactly_one(catch):
     up = rp.update(0.02, (cur.state(0.02)[0], cur.state(0.02, 1)[0]),
                    Target(P0 + V0 * 0.02 + 0.5 * G * 0.0004, V0 + G * 0.02, G), budget_s=1e-6)
     assert up.steps == 1 and up.status == "budget"
+
+
+def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_guard(catch, monkeypatch):
+    """The guarantee of one step alone (docs/realtime.md): at a fixed T the Bernstein rows are linear in the
+    coefficients, so the step from a plan within them, which imposes those within 5 % of their bound, stays within
+    all of them (rounding: 1e-9). The guard is replaced by a probe that records the step's rows and returns the
+    plan as it is.
+    """
+    import hoc_cli.realtime.replanner as replanner
+
+    problem, plan = catch
+    seen = []
+
+    def probe(system, limits, rows, C, free):
+        seen.append(worst_row(system, limits, rows, C))
+        return C
+
+    monkeypatch.setattr(replanner, "guard", probe)
+    rp = Replanner(problem, plan, max_steps=1, warm_up=False)
+    p1, v1 = P0 + [0.01, -0.005, 0.0], V0 + [0.02, 0.0, -0.03]
+    for k in range(3):
+        tk = 0.05 + 0.02 * k
+        cur = rp.current
+        up = rp.update(tk, (cur.state(tk)[0], cur.state(tk, 1)[0]),
+                       Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G), 10.0, free_time=False)
+        assert up.steps == 1 and up.status != "held" and abs(up.t_end - cur.t_end) < 1e-12  # the catch time kept
+    assert len(seen) == 3 and max(seen) <= 1e-9
