@@ -10,7 +10,15 @@ import dataclasses
 import json
 from pathlib import Path
 
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, load_model, print_json, read_urdf_text, stderr_console
+from hoc_cli.commands.common import (
+    EXIT_OK,
+    EXIT_UNMET,
+    json_ready,
+    load_model,
+    print_json,
+    read_urdf_text,
+    stderr_console,
+)
 from hoc_cli.errors import OutputError
 
 
@@ -75,7 +83,7 @@ def catch_summary(run, sc, plan) -> dict:
     recs = run.records
     steps = [r.plan.steps for r in recs]
     last = recs[-1] if recs else None
-    return {
+    return json_ready({
         "caught": run.caught,
         "status": run.status,
         "position_error": run.position_error,
@@ -97,7 +105,7 @@ def catch_summary(run, sc, plan) -> dict:
         "nominal": {"T": plan.T, "J": plan.J},
         "seed": sc.observer.seed,
         "noise": sc.observer.noise,
-    }
+    })
 
 
 def _table(console, s: dict) -> None:
