@@ -160,3 +160,14 @@ def test_a_throw_with_drag_rises_as_the_closed_form_says():
     w = np.sqrt(g * k)
     assert np.abs(v[:, 2] - np.sqrt(g / k) * np.tan(a - w * t)).max() < 1e-9
     assert np.abs(p[:, 2] - np.log(np.cos(a - w * t) / np.cos(a)) / k).max() < 1e-9
+
+
+def test_observations_count_only_once_they_have_arrived(catch):
+    """With a latency of 50 ms, cycle k (t_k = k/10 s) fits the observations taken at 100 Hz up to t_k − 0.05."""
+    problem, plan = catch
+    throw = Throw(P0 + [0.005, 0.0, 0.0], V0)
+    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.005, seed=1, latency=0.05),
+                    Cycle(rate=10.0, budget=10.0, steps=1, commit=0.03))
+    assert run.cycles >= 3
+    for rec in run.records:
+        assert rec.observations == max(int(np.floor(round((rec.t - 0.05) * 100, 9))) + 1, 0)
