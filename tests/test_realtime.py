@@ -157,3 +157,13 @@ def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_gu
                        Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G), 10.0, free_time=False)
         assert up.steps == 1 and up.status != "held" and abs(up.t_end - cur.t_end) < 1e-12  # the catch time kept
     assert len(seen) == 3 and max(seen) <= 1e-9
+
+
+def test_the_python_example_of_docs_realtime_runs_as_printed(request, capsys):
+    import re
+
+    text = (request.config.rootpath / "docs" / "realtime.md").read_text()
+    code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    exec(compile(code, "docs/realtime.md", "exec"), {})
+    steps, status = capsys.readouterr().out.split()[:2]
+    assert int(steps) >= 1 and status in ("budget", "converged")
