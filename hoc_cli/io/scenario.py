@@ -8,7 +8,7 @@ Keys (README, "Catching in real time"):
              target's acceleration), drag: k 1/m (default 0)}
     observe: {rate: Hz (100), noise: σ m (0.005), seed: int (0), latency: s (0),
              prior: {position: σ m, velocity: σ m/s} or null (default 0.05, 0.25)}
-    cycle:   {rate: Hz (50), budget: s (0.02), steps: int (3), commit: s (0.03), fix: s (0.1)}
+    cycle:   {rate: Hz (100), budget: s (0.01), steps: int (2), commit: s (0.01), fix: s (0.1)}
 """
 from __future__ import annotations
 

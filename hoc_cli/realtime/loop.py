@@ -83,10 +83,10 @@ class Cycle:
     remains, the updates keep the catch time (a fixed T: steps in T are far from linear on a short remaining time).
     """
 
-    rate: float = 50.0
-    budget: float = 0.02
-    steps: int = 3
-    commit: float = 0.03
+    rate: float = 100.0
+    budget: float = 0.01
+    steps: int = 2
+    commit: float = 0.01
     fix: float = 0.1
 
 
