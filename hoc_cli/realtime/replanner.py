@@ -71,9 +71,10 @@ class Target:
 class CyclePlan:
     """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost.
 
-    Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget) |
+    Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
+    replanner's ``max_steps``) |
     "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "held" (no
-    step fit in the budget or the result could not be made feasible: the plan in force kept) | "cold" (the
+    time left, the start could not be evaluated, or the result failed ``check_limits``: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
     [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
@@ -162,16 +163,6 @@ class Replanner:
     def goals_for(self, target: Target) -> Goals:
         """The link goal with the target's estimate (its time origin the update's t)."""
         return goals_with_target(self.goals, target)
-
-    def problem_at(self, t: float, x, target: Target, T_guess: float | None = None) -> OptimalControlProblem:
-        """The update's problem from the state x = (q, q̇) at t as an ``OptimalControlProblem`` (for a cold solve)."""
-        span = self.time_range(t)
-        if span is None:
-            raise ValueError(f"no remaining time at t = {t!r} s")
-        guess = None if T_guess is None else min(max(T_guess, span.min), span.max)
-        goal = self.goals_for(target).final
-        return dataclasses.replace(self.problem, q0=np.asarray(x[0], float), dq0=np.asarray(x[1], float),
-                                   time=Free(span.min, span.max, span.weight, guess), link_goal=goal)
 
     # -- the update ---------------------------------------------------------------------------------------
     def update(self, t: float, x, target: Target, budget_s: float, *, free_time: bool = True) -> CyclePlan:
