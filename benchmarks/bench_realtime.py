@@ -9,7 +9,9 @@ with every update converged (up to 40 SQP steps, no budget: hoc's own full re-co
 such cycle's IPOPT solution. Prints per-update wall time and thread CPU time (``time.thread_time``) distributions
 [ms] and the ratios of the medians. The machine may be shared: wall times then exceed CPU times.
 ``--family K`` also runs the fixed family of K seeded throws (hoc_cli/realtime/throws.py) at the scenario's noise
-(seed = k) and prints how many were caught (the issue's 20 at σ = 5 mm: ``--family 20``, about a minute per 10).
+(seed = k) and prints how many were caught (the issue's 20 at σ = 5 mm: ``--family 20``, about a minute per 10);
+with the scenario's time budget the steps per update depend on the machine's speed, ``--steps S`` takes exactly S
+per update instead (reproducible).
 """
 from __future__ import annotations
 
@@ -45,6 +47,9 @@ def main() -> None:
     ap.add_argument("--scenario", default=str(ROOT / "configs" / "catch_throw.yaml"))
     ap.add_argument("--N", type=int, nargs="*", default=[8, 16])
     ap.add_argument("--family", type=int, default=0)
+    ap.add_argument("--steps", type=int, default=None,
+                    help="the family with exactly this many SQP steps per update (no time budget: reproducible on any "
+                         "machine) instead of the scenario's budget")
     ap.add_argument("--ipopt", action="store_true")
     ap.add_argument("--ipopt-every", type=int, default=8)
     args = ap.parse_args()
@@ -85,13 +90,15 @@ def main() -> None:
         plan = solve(problem)
         goal = problem.link_goal
         caught, errors = 0, []
+        cycle = sc.cycle if args.steps is None else dataclasses.replace(sc.cycle, steps=args.steps, budget=1e9)
         for k, throw in enumerate(family(goal.position, goal.velocity, args.family, goal.acceleration)):
-            run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), sc.cycle)
+            run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle)
             caught += run.caught
             errors.append(run.position_error)
             print(f"  throw {k:2d}: {run.status:11s} {1e3 * run.position_error:5.2f} mm {run.relative_speed:.4f} m/s, "
                   f"last estimate off by {1e3 * run.records[-1].position_error:5.2f} mm", flush=True)
-        print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm): {caught} caught; "
+        how = "the scenario's budget" if args.steps is None else f"{args.steps} steps per update"
+        print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm, {how}): {caught} caught; "
               f"position error median {1e3 * np.median(errors):.2f} mm, max {1e3 * np.max(errors):.2f} mm")
 
 

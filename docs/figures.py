@@ -377,52 +377,6 @@ def goals() -> str:
     return "\n".join(rows)
 
 
-CATCH_PLOT = ROOT / "docs" / "catch_ball.png"
-
-
-def _plot_catch(csv_path: Path, T: float) -> float:
-    """docs/catch_ball.png from the catch's plan CSV: its flange and the ball over time; returns their gap at T [m]."""
-    import csv
-
-    import matplotlib
-    import numpy as np
-    import yaml
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hoc_cli.dynamics import link_poses
-    from hoc_cli.model import load_robot
-
-    with open(csv_path) as fh:
-        rows = list(csv.DictReader(fh))
-    task = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
-    model = load_robot(ROOT / "robots" / "lbr7.urdf")
-    joints = [c.removeprefix("q.") for c in rows[0] if c.startswith("q.")]
-    t = np.array([float(r["t"]) for r in rows])
-    q = np.array([[float(r[f"q.{j}"]) for j in joints] for r in rows])
-    link = task["x1"]["link"]
-    flange = link_poses(model, q)[link][:, :3, 3]
-    target = task["x1"]["target"]
-    p0, v0, a = (np.array(target[k], float) for k in ("position", "velocity", "acceleration"))
-    ball = p0 + t[:, None] * v0 + 0.5 * t[:, None] ** 2 * a
-    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
-    for i, axis in enumerate("xyz"):
-        ax.plot(t, flange[:, i], "-", color=f"C{i}", label=f"flange {axis}")
-        ax.plot(t, ball[:, i], "--", color=f"C{i}", label=f"ball {axis}")
-    ax.axvline(T, color="k", lw=0.8)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("position in the base frame [m]")
-    ax.set_title(f"configs/catch_ball.yaml: the flange meets the ball at the optimal T = {T:.4f} s "
-                 "(same velocity)", fontsize=9)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, ncol=3, loc="lower left")
-    fig.tight_layout()
-    fig.savefig(CATCH_PLOT, metadata={"Software": None})
-    plt.close(fig)
-    return float(np.abs(flange[-1] - ball[-1]).max())
-
-
 CATCH_LOOP_PLOT = ROOT / "docs" / "catch_throw.png"
 
 
@@ -486,6 +440,52 @@ def _plot_catch_loop() -> None:
     plt.close(fig)
 
 
+CATCH_PLOT = ROOT / "docs" / "catch_ball.png"
+
+
+def _plot_catch(csv_path: Path, T: float) -> float:
+    """docs/catch_ball.png from the catch's plan CSV: its flange and the ball over time; returns their gap at T [m]."""
+    import csv
+
+    import matplotlib
+    import numpy as np
+    import yaml
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hoc_cli.dynamics import link_poses
+    from hoc_cli.model import load_robot
+
+    with open(csv_path) as fh:
+        rows = list(csv.DictReader(fh))
+    task = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
+    model = load_robot(ROOT / "robots" / "lbr7.urdf")
+    joints = [c.removeprefix("q.") for c in rows[0] if c.startswith("q.")]
+    t = np.array([float(r["t"]) for r in rows])
+    q = np.array([[float(r[f"q.{j}"]) for j in joints] for r in rows])
+    link = task["x1"]["link"]
+    flange = link_poses(model, q)[link][:, :3, 3]
+    target = task["x1"]["target"]
+    p0, v0, a = (np.array(target[k], float) for k in ("position", "velocity", "acceleration"))
+    ball = p0 + t[:, None] * v0 + 0.5 * t[:, None] ** 2 * a
+    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
+    for i, axis in enumerate("xyz"):
+        ax.plot(t, flange[:, i], "-", color=f"C{i}", label=f"flange {axis}")
+        ax.plot(t, ball[:, i], "--", color=f"C{i}", label=f"ball {axis}")
+    ax.axvline(T, color="k", lw=0.8)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("position in the base frame [m]")
+    ax.set_title(f"configs/catch_ball.yaml: the flange meets the ball at the optimal T = {T:.4f} s "
+                 "(same velocity)", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=3, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(CATCH_PLOT, metadata={"Software": None})
+    plt.close(fig)
+    return float(np.abs(flange[-1] - ball[-1]).max())
+
+
 @dataclass(frozen=True)
 class Section:
     target: str
@@ -514,9 +514,9 @@ SECTIONS: dict[str, Section] = {
     "readme-batch": Section("README.md", readme_batch, "python docs/figures.py batch readme-batch", True),
     "starts": Section("README.md", starts, "python docs/figures.py starts", True),
     "goals": Section("README.md", goals, "python docs/figures.py goals", True),
-    "catch-loop": Section("README.md", catch_loop, "python docs/figures.py catch-loop", True),
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
+    "catch-loop": Section("README.md", catch_loop, "python docs/figures.py catch-loop", True),
 }
 
 
