@@ -101,6 +101,13 @@ def test_the_guard_projects_a_plan_beyond_its_velocity_limits_back_inside(catch)
     assert worst_row(problem.system, problem.limits, rows, safe) <= 1e-9
     assert check_limits(problem.system, problem.limits, mesh, safe).feasible
     assert np.array_equal(safe.ravel()[~free], C.ravel()[~free])  # the start state is untouched
+    # rows to keep (as the goal rows' Jacobian): the projection moves along their null space only
+    rng = np.random.default_rng(3)
+    E = rng.normal(size=(3, int(free.sum())))
+    kept = guard(problem.system, problem.limits, rows, C, free, keep=E)
+    assert kept is not None and check_limits(problem.system, problem.limits, mesh, kept).feasible
+    d = kept.ravel()[free] - C.ravel()[free]
+    assert np.abs(E @ d).max() <= 1e-9 * np.abs(E).sum(axis=1).max() * np.abs(d).max()
 
 
 def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch):
@@ -143,7 +150,7 @@ def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_gu
     problem, plan = catch
     seen = []
 
-    def probe(system, limits, rows, C, free):
+    def probe(system, limits, rows, C, free, keep=None):
         seen.append(worst_row(system, limits, rows, C))
         return C
 

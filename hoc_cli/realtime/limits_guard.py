@@ -7,7 +7,8 @@ coefficient of that derivative's polynomial, b the bound moved inwards by ``MARG
 derivative within its bound on the whole element (the Bernstein hull contains the polynomial).
 
 ``guard`` returns C itself when every row holds to ``ROW_TOL``; else the projection of x onto the rows
-within ``GAP`` of their bound, min ½‖d‖² s.t. A(x + d) + o ≤ 0 (a least-distance programme, solved exactly by
+within ``GAP`` of their bound, min ½‖d‖² s.t. A(x + d) + o ≤ 0 and E d = 0 for rows E to keep (the goal rows'
+Jacobian: the plan keeps meeting its goal to first order) (a least-distance programme, solved exactly by
 ``hoc_cli.goals.qp_step.solve_qp``), repeated with every row that the projection broke, up to ``ROUNDS``
 times; None when no such projection is found (the caller keeps its previous plan). Pure maths: no I/O.
 """
@@ -32,10 +33,12 @@ def worst_row(system, limits, rows, C: np.ndarray) -> float:
     return max(float(np.max(g, initial=-np.inf)) for g in pv.g_lo[:KINEMATIC] + pv.g_hi[:KINEMATIC])
 
 
-def guard(system, limits, rows, C: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray | None:
     """C when its kinematic rows hold, else its projection onto them at the same T, or None (module docstring).
 
-    rows : the mesh's ``LimitRows``; free : (P_all,) bool, the free entries of C.ravel().
+    rows : the mesh's ``LimitRows``; free : (P_all,) bool, the free entries of C.ravel(); keep : (r, P) rows E whose
+    values the projection keeps to first order (E d = 0: the goal rows' Jacobian, so that the plan still meets
+    its goal), or None.
     """
     if worst_row(system, limits, rows, C) <= ROW_TOL:
         return C
@@ -47,10 +50,12 @@ def guard(system, limits, rows, C: np.ndarray, free: np.ndarray) -> np.ndarray |
         near = now if near is None else _union(near, now)
         A, A_full = near.jacobian(rows, limits, free)
         g = A_full @ flat + near.offsets(limits)
-        cols = np.flatnonzero(np.any(A != 0.0, axis=0))  # the metric is the identity: d = 0 off the rows' columns
+        E = np.zeros((0, A.shape[1])) if keep is None else np.asarray(keep, float)
+        # the metric is the identity: d = 0 off the columns the rows touch
+        cols = np.flatnonzero(np.any(A != 0.0, axis=0) | np.any(E != 0.0, axis=0))
         P = cols.size
         try:
-            step = solve_qp(np.eye(P), np.zeros(P), np.zeros((0, P)), np.zeros(0), A[:, cols], -g - PUSH)
+            step = solve_qp(np.eye(P), np.zeros(P), E[:, cols], np.zeros(E.shape[0]), A[:, cols], -g - PUSH)
         except NumericalError:
             return None
         d = np.zeros(A.shape[1])

@@ -50,6 +50,7 @@ from hoc_cli.goals.plan import Goals
 from hoc_cli.goals.replan import DECREMENT_TOL, RHO_AUG, TimeRange
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR
 from hoc_cli.goals.replan_qp import qp_steps
+from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.ocp.problem import Free, OptimalControlProblem
 from hoc_cli.realtime.limits_guard import guard
 from hoc_cli.realtime.shift import shift_plan
@@ -205,14 +206,18 @@ class Replanner:
         npts = len(lam) - 1
         r = sum(v.size for v in out.lam[:npts])
         C_new, mesh_new = pt.C, pt.problem.mesh
-        safe = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free) if self.limits is not None else C_new
+        safe = C_new if self.limits is None else guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free,
+                                                        keep=pt.D[:r])
         if safe is None or (self.limits is not None and not check_limits(self.system, self.limits, mesh_new, safe).feasible):
             return self._hold(start)  # no projection found, or the effort limits (not rows of the steps) broken
         guarded = safe is not C_new
-        J = pt.J if not guarded else float(pt.problem.value(pt.problem.layout.pack(safe)))
+        violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
+        J = pt.J
+        if guarded:  # the projected plan's own cost and goal rows
+            J = float(pt.problem.value(pt.problem.layout.pack(safe)))
+            violation = GoalTerms.start(mesh_new, pt.problem.points).violation(safe)
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
-        violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
         now = time.perf_counter()
         if len(marks) > 1:
