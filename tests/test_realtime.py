@@ -105,7 +105,7 @@ def test_the_guard_projects_a_plan_beyond_its_velocity_limits_back_inside(catch)
     rng = np.random.default_rng(3)
     E = rng.normal(size=(3, int(free.sum())))
     kept = guard(problem.system, problem.limits, rows, C, free, keep=E)
-    assert kept is not None and check_limits(problem.system, problem.limits, mesh, kept).feasible
+    assert kept is not None and worst_row(problem.system, problem.limits, rows, kept) <= 1e-9
     d = kept.ravel()[free] - C.ravel()[free]
     assert np.abs(E @ d).max() <= 1e-9 * np.abs(E).sum(axis=1).max() * np.abs(d).max()
 
