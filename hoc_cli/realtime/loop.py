@@ -25,7 +25,7 @@ from hoc_cli.realtime.replanner import CyclePlan, Replanner, Target
 CATCH_POSITION = 5e-3  # [m] the flange within this of the ball at the catch time ...
 CATCH_SPEED = 0.05  # [m/s] ... moving with it to within this: caught
 MIN_OBSERVATIONS = 3  # without a prior, the fit is used from this many observations on
-UNREACHED = 1e-3  # [m, m/s] a final plan whose goal rows are violated by more: the ball was out of reach
+REACH_SAMPLES = 200  # catch times at which an unreachable ball is confirmed out of the arm's reach
 NOISE_FLOOR = 1e-6  # [m] the fit's σ for noise-free observations (their weight stays finite)
 SAMPLES_PER_CYCLE = 4  # executed states recorded per cycle (closest approach, the MCAP's /tf)
 
@@ -113,8 +113,8 @@ class CycleRecord:
 class CatchRun:
     """The outcome of a closed loop.
 
-    status : "caught" | "missed" (the flange met the estimate, which missed the ball by more than the tolerance) |
-    "unreachable" (the last plan could not meet its goal: the ball was out of the arm's reach);
+    status : "caught" | "unreachable" (the true ball stays beyond the arm's reach at every admissible catch time,
+    ``out_of_reach``) | "missed" (not caught otherwise);
     position_error [m], relative_speed [m/s] at the catch time ``T`` [s] (from the throw); closest [m] the smallest
     flange-ball distance along the executed motion and ``closest_t`` [s] where; ``records`` one per update;
     ``segments`` the plans in force, each from its start time (the executed motion); ``target`` the last update's
@@ -289,8 +289,23 @@ def _outcome(problem, throw: Throw, records, segments, target, start, budget: fl
     run.closest, run.closest_t = float(d[i]), float(ts[i])
     if pos_err <= CATCH_POSITION and speed < CATCH_SPEED:
         run.status = "caught"
-    elif records and not records[-1].plan.violation <= UNREACHED:
+    elif out_of_reach(model, link, throw, problem.time.min, problem.time.max):
         run.status = "unreachable"
     else:
         run.status = "missed"
     return run
+
+
+def out_of_reach(model, link: str, throw: Throw, t_min: float, t_max: float, samples: int = REACH_SAMPLES) -> bool:
+    """Whether the true ball stays beyond the reach of ``link``'s chain (``hoc_cli.goals.residuals.reach``: the
+    ball about the chain's first joint whose radius is the sum of its link lengths) at every catch time in
+    [t_min, t_max] [s] (``samples`` times); False when the chain has no such bound (a prismatic joint).
+    """
+    from hoc_cli.goals.residuals import reach
+
+    ball = reach(model, link)
+    if ball is None:
+        return False
+    o, radius = ball
+    p, _ = throw.states(np.linspace(t_min, t_max, samples))
+    return bool(np.all(np.linalg.norm(p - o, axis=1) > radius))

@@ -206,9 +206,17 @@ class Replanner:
         npts = len(lam) - 1
         r = sum(v.size for v in out.lam[:npts])
         C_new, mesh_new = pt.C, pt.problem.mesh
-        safe = C_new if self.limits is None else guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free,
-                                                        keep=pt.D[:r])
-        if safe is None or (self.limits is not None and not check_limits(self.system, self.limits, mesh_new, safe).feasible):
+        safe = C_new
+        if self.limits is not None:  # the goal rows kept by the projection if it can, else the limits alone
+            safe = None
+            for keep in (pt.D[:r], None):
+                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep)
+                if C_try is not None and check_limits(self.system, self.limits, mesh_new, C_try).feasible:
+                    safe = C_try
+                    break
+                if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
+                    break
+        if safe is None:
             return self._hold(start)  # no projection found, or the effort limits (not rows of the steps) broken
         guarded = safe is not C_new
         violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
