@@ -130,13 +130,17 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
     assert up.violation < 0.1 * viol0
 
 
-def test_a_budget_below_one_step_still_takes_exactly_one(catch):
+def test_a_budget_below_one_step_still_takes_exactly_one_and_a_long_one_converges(catch):
     problem, plan = catch
     rp = Replanner(problem, plan, max_steps=10)
     cur = rp.current
     up = rp.update(0.02, (cur.state(0.02)[0], cur.state(0.02, 1)[0]),
                    Target(P0 + V0 * 0.02 + 0.5 * G * 0.0004, V0 + G * 0.02, G), budget_s=1e-6)
     assert up.steps == 1 and up.status == "budget"
+    cur = rp.current  # a budget far above a step: the steps go on to convergence
+    up = rp.update(0.03, (cur.state(0.03)[0], cur.state(0.03, 1)[0]),
+                   Target(P0 + V0 * 0.03 + 0.5 * G * 0.0009, V0 + G * 0.03, G), budget_s=10.0)
+    assert up.steps > 1 and up.status == "converged" and up.violation < 1e-9
 
 
 def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_guard(catch, monkeypatch):
