@@ -103,6 +103,7 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
         assert key in s
     assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4 and s["noise"] == 0.003
     assert r.returncode == (0 if s["caught"] else 1)
+    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] != "held")
     from mcap.reader import make_reader
 
     with open(out, "rb") as fh:

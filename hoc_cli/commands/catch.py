@@ -103,6 +103,9 @@ def catch_summary(run, sc, plan) -> dict:
             "stationarity": last.plan.stationarity, "estimate_position_error": last.position_error,
             "estimate_velocity_error": last.velocity_error, "observations": last.observations},
         "nominal": {"T": plan.T, "J": plan.J},
+        "updates": [{"t": r.t_start, "steps": r.plan.steps, "status": r.plan.status, "violation": r.plan.violation,
+                     "stationarity": r.plan.stationarity, "wall_ms": 1e3 * r.plan.wall_time_s, "cpu_ms": 1e3 * r.cpu_s,
+                     "estimate_error": r.position_error} for r in recs],
         "seed": sc.observer.seed,
         "noise": sc.observer.noise,
     })
