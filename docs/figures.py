@@ -377,6 +377,69 @@ def goals() -> str:
     return "\n".join(rows)
 
 
+CATCH_LOOP_PLOT = ROOT / "docs" / "catch_throw.png"
+
+
+def catch_loop() -> str:
+    """``hoc catch configs/catch_throw.yaml`` as a user runs it (its table), and docs/catch_throw.png from the same
+    scenario run through the Python API: the ball, its estimate per cycle and the flange; the estimate's error and
+    the CPU time of each update.
+    """
+    tmp = scratch()
+    out = hoc(["catch", "configs/catch_throw.yaml"], tmp, check=False)
+    shutil.rmtree(tmp)
+    table = "\n".join("    " + line for line in out.stderr.strip().splitlines())
+    _plot_catch_loop()
+    return (f"    $ hoc catch configs/catch_throw.yaml\n{table}\n\n"
+            f"![the ball, its estimates and the flange; the estimate's error and each update's CPU time]"
+            f"(docs/{CATCH_LOOP_PLOT.name})")
+
+
+def _plot_catch_loop() -> None:
+    import matplotlib
+    import numpy as np
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.scenario import load_scenario
+    from hoc_cli.io.task import resolve
+    from hoc_cli.io.task.problem import problem_from_task, task_limits
+    from hoc_cli.realtime.loop import flange_states, run_catch
+    from hoc_cli.strategy import solve
+
+    sc = load_scenario(ROOT / "configs" / "catch_throw.yaml")
+    model = load_model(sc.task)
+    states = resolve(sc.task, model.joint_names)
+    problem = problem_from_task(sc.task, model, states, task_limits(model, states.limits))
+    run = run_catch(problem, solve(problem), sc.throw, sc.observer, sc.cycle)
+    t, q, dq, _ = run.executed(per_cycle=4)
+    flange, _ = flange_states(model, problem.link_goal.link, q, dq)
+    ball, _ = sc.throw.states(t)
+    ts = np.array([r.t_start for r in run.records])
+    est = np.array([r.position for r in run.records])
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 6), dpi=110, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    for i, axis in enumerate("xyz"):
+        ax.plot(t, ball[:, i], "--", color=f"C{i}", lw=1, label=f"ball {axis}")
+        ax.plot(t, flange[:, i], "-", color=f"C{i}", lw=1.2, label=f"flange {axis}")
+        ax.plot(ts, est[:, i], ".", color=f"C{i}", ms=3)
+    ax.axvline(run.T, color="k", lw=0.8)
+    ax.set_ylabel("position in the base frame [m]")
+    ax.set_title(f"configs/catch_throw.yaml: {run.status} at T = {run.T:.4f} s, {1e3 * run.position_error:.2f} mm, "
+                 f"{run.relative_speed:.3f} m/s (dots: the estimate per cycle)", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=3, loc="lower left")
+    bx.plot(ts, [1e3 * r.position_error for r in run.records], ".-", color="C3", ms=3, label="estimate's error [mm]")
+    bx.plot(ts, [1e3 * r.cpu_s for r in run.records], ".-", color="C4", ms=3, label="update's CPU time [ms]")
+    bx.set_xlabel("t [s] (from the throw)")
+    bx.grid(True, alpha=0.3)
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(CATCH_LOOP_PLOT, metadata={"Software": None})
+    plt.close(fig)
+
+
 CATCH_PLOT = ROOT / "docs" / "catch_ball.png"
 
 
@@ -513,6 +576,7 @@ SECTIONS: dict[str, Section] = {
     "collision": Section("README.md", collision, "python docs/figures.py collision"),
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
+    "catch-loop": Section("README.md", catch_loop, "python docs/figures.py catch-loop", True),
 }
 
 

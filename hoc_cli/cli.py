@@ -198,6 +198,27 @@ def simulate(
 
 
 @app.command()
+def catch(
+    scenario: Annotated[Path, typer.Argument(metavar="SCENARIO.yaml", help="Catch scenario: task, throw, observe, cycle (README).")],
+    json_: JsonOpt = False,
+    seed: Annotated[Optional[int], typer.Option("--seed", help="Override observe.seed (the observations' noise).")] = None,
+    noise: Annotated[Optional[float], typer.Option("--noise", help="Override observe.noise, σ in m (>= 0).")] = None,
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", metavar="FILE.mcap", help="Write the run to MCAP.")] = None,
+    quiet: QuietOpt = False,
+    debug: DebugOpt = False,
+) -> None:
+    """Simulate catching a thrown ball in real time: noisy observations, the estimate, a replan every cycle.
+
+    Example: hoc catch configs/catch_throw.yaml --json | jq .caught
+    """
+    from hoc_cli.commands import catch as cmd
+
+    code = run_guarded(lambda: cmd.run(scenario, as_json=json_, seed=seed, noise=noise, output=output, quiet=quiet),
+                       debug=debug, quiet=quiet)
+    raise typer.Exit(code)
+
+
+@app.command()
 def inspect(
     robot: Annotated[Path, typer.Argument(metavar="ROBOT.urdf", help="URDF file.")],
     json_: JsonOpt = False,

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,7 +86,8 @@ class QPReplan:
 
 
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
-             rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False) -> QPReplan:
+             rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
+             stop: Callable[[int], bool] | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -95,6 +97,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum;
         then the Newton matrix's diagonal is raised by a relative Levenberg-Marquardt shift (``LM_START``, ×10 after
         each step cut below a quarter, ÷10 after a full step, 0 below ``LM_START``).
+    stop : asked with the number of steps taken after each step (before the next point's Newton matrix); True ends
+        the steps there (a time budget: ``hoc_cli.realtime``); the result's decrement is then the last programme's
+        (at the point before the step) and it carries no factor.
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -115,6 +120,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     lm = 0.0  # with the merit test: a Levenberg-Marquardt shift of the Newton matrix (relative, as BandedSPD's)
     while True:
+        if stop is not None and steps and stop(steps):
+            U_last = None  # the last factor is the point's before the step
+            break
         evals += 1
         problem, C = pt.problem, pt.C
         layout = problem.layout

@@ -1,0 +1,142 @@
+"""Per-cycle compute of the real-time catch (``hoc catch``): the replanner's updates against full re-convergence.
+
+    python benchmarks/bench_realtime.py [--scenario configs/catch_throw.yaml] [--N 8 16] [--family 0] [--ipopt]
+
+For each N: the closed loop of the scenario (its throw, noise, seed, cycle rate, budget, steps), then the same loop
+with every update converged (up to 40 SQP steps, no budget: hoc's own full re-convergence per cycle), and, with
+``--ipopt`` and casadi importable, IPOPT (benchmarks/_casadi_goals.py, K = N Radau intervals) on the problem of every
+``--ipopt-every``-th cycle (its start state, the estimate, the remaining time free), warm-started from the previous
+such cycle's IPOPT solution. Prints per-update wall time and thread CPU time (``time.thread_time``) distributions
+[ms] and the ratios of the medians. The machine may be shared: wall times then exceed CPU times.
+``--family K`` also runs the fixed family of K seeded throws (hoc_cli/realtime/throws.py) at the scenario's noise
+(seed = k) and prints how many were caught (the issue's 20 at σ = 5 mm: ``--family 20``, about a minute per 10);
+with the scenario's time budget the steps per update depend on the machine's speed, ``--steps S`` takes exactly S
+per update instead (reproducible).
+"""
+from __future__ import annotations
+
+# isort: off
+import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
+# isort: on
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hoc_cli.commands.common import load_model
+from hoc_cli.io.scenario import load_scenario
+from hoc_cli.io.task import apply_overrides, resolve
+from hoc_cli.io.task.problem import problem_from_task, task_limits
+from hoc_cli.realtime.loop import run_catch
+from hoc_cli.realtime.throws import family
+from hoc_cli.strategy import solve
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def dist(values) -> str:
+    v = np.asarray(values, float)
+    return (f"median {np.median(v):7.1f}  p95 {np.percentile(v, 95):7.1f}  p99 {np.percentile(v, 99):7.1f}  "
+            f"max {v.max():7.1f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default=str(ROOT / "configs" / "catch_throw.yaml"))
+    ap.add_argument("--N", type=int, nargs="*", default=[8, 16])
+    ap.add_argument("--family", type=int, default=0)
+    ap.add_argument("--steps", type=int, default=None,
+                    help="the family with exactly this many SQP steps per update (no time budget: reproducible on any "
+                         "machine) instead of the scenario's budget")
+    ap.add_argument("--ipopt", action="store_true")
+    ap.add_argument("--ipopt-every", type=int, default=8)
+    args = ap.parse_args()
+    sc = load_scenario(args.scenario)
+    print(f"scenario {args.scenario}: cycle {sc.cycle.rate:g} Hz, budget {1e3 * sc.cycle.budget:g} ms, at most "
+          f"{sc.cycle.steps} steps; observations {sc.observer.rate:g} Hz, sigma {1e3 * sc.observer.noise:g} mm")
+    for N in args.N:
+        task = apply_overrides(sc.task, N=N)
+        model = load_model(task)
+        states = resolve(task, model.joint_names)
+        problem = problem_from_task(task, model, states, task_limits(model, states.limits))
+        start = time.perf_counter()
+        plan = solve(problem)
+        print(f"\nN = {N}: nominal cold plan {time.perf_counter() - start:.2f} s, T = {plan.T:.6f} s")
+        rt = run_catch(problem, plan, sc.throw, sc.observer, sc.cycle)
+        full_cycle = dataclasses.replace(sc.cycle, budget=1e9, steps=40)
+        full = run_catch(problem, plan, sc.throw, sc.observer, full_cycle)
+        rows = [("real-time updates", rt), ("full re-convergence", full)]
+        for name, run in rows:
+            wall = [1e3 * r.plan.wall_time_s for r in run.records]
+            cpu = [1e3 * r.cpu_s for r in run.records]
+            steps = [r.plan.steps for r in run.records]
+            print(f"  {name:20s} {run.status:8s} error {1e3 * run.position_error:5.2f} mm, {run.relative_speed:.4f} m/s; "
+                  f"{run.cycles} cycles, steps/cycle {np.mean(steps):.1f}, overruns {run.overruns}")
+            print(f"    wall ms {dist(wall)}")
+            print(f"    CPU ms  {dist(cpu)}")
+        med = {name: np.median([r.cpu_s for r in run.records]) for name, run in rows}
+        medw = {name: np.median([r.plan.wall_time_s for r in run.records]) for name, run in rows}
+        print(f"  full re-convergence / real-time update, median: CPU {med['full re-convergence'] / med['real-time updates']:.1f}x, "
+              f"wall {medw['full re-convergence'] / medw['real-time updates']:.1f}x")
+        if args.ipopt:
+            ipopt(model, problem, rt, args.ipopt_every, medw["real-time updates"], med["real-time updates"])
+    if args.family:
+        task = sc.task
+        model = load_model(task)
+        states = resolve(task, model.joint_names)
+        problem = problem_from_task(task, model, states, task_limits(model, states.limits))
+        plan = solve(problem)
+        goal = problem.link_goal
+        caught, errors = 0, []
+        cycle = sc.cycle if args.steps is None else dataclasses.replace(sc.cycle, steps=args.steps, budget=1e9)
+        for k, throw in enumerate(family(goal.position, goal.velocity, args.family, goal.acceleration)):
+            run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle)
+            caught += run.caught
+            errors.append(run.position_error)
+            print(f"  throw {k:2d}: {run.status:11s} {1e3 * run.position_error:5.2f} mm {run.relative_speed:.4f} m/s, "
+                  f"last estimate off by {1e3 * run.records[-1].position_error:5.2f} mm", flush=True)
+        how = "the scenario's budget" if args.steps is None else f"{args.steps} steps per update"
+        print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm, {how}): {caught} caught; "
+              f"position error median {1e3 * np.median(errors):.2f} mm, max {1e3 * np.max(errors):.2f} mm")
+
+
+def ipopt(model, problem, run, every: int, hoc_median_wall: float, hoc_median_cpu: float) -> None:
+    """IPOPT on every ``every``-th cycle's problem, warm-started from the previous such cycle's solution."""
+    import sys
+
+    try:
+        import casadi  # noqa: F401
+    except ImportError:
+        print("  IPOPT: casadi is not importable (pip install casadi)")
+        return
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _casadi_goals import Goal, GoalCollocation
+    from ipopt_limits import Limits
+
+    goal = problem.link_goal
+    free = problem.time
+    prev, walls, iters = None, [], []
+    for rec in run.records[::every]:
+        t = rec.t_start
+        q0, dq0 = rec.plan.state(t)[0], rec.plan.state(t, 1)[0]
+        lo, hi = max(free.min - t, 1e-3), free.max - t
+        c = GoalCollocation(model, q0, dq0, Goal(link=goal.link, position=rec.position, velocity=rec.velocity,
+                                                 acceleration=rec.acceleration, match_velocity=True),
+                            (lo, hi), problem.N, weight=free.weight, limits=Limits.from_model(model))
+        if prev is None:
+            sol = c.solve(c.guess(rec.plan.T, rec.plan.state(rec.plan.t_end)[0], rec.plan.state(rec.plan.t_end, 1)[0]))
+        else:
+            sol = c.solve(warm=prev)
+            walls.append(sol.wall)
+            iters.append(sol.iterations)
+        prev = sol
+    if walls:
+        print(f"  IPOPT warm per cycle (every {every}th, {len(walls)} cycles): wall ms {dist(1e3 * np.array(walls))}, "
+              f"iterations median {np.median(iters):.0f}; IPOPT wall / hoc real-time update median: wall "
+              f"{np.median(walls) / hoc_median_wall:.1f}x, CPU {np.median(walls) / hoc_median_cpu:.1f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,76 @@
+"""The limits' guard of a real-time update: every returned plan within its kinematic limits, exactly.
+
+Symbols: C (N+1, m, n) a plan's coefficients on its mesh (fixed T), x = C's free entries (P,); a kinematic
+row (position, velocity, acceleration, jerk of one joint on one element) g = s (V − b)/σ with V a Bernstein
+coefficient of that derivative's polynomial, b the bound moved inwards by ``MARGIN``, σ the limit's size, s
+= ±1 (``hoc_cli.goals.active_limits``): dimensionless and linear in x, and g ≤ 0 for all rows implies the
+derivative within its bound on the whole element (the Bernstein hull contains the polynomial).
+
+``guard`` returns C itself when every row holds to ``ROW_TOL``; else the projection of x onto the rows
+within ``GAP`` of their bound, min ½‖d‖² s.t. A(x + d) + o ≤ 0 and E d = 0 for rows E to keep (the goal rows'
+Jacobian: the plan keeps meeting its goal to first order) (a least-distance programme, solved exactly by
+``hoc_cli.goals.qp_step.solve_qp``), repeated with every row that the projection broke, up to ``ROUNDS``
+times; None when no such projection is found (the caller keeps its previous plan). Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.errors import NumericalError
+from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.qp_step import solve_qp
+
+ROW_TOL = 1e-9  # a row holds when g ≤ this (the margin is 1e-9: the limit itself is then met to the check's 1e-9)
+GAP = 0.05  # rows within this of their bound enter the projection
+ROUNDS = 4
+PUSH = 1e-10  # the projection aims this far inside the rows (rounding)
+
+
+def worst_row(system, limits, rows, C: np.ndarray) -> float:
+    """The largest g over every kinematic row of C (−inf when none is imposed)."""
+    pv = all_rows(system, limits, rows, C)
+    return max(float(np.max(g, initial=-np.inf)) for g in pv.g_lo[:KINEMATIC] + pv.g_hi[:KINEMATIC])
+
+
+def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray | None:
+    """C when its kinematic rows hold, else its projection onto them at the same T, or None (module docstring).
+
+    rows : the mesh's ``LimitRows``; free : (P_all,) bool, the free entries of C.ravel(); keep : (r, P) rows E whose
+    values the projection keeps to first order (E d = 0: the goal rows' Jacobian, so that the plan still meets
+    its goal), or None.
+    """
+    if worst_row(system, limits, rows, C) <= ROW_TOL:
+        return C
+    flat = np.asarray(C, float).ravel().copy()
+    near = None
+    for _ in range(ROUNDS):
+        pv = all_rows(system, limits, rows, flat.reshape(C.shape))
+        now = ActiveRows.where(tuple(g > -GAP for g in pv.g_lo[:KINEMATIC]), tuple(g > -GAP for g in pv.g_hi[:KINEMATIC]))
+        near = now if near is None else _union(near, now)
+        A, A_full = near.jacobian(rows, limits, free)
+        g = A_full @ flat + near.offsets(limits)
+        E = np.zeros((0, A.shape[1])) if keep is None else np.asarray(keep, float)
+        # the metric is the identity: d = 0 off the columns the rows touch
+        cols = np.flatnonzero(np.any(A != 0.0, axis=0) | np.any(E != 0.0, axis=0))
+        P = cols.size
+        try:
+            step = solve_qp(np.eye(P), np.zeros(P), E[:, cols], np.zeros(E.shape[0]), A[:, cols], -g - PUSH)
+        except NumericalError:
+            return None
+        d = np.zeros(A.shape[1])
+        d[cols] = step.d
+        flat[free] += d
+        if worst_row(system, limits, rows, flat.reshape(C.shape)) <= ROW_TOL:
+            return flat.reshape(C.shape)
+    return None
+
+
+def _union(a: ActiveRows, b: ActiveRows) -> ActiveRows:
+    """The rows of a and of b, each once."""
+    keys = np.unique(np.concatenate([_keys(a), _keys(b)]), axis=0)
+    return ActiveRows(*(np.ascontiguousarray(k) for k in keys.T))
+
+
+def _keys(r: ActiveRows) -> np.ndarray:
+    return np.stack((r.kind, r.elem, r.row, r.joint, r.side), axis=1).reshape(-1, 5)

@@ -1,0 +1,293 @@
+"""The real-time replanner of a catch: a few SQP steps per control cycle from the previous cycle's plan.
+
+The real-time iteration (Diehl, Bock & Schlöder, "A real-time iteration scheme for nonlinear optimization in
+optimal feedback control", SIAM J. Control Optim. 43(5), 2005) does not solve each cycle's problem to
+convergence: it takes one (or a few) Newton-type steps from the previous cycle's solution shifted to the
+current time, so the iterate tracks the moving optimum while the problem itself (here the ball's estimate)
+converges. ``Replanner.update(t, x, target, budget_s)``:
+
+1. shifts the plan in force to start at t from the robot's state x = (q, q̇) (``shift.shift_plan``: N elements
+   on the remaining part, exactly the plan in force when its remaining duration is kept; the remaining duration
+   stays free within the task's range, which is counted from the task's t = 0, or is held near the catch);
+2. replaces the link goal by the target's latest estimate (position, velocity at t, constant acceleration);
+3. takes the warm replan's SQP steps (``hoc_cli.goals.replan_qp.qp_steps``: exact Newton matrix, the goal
+   rows linearised, the kinematic Bernstein rows near their bound as inequalities, T with them) from the
+   shifted plan, the goal rows' and the limits' multipliers carried from the last cycle, until the
+   programme's convergence test holds or the budget would be overrun: the first step is always taken (the
+   real-time iteration's step; a cycle whose first step alone exceeds the budget is an overrun), a further one
+   only when the time spent plus the largest of the last measured step times (and of the wrap-up) fits in it;
+4. returns a plan within every joint limit by ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the
+   torque at 32 points per element): its kinematic Bernstein rows are made to hold (``limits_guard``), and a plan
+   that still fails the check (the torque limits are not rows of the steps) is not returned: the plan in force is
+   kept ("held"), which passed the same check when it was returned.
+
+What one step guarantees: the step's programme imposes the Bernstein rows within 5 % of their bound as
+linear inequalities, which they are in the coefficients at a fixed T; a full step at a fixed T therefore
+meets them exactly (to the programme's rounding), a damped step from a point that met them too (convex
+combination), and rows farther than 5 % from their bound hold unless one step crosses that gap. With a free
+T the rows' dependence on T is linearised, so a step that moves T meets them to first order only. The
+exact guarantee (every returned plan within its limits) comes from the guard and the check: the plan after the
+steps is checked row by row; rows broken are projected back, at the plan's T, onto all the linear rows (a
+least-distance programme, ``limits_guard.guard``), and the result must pass ``check_limits``; else the plan in
+force is kept.
+Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from hoc_cli.constraints.check import check_limits
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.errors import NumericalError
+from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
+from hoc_cli.goals.plan import Goals
+from hoc_cli.goals.replan import DECREMENT_TOL, RHO_AUG, TimeRange
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR
+from hoc_cli.goals.replan_qp import qp_steps
+from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.ocp.problem import Free, OptimalControlProblem
+from hoc_cli.realtime.limits_guard import guard
+from hoc_cli.realtime.shift import shift_plan
+
+MIN_REMAINING = 1e-3  # [s] a plan shorter than this is not replanned (held)
+HISTORY = 16  # step times remembered for the budget's prediction
+
+
+@dataclass(frozen=True)
+class Target:
+    """The ball's estimate at the update's time t: position (3,) [m], velocity (3,) [m/s], acceleration (3,) [m/s²]."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class CyclePlan:
+    """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost.
+
+    Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
+    replanner's ``max_steps``) |
+    "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "held" (no
+    time left, the start could not be evaluated, or the result failed ``check_limits``: the plan in force kept) | "cold" (the
+    replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
+    last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
+    [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
+    ``guarded`` whether the limits' guard had to project; ``wall_time_s`` the update [s].
+    """
+
+    t0: float
+    mesh: HermiteMesh
+    coeffs: np.ndarray
+    J: float
+    steps: int = 0
+    status: str = "cold"
+    decrement: float = math.nan
+    violation: float = math.nan
+    stationarity: float = math.nan
+    guarded: bool = False
+    wall_time_s: float = 0.0
+
+    @property
+    def T(self) -> float:
+        return self.mesh.T
+
+    @property
+    def t_end(self) -> float:
+        """The plan's end (the catch) [s], absolute."""
+        return self.t0 + self.mesh.T
+
+    def state(self, t, deriv: int = 0) -> np.ndarray:
+        """The deriv-th time derivative of q at absolute times t (k,) → (k, n) (t clipped to the plan)."""
+        local = np.clip(np.asarray(t, float) - self.t0, 0.0, self.mesh.T)
+        return self.mesh.evaluate(self.coeffs, np.atleast_1d(local), deriv)
+
+
+class Replanner:
+    """The catch's plan updated every cycle (module docstring).
+
+    problem : the ``OptimalControlProblem`` with a link goal (its target is replaced each update), a free T
+        (``Free(min, max, weight)``, counted from the problem's t = 0), N, limits, cost;
+    plan : its solution (``hoc_cli.solve``'s ``Plan``) starting at ``t0`` [s];
+    max_steps : steps per update at most (besides the budget); warm_up : run ``warm_up`` first.
+    """
+
+    def __init__(self, problem: OptimalControlProblem, plan, *, t0: float = 0.0, max_steps: int = 20,
+                 warm_up: bool = True) -> None:
+        if problem.link_goal is None or not isinstance(problem.time, Free):
+            raise ValueError("the replanner needs a problem with a link goal and a free T")
+        self.problem, self.system, self.limits = problem, problem.system, problem.limits
+        self.free: Free = problem.time
+        self.goals: Goals = plan.goals if plan.goals is not None else problem.goals()
+        result = plan.result
+        self.G = result.G
+        self.max_steps = max_steps
+        self.lam = [np.array(v, float) for v in result.terms.lam] if result.terms is not None else None
+        pen = result.limits.penalty if result.limits is not None else None
+        active = from_multipliers(pen) if pen is not None else ActiveRows.empty()
+        self.active = active if active is not None else ActiveRows.empty()
+        self.mu = self.active.gather(pen.mu_lo, pen.mu_hi) if pen is not None and active is not None else np.zeros(0)
+        self.current = CyclePlan(t0=t0, mesh=result.mesh, coeffs=np.array(result.coeffs), J=float(result.J))
+        self.step_times: deque = deque(maxlen=HISTORY)  # between two steps of one update [s]
+        self.first_times: deque = deque(maxlen=HISTORY)  # from the update's start to its first step's end [s]
+        self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return [s]
+        if warm_up:
+            self.warm_up()
+
+    def warm_up(self) -> None:
+        """One update on a copy of the first plan (its own target, a long budget), its times forgotten: the first
+        call of the step functions loads modules and fills caches, which would make the first measured step
+        time (and so every budget prediction) far too long.
+        """
+        saved = (self.current, self.lam, self.active, self.mu)
+        cur = self.current
+        t = cur.t0 + 0.01 * cur.T
+        final = self.goals.final
+        p, v = final.target(t - cur.t0)
+        self.update(t, (cur.state(t)[0], cur.state(t, 1)[0]), Target(p, v, np.zeros(3) if final.acceleration is None else final.acceleration), 10.0)
+        self.current, self.lam, self.active, self.mu = saved
+        for times in (self.step_times, self.first_times, self.wrap_times):
+            times.clear()
+
+    # -- the problem of an update -------------------------------------------------------------------------
+    def time_range(self, t: float) -> TimeRange | None:
+        """The remaining duration's range [s] at absolute time t (None when it is empty)."""
+        lo, hi = max(self.free.min - t, MIN_REMAINING), self.free.max - t
+        return TimeRange(lo, hi, self.free.weight) if hi > lo else None
+
+    def goals_for(self, target: Target) -> Goals:
+        """The link goal with the target's estimate (its time origin the update's t)."""
+        return goals_with_target(self.goals, target)
+
+    # -- the update ---------------------------------------------------------------------------------------
+    def update(self, t: float, x, target: Target, budget_s: float, *, free_time: bool = True) -> CyclePlan:
+        """The plan from the state x = (q (n,), q̇ (n,)) at absolute time t [s] towards ``target`` (its estimate
+        at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict (the first
+        step is always taken). ``free_time`` False keeps the catch time of the plan in force (T = its remaining
+        time): near the catch, where a step in T is far from linear.
+        """
+        start = time.perf_counter()
+        deadline = start + budget_s
+        cur = self.current
+        span = self.time_range(t)
+        remaining = cur.t_end - t
+        if span is None or remaining < MIN_REMAINING:
+            return self._hold(start)
+        shifted = shift_plan(cur.mesh, cur.coeffs, cur.t0, t, min(max(remaining, span.min), span.max) if free_time else None)
+        mesh, C = shifted.mesh, shifted.coeffs
+        q, dq = (np.asarray(v, float) for v in x[:2])
+        C[0, 0], C[0, 1] = q, dq
+        goals = self.goals_for(target)
+        plan0 = _Start(mesh=mesh, problem=_Boundary((q, dq), self.problem.cost), G=self.G, coeffs=C)
+        lam = [v.copy() for v in self.lam] if self.lam is not None else [np.zeros(goals.final.size)]
+        active, mu = carry_rows(self.active, self.mu, shifted.parent)
+        lam.append(mu)
+        marks = [start]
+
+        def stop(steps: int) -> bool:
+            now = time.perf_counter()
+            (self.first_times if steps == 1 else self.step_times).append(now - marks[-1])
+            marks.append(now)
+            return steps >= self.max_steps or self._late(now, deadline)
+
+        try:
+            out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
+                           tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J), 1.0),
+                           floor=VIOLATION_FLOOR, stop=stop)
+        except NumericalError:
+            return self._hold(start)
+        pt = out.point
+        npts = len(lam) - 1
+        r = sum(v.size for v in out.lam[:npts])
+        C_new, mesh_new = pt.C, pt.problem.mesh
+        safe = C_new
+        if self.limits is not None:  # the goal rows kept by the projection if it can, else the limits alone
+            safe = None
+            for keep in (pt.D[:r], None):
+                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep)
+                if C_try is not None and check_limits(self.system, self.limits, mesh_new, C_try).feasible:
+                    safe = C_try
+                    break
+                if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
+                    break
+        if safe is None:
+            return self._hold(start)  # no projection found, or the effort limits (not rows of the steps) broken
+        guarded = safe is not C_new
+        violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
+        J = pt.J
+        if guarded:  # the projected plan's own cost and goal rows
+            J = float(pt.problem.value(pt.problem.layout.pack(safe)))
+            violation = GoalTerms.start(mesh_new, pt.problem.points).violation(safe)
+        self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
+        status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
+        stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
+        now = time.perf_counter()
+        if len(marks) > 1:
+            self.wrap_times.append(now - marks[-1])
+        self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, J=J, steps=out.steps, status=status,
+                                 decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
+                                 stationarity=stationarity, guarded=guarded, wall_time_s=now - start)
+        return self.current
+
+    def _late(self, now: float, deadline: float) -> bool:
+        """Whether a step started now would end after the deadline, by the largest measured step (and wrap-up) time
+        (the first step's time, which includes the shift, while no later step has been measured).
+        """
+        times = self.step_times or self.first_times
+        if not times:
+            return False
+        wrap = max(self.wrap_times) if self.wrap_times else 0.0
+        return now + max(times) + wrap > deadline
+
+    def _hold(self, start: float) -> CyclePlan:
+        self.current = dataclasses.replace(self.current, steps=0, status="held",
+                                           wall_time_s=time.perf_counter() - start)
+        return self.current
+
+
+def goals_with_target(goals: Goals, target: Target) -> Goals:
+    """``goals`` with its link goal's target replaced by ``target`` (position, velocity, acceleration at time 0)."""
+    final = dataclasses.replace(goals.final, position=np.asarray(target.position, float),
+                                velocity=np.asarray(target.velocity, float),
+                                acceleration=np.asarray(target.acceleration, float))
+    return dataclasses.replace(goals, final=final)
+
+
+def carry_rows(active: ActiveRows, mu: np.ndarray, parent: np.ndarray) -> tuple[ActiveRows, np.ndarray]:
+    """The working set (and its multipliers μ (a,)) of a plan carried to its shifted plan: each row of an element
+    goes to every new element inside it (``parent`` (N,): the old element of each new one).
+    """
+    old, new = [], []
+    for e_new, e_old in enumerate(np.asarray(parent)):
+        sel = np.flatnonzero(active.elem == e_old)
+        old.append(sel)
+        new.append(np.full(sel.size, e_new))
+    sel = np.concatenate(old).astype(int) if old else np.zeros(0, int)
+    elem = np.concatenate(new).astype(int) if new else np.zeros(0, int)
+    rows = ActiveRows(active.kind[sel], elem, active.row[sel], active.joint[sel], active.side[sel])
+    return rows, np.asarray(mu, float)[sel]
+
+
+@dataclass(frozen=True, eq=False)
+class _Boundary:
+    """What ``qp_steps`` reads of its starting plan's problem: the start state (q0, q̇0) and the cost's name."""
+
+    boundary: tuple
+    cost: str
+
+
+@dataclass(frozen=True, eq=False)
+class _Start:
+    """What ``qp_steps`` reads of its starting plan: mesh, problem (start state, cost), G, coefficients; no factor."""
+
+    mesh: HermiteMesh
+    problem: _Boundary
+    G: int | None
+    coeffs: np.ndarray
+    newton_factor: None = None
