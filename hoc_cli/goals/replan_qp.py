@@ -51,6 +51,7 @@ SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's op
 LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit test cut below a quarter
 LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal raised a thousandfold: steps far shorter than
 # Newton's, whose programme would otherwise be solved in units of 1e17 and more)
+MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this × the step's largest (not rounding)
 LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 
 
@@ -206,8 +207,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         dT = float(step.d[P]) if free is not None else 0.0
         nu = step.nu - rho_aug * cg
         mu = step.mu[:cand.size]
-        new_active = cand.keep(mu > 0)
-        lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[mu > 0]]
+        held = mu > MU_RTOL * float(np.max(mu, initial=0.0))  # not the rows whose μ is rounding
+        new_active = cand.keep(held)
+        lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[held]]
 
         def trial_at(alpha: float):
             T_a = T + alpha * dT
