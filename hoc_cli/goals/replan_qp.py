@@ -209,7 +209,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         mu = step.mu[:cand.size]
         held = mu > MU_RTOL * float(np.max(mu, initial=0.0))  # not the rows whose μ is rounding
         new_active = cand.keep(held)
-        lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[held]]
+        goal_parts = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) if npts else []
+        lam_new = goal_parts + [mu[held]]  # (no goal rows, e.g. joint vias pinned on nodes: the working set's alone)
 
         def trial_at(alpha: float):
             T_a = T + alpha * dT
