@@ -9,7 +9,7 @@ trajectory at the guess.
 The reference is CasADi + IPOPT on the same continuous problem (benchmarks/_casadi_goals.py, degree-3
 Radau collocation, the URDF's position, velocity and effort limits), cold from the quintic to hoc's
 inverse-kinematics guess at T = 0.5 s, measured 2026-12-01 by
-``python benchmarks/bench_robust.py --ipopt`` (casadi 3.8.2):
+``python benchmarks/bench_robust.py --ipopt --K 8 32`` (casadi 3.8.2):
 
     K =  8: T* = 0.5893717504 s, J* = 99.0494090733
     K = 32: T* = 0.5893715205 s, J* = 99.0495892335
