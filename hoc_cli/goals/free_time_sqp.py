@@ -16,6 +16,10 @@ same first-order conditions as the search's end.
    ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within
    ``COLD_STEPS``, and without limits, one fixed-T solve (``plan_goals``: continuation, the goal rows' and
    the limits' augmented-Lagrangian loops). The lbr7 catch: 45 steps; a two-link link goal: 4.
+   When the initial trajectory at the guess breaks a kinematic limit, a restoration first minimises the
+   violation of the goal rows and the (tightened) limit rows over x and T (``hoc_cli.goals.restoration``): at a
+   guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
+   at the guess is made there, from the restored trajectory.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
