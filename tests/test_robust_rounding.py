@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 import pytest
-from _robots import ERD
+from _robots import ERD, ROBOTS
 
 from hoc_cli.goals.qp_step import solve_qp, upper_factor
 
@@ -68,3 +68,28 @@ def test_the_replan_programme_is_solved_in_any_units():
         out = solve_qp(upper_factor(s * H), s * g, E, e, A, b)
         assert np.abs(out.d - ref.d).max() <= 1e-8 * np.abs(ref.d).max()
         assert np.abs(out.mu - s * ref.mu).max() <= 1e-8 * s * ref.mu.max()
+
+
+def test_hoc_solves_on_one_blas_thread_when_numpy_loaded_its_blas_first(tmp_path):
+    """numpy imported first with two OpenBLAS threads: a goal plan's iterations run on one, and the count is
+    restored after (``hoc_cli.optimize.blas.one_thread``)."""
+    code = """
+import numpy, scipy.linalg
+import hoc_cli
+from hoc_cli import Fixed, OptimalControlProblem, RobotSystem, SolveOptions, link_goal, load_robot
+from hoc_cli.optimize.blas import thread_counts
+before = thread_counts()
+arm = RobotSystem(load_robot(%r))
+seen = []
+problem = OptimalControlProblem(arm, q0=[0.0, 0.0], dq0=[0.0, 0.0], time=Fixed(1.5), N=8,
+                                link_goal=link_goal(arm, "tool", position=[1.0, 0.0, 1.2]))
+plan = hoc_cli.solve(problem, SolveOptions(callback=lambda log: seen.append(thread_counts())))
+import json; print(json.dumps([before, sorted(set(map(tuple, seen))), thread_counts(), plan.converged]))
+""" % str(ROBOTS / "two_link.urdf")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env=env | {"OPENBLAS_NUM_THREADS": "2"})
+    assert out.returncode == 0, out.stderr
+    before, seen, after, converged = json.loads(out.stdout)
+    assert converged and before and all(n == 2 for n in before)  # numpy's and scipy's OpenBLAS read the variable
+    assert seen == [[1] * len(before)] and after == before

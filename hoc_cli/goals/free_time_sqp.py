@@ -42,6 +42,7 @@ from hoc_cli.goals.active_limits import all_rows
 from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.restoration import restore
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL
 
 MAX_STEPS = 60  # Newton steps in x and T from the plan at the guess before the search takes over
@@ -49,6 +50,7 @@ COLD_STEPS = 80  # Newton steps at the guess T from the initial trajectory befor
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], system, goals, T_min: float,
                       T_max: float, *, guess: float | None = None, weight: float = 0.0, limits=None,
                       max_steps: int = MAX_STEPS, cold_steps: int = COLD_STEPS) -> FreeTimeResult:

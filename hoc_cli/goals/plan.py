@@ -27,6 +27,7 @@ from hoc_cli.goals.mesh import node_index, via_mesh
 from hoc_cli.goals.residuals import FrameResidual, JointResidual
 from hoc_cli.goals.terms import GoalPoint, GoalTerms
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL, PlanResult, continuation_levels, resample
 from hoc_cli.problem import ControlProblem, Layout, minimum_jerk_guess
 
@@ -180,6 +181,7 @@ def _polish(problem, x: np.ndarray) -> np.ndarray:
     return x
 
 
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = "covariant",
                method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None,
                G: int | None = None, limits=None, continuation: bool = True,

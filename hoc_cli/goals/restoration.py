@@ -10,7 +10,10 @@ converge. Here T moves instead: a Levenberg-Marquardt (Gauss-Newton) method mini
 over the free Hermite coefficients x (s = t/T domain) and, when asked, T in [T_min, T_max]: c the goal rows (m,
 rad, m/s), g the kinematic Bernstein rows of ``hoc_cli.goals.active_limits`` (dimensionless, relative to the
 limit's size; g ≤ 0 within the limit), κ a margin (the rows tightened by κ of the limit's size, so that the T
-found leaves the plan room inside the true limits). The residual's Jacobian is exact in x (the goal rows'
+found leaves the plan room inside the true limits). Each step's programme imposes the rows near their bound
+(within 5 %) as linear inequalities that cut the broken ones by a fraction τ (1, halved with each rejected
+trial, doubled after an accepted one: from far outside, a full correction of the limits in one step can throw
+the goal rows off). The residual's Jacobian is exact in x (the goal rows'
 exact Jacobian, the Bernstein rows are linear) and a forward difference in T (δ = 1e-6·T, the coefficients
 rescaled); each step solves (JᵀJ + σS) d = −JᵀR with S the diagonal of JᵀJ (Marquardt's scaling) plus a floor,
 and σ follows the ratio of the actual to the predicted decrease of m (×4 when below ¼, ÷3 above ¾; Nocedal &
@@ -93,7 +96,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
         return A_full @ p.pt.C.ravel() + select.offsets(limits) + margin, A
 
     p = at(mesh0.T, np.array(plan0.coeffs))
-    sigma, steps = 1e-3, 0
+    sigma, tau, steps = 1e-3, 1.0, 0
     while not (p.violation <= tol and p.row_violation <= tol) and steps < max_steps:
         half = len(p.g) // 2
         select = ActiveRows.where(tuple(v > -GAP for v in p.g[:half]), tuple(v > -GAP for v in p.g[half:]))
@@ -101,7 +104,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
         T, pt = p.T, p.pt
         E, c = pt.D[:r], pt.c[:r]
         P = pt.x.size
-        b = -gA
+        b = -gA + (1.0 - tau) * np.maximum(gA, 0.0)  # the broken rows cut by the fraction τ this step
         if span is not None:  # the T column by a forward difference, the coefficients rescaled
             delta = 1e-6 * T
             ph = at(T + delta, rescale(pt.C, T, T + delta))
@@ -115,6 +118,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
         scale = np.diag(JtJ) + 1e-9 * max(float(np.mean(np.diag(JtJ))), 1e-300)  # Marquardt's, with a floor
         trial = None
         while trial is None and sigma <= SIGMA_MAX:
+            b[:gA.size] = -gA + (1.0 - tau) * np.maximum(gA, 0.0)
             try:
                 d = solve_qp(upper_factor(JtJ + sigma * np.diag(scale)), grad, np.zeros((0, grad.size)), np.zeros(0),
                              A, b).d
@@ -133,8 +137,9 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
             if ratio > 0.25:
                 trial = candidate
                 sigma = sigma / 3.0 if ratio > 0.75 else sigma
+                tau = min(1.0, 2.0 * tau)
             else:
-                sigma *= 4.0
+                sigma, tau = 4.0 * sigma, 0.5 * tau
         if _log.isEnabledFor(logging.DEBUG):
             _log.debug(f"restoration step {steps} T {T:.6f} m {p.m:.3e} goal rows {p.violation:.1e} "
                        f"limit rows {p.row_violation:.1e} sigma {sigma:.1e}")
