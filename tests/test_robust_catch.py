@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 from _robots import ERD, PinocchioOracle
 
+from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 
 URDF = ERD / "ur_description/urdf/ur5_robot.urdf"
@@ -65,3 +66,33 @@ def test_a_catch_infeasible_at_its_guess_moves_T_and_meets_ipopt(tmp_path):
     T = s["T"]
     reached = PinocchioOracle(model).link_pose(q1, "tool0")[:3, 3]
     assert np.abs(reached - (P0 + V0 * T + 0.5 * A0 * T * T)).max() < 1e-9
+
+
+def test_the_restoration_finds_a_T_where_the_catch_meets_its_goal_within_the_kinematic_limits():
+    """``restore`` from the initial trajectory at the guess: over x alone it cannot meet the rows at T = 0.5 s
+    (infeasible there, by IPOPT); over x and T it ends at a T in (0.5, T*] where the returned trajectory meets the
+    goal (Pinocchio's forward kinematics, 1e-8 m) and the kinematic limits by hoc's exact extrema check (the
+    restoration leaves effort to the steps that follow)."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli.constraints.bounds import KINEMATIC
+    from hoc_cli.constraints.check import check_limits
+    from hoc_cli.goals.replan import TimeRange
+    from hoc_cli.goals.restoration import restore
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    goals = problem.goals()
+    start = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits).initial(0.5)
+    assert not restore(arm, start, goals, limits, max_steps=20).feasible
+    found = restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
+    assert found.feasible and 0.5 < found.T <= T_IPOPT
+    mesh = HermiteMesh("quintic", found.T, 8)
+    check = check_limits(arm, limits, mesh, found.coeffs)
+    assert np.all(check.hi_excess[:KINEMATIC] <= 0) and np.all(check.lo_excess[:KINEMATIC] <= 0)
+    reached = PinocchioOracle(model).link_pose(found.coeffs[-1, 0], "tool0")[:3, 3]
+    assert np.abs(reached - (P0 + V0 * found.T + 0.5 * A0 * found.T ** 2)).max() < 1e-8
