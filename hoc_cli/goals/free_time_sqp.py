@@ -16,6 +16,10 @@ same first-order conditions as the search's end.
    ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within
    ``COLD_STEPS``, and without limits, one fixed-T solve (``plan_goals``: continuation, the goal rows' and
    the limits' augmented-Lagrangian loops). The lbr7 catch: 45 steps; a two-link link goal: 4.
+   When the initial trajectory at the guess breaks a kinematic limit, a restoration first minimises the
+   violation of the goal rows and the (tightened) limit rows over x and T (``hoc_cli.goals.restoration``): at a
+   guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
+   at the guess is made there, from the restored trajectory.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
@@ -30,8 +34,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
+
+from hoc_cli.constraints.bounds import KINEMATIC
 from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time, plan_time_derivative
+from hoc_cli.goals.active_limits import all_rows
+from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
 from hoc_cli.goals.replan import TimeRange, replan
+from hoc_cli.goals.restoration import restore
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL
 
 MAX_STEPS = 60  # Newton steps in x and T from the plan at the guess before the search takes over
@@ -39,6 +50,7 @@ COLD_STEPS = 80  # Newton steps at the guess T from the initial trajectory befor
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], system, goals, T_min: float,
                       T_max: float, *, guess: float | None = None, weight: float = 0.0, limits=None,
                       max_steps: int = MAX_STEPS, cold_steps: int = COLD_STEPS) -> FreeTimeResult:
@@ -51,7 +63,18 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
     initial = getattr(solve, "initial", None)
     first = None
     if initial is not None and cold_steps > 0 and limits is not None and limits.any:
-        r = replan(system, initial(guess), goals, limits=limits, fallback=False, max_steps=cold_steps,
+        start = initial(guess)
+        if _breaks_limits(system, start, limits):  # perhaps no plan at the guess: T moves to where there is one
+            found = restore(system, start, goals, limits, span=span)
+            if found.feasible:
+                from hoc_cli.goals.warm import previous_plan
+
+                guess = found.T
+                q0, dq0 = start.problem.boundary[:2]
+                mesh = scaled_mesh(start.mesh.order, guess, start.mesh.N, mesh_fractions(start.mesh))
+                start = previous_plan(system, mesh, found.coeffs, q0, dq0, goals, cost=start.problem.cost, G=start.G,
+                                      multipliers="zeros")
+        r = replan(system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
         r = _with_quadrature(r, system, goals, None, limits, max_steps) if r.converged else None
         if r is not None:
@@ -71,6 +94,16 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
         return first if T == first.T else solve(T, nearest)
 
     return minimize_time(seeded, T_min, T_max, guess=guess, weight=weight)
+
+
+def _breaks_limits(system, plan, limits) -> bool:
+    """Whether the plan's coefficients break a kinematic limit row (g > 0) or its goal rows (> ``COLD_FLOOR``)."""
+    from hoc_cli.constraints.penalty import LimitRows
+
+    rows = LimitRows.build(plan.mesh, plan.problem.layout.free, limits.n)
+    everything = all_rows(system, limits, rows, plan.coeffs)
+    worst = max(float(np.max(g, initial=-np.inf)) for g in everything.g_lo[:KINEMATIC] + everything.g_hi[:KINEMATIC])
+    return worst > 0.0 or plan.violation > COLD_FLOOR
 
 
 def _point(r) -> TimePoint:

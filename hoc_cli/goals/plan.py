@@ -27,6 +27,7 @@ from hoc_cli.goals.mesh import node_index, via_mesh
 from hoc_cli.goals.residuals import FrameResidual, JointResidual
 from hoc_cli.goals.terms import GoalPoint, GoalTerms
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL, PlanResult, continuation_levels, resample
 from hoc_cli.problem import ControlProblem, Layout, minimum_jerk_guess
 
@@ -180,6 +181,7 @@ def _polish(problem, x: np.ndarray) -> np.ndarray:
     return x
 
 
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = "covariant",
                method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None,
                G: int | None = None, limits=None, continuation: bool = True,
@@ -251,7 +253,8 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
 
         er = None
         if limited:
-            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"])
+            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"],
+                         duals=carry.pop("duals", None))
             carry["working"] = er.working
             res = dataclasses.replace(er.inner, x=er.x)
         else:
@@ -265,6 +268,13 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     if terms is None or terms.rho <= 0:
         J0 = probe.value(probe.initial_guess() if C_init is None else probe.layout.pack(C_init))
         rho = RHO0 * max(abs(J0), 1e-6)
+        if terms is None and C_init is not None and (probe.points or limited):
+            # a plan (e.g. of another mesh): its goal multipliers and its limits' working set and multipliers, so
+            # that the first inner solve does not leave its optimum (unconstrained, it would run to another one)
+            lam, state = _warm_state(system, probe, C_init, limits if limited else None)
+            terms = GoalTerms(mesh, probe.points, lam, rho) if probe.points else None
+            if state is not None:
+                carry["working"], carry["duals"] = state.working, state.penalty
         terms = GoalTerms.start(mesh, probe.points, rho) if terms is None else dataclasses.replace(terms, rho=rho)
     if C_init is None and continuation:
         coarse_mesh, C_coarse = None, None
@@ -294,6 +304,18 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     return GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=er, terms=terms,
                       violation=violation, outer_iterations=totals["outer"], goals=goals)
+
+
+def _warm_state(system, problem: GoalProblem, C: np.ndarray, limits) -> tuple[list[np.ndarray], object]:
+    """(the goal rows' multipliers λ, the limits' estimated state or None) at coefficients C (N+1, m, n) of a plan,
+    by least squares on the stationarity ∇ₓJ + Dᵀλ + Σμ∇g = 0 over the goal rows and the limit rows near their bound
+    (``hoc_cli.goals.warm.estimate_state``).
+    """
+    from hoc_cli.goals.warm import estimate_state
+
+    x = problem.layout.pack(np.asarray(C, float))
+    lam, state = estimate_state(system, problem, problem.coefficients(x), problem.evaluate(x).grad, limits)
+    return [np.asarray(v, float) for v in lam], state
 
 
 def _pose_rows(residual: FrameResidual, q: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:

@@ -91,6 +91,10 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         h = -(b - Ah @ y_p - Ah @ (Z @ z0))
         scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
         Gs, hs = G / scale[:, None], h / scale
+        # and h to a unit largest entry: the test of r[-1] = −1/(1 + ‖u‖²) below then reads ‖u‖ relative to
+        # the rows' own size, not to the model's units (a step of 1e11 in y is as feasible as one of 1)
+        size = max(float(np.max(np.abs(hs))), 1e-300)
+        hs = hs / size
         M = np.vstack([Gs.T, hs[None, :]])
         f = np.zeros(M.shape[0])
         f[-1] = 1.0
@@ -100,8 +104,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         r = M @ w - f
         if abs(r[-1]) < 1e-12:
             raise NumericalError("the replan's limit rows admit no step")
-        u = -r[:-1] / r[-1]
-        mu = (w / (-r[-1])) / scale
+        u = -r[:-1] / r[-1] * size
+        mu = (w / (-r[-1])) / scale * size
     else:
         u, mu = np.zeros(Z.shape[1]), np.zeros(0)
     y = y_p + Z @ (z0 + u)

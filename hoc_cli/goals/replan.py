@@ -56,6 +56,7 @@ from hoc_cli.goals.replan_qp import QPReplan, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.optimize import OptimizeResult, Status
+from hoc_cli.optimize.blas import one_thread
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 DECREMENT_TOL = 1e-12  # Newton decrement ½ gᵀH⁻¹g relative to |J|
@@ -119,6 +120,7 @@ def _start(previous) -> tuple[GoalResult, float | None]:
     return previous, None
 
 
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
            fallback: bool = True, violation_floor: float = VIOLATION_FLOOR, merit: bool = False) -> ReplanResult:

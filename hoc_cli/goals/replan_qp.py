@@ -50,6 +50,9 @@ CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
 LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit test cut below a quarter
+LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal raised a thousandfold: steps far shorter than
+# Newton's, whose programme would otherwise be solved in units of 1e17 and more)
+MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this × the step's largest (not rounding)
 LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 
 
@@ -212,8 +215,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         dT = float(step.d[P]) if free is not None else 0.0
         nu = step.nu - rho_aug * cg
         mu = step.mu[:cand.size]
-        new_active = cand.keep(mu > 0)
-        lam_new = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) + [mu[mu > 0]]
+        held = mu > MU_RTOL * float(np.max(mu, initial=0.0))  # not the rows whose μ is rounding
+        new_active = cand.keep(held)
+        goal_parts = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) if npts else []
+        lam_new = goal_parts + [mu[held]]  # (no goal rows, e.g. joint vias pinned on nodes: the working set's alone)
 
         def trial_at(alpha: float):
             T_a = T + alpha * dT
@@ -226,9 +231,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         if trial is None:
             break
         if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
-            lm = max(10.0 * lm, LM_START) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
+            lm = min(max(10.0 * lm, LM_START), LM_MAX) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
         if _log.isEnabledFor(logging.DEBUG):
-            _log.debug(f"  alpha {alpha} |dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
+            _log.debug(f"  alpha {alpha} pi {test.pi if test is not None else 0.0:.2e} lm {lm:.1e} "
+                       f"|dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
                   f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
@@ -239,8 +245,10 @@ class MeritTest:
     """Armijo's test on the ℓ1 merit function φ = I + weight·T + π (Σ|c| + Σ max(0, g)) over the goal rows c
     and every kinematic Bernstein row g (Nocedal & Wright, Numerical Optimization, §18.3): a step of the
     programme is a descent direction of φ once π exceeds its multipliers, so backtracking on φ keeps steps
-    far from the optimum from running off (the steps' own test only watches the goal rows). π = 1.1 × the
-    largest multiplier seen.
+    far from the optimum from running off (the steps' own test only watches the goal rows). π ≥ 1.1 × the step's
+    largest multiplier, and halfway between its last value and that (Powell's update): the multipliers of steps far
+    from feasibility can be 500 times those near the optimum, where a π kept that large makes the second-order
+    rise of the curved goal rows outweigh the cost's decrease and cuts every full step (the Maratos effect).
     """
 
     ARMIJO = 1e-4
@@ -260,7 +268,8 @@ class MeritTest:
         """The acceptance test of the step from ``pt`` (at T): ``slope_I`` the derivative of I + weight·T along it,
         ``multipliers`` its programme's, ``everything``: ``all_rows`` at ``pt``.
         """
-        self.pi = max(self.pi, 1.1 * float(np.max(np.abs(multipliers), initial=0.0)))
+        needed = 1.1 * float(np.max(np.abs(multipliers), initial=0.0))
+        self.pi = max(needed, 0.5 * (self.pi + needed))
         h0 = self.infeasibility(pt, everything)
         phi0 = pt.J + self.weight * T + self.pi * h0
         slope = slope_I - self.pi * h0

@@ -1,0 +1,166 @@
+"""Feasibility restoration for a free T: a T at which the goal rows can be met within the kinematic limits.
+
+The free-T SQP (``hoc_cli.goals.free_time_sqp``) first plans at the guess T. When the goal rows cannot be met
+there within the limits (a fast catch: the arm cannot reach the target's position and velocity at T = guess
+without breaking a velocity limit), every step at that T trades one violation for another and the steps never
+converge. Here T moves instead: a Levenberg-Marquardt (Gauss-Newton) method minimises the violation
+
+    m(x, T) = ½ Σ c_i² + ½ Σ max(0, g_j + κ)²
+
+over the free Hermite coefficients x (s = t/T domain) and, when asked, T in [T_min, T_max]: c the goal rows (m,
+rad, m/s), g the kinematic Bernstein rows of ``hoc_cli.goals.active_limits`` (dimensionless, relative to the
+limit's size; g ≤ 0 within the limit), κ a margin (the rows tightened by κ of the limit's size, so that the T
+found leaves the plan room inside the true limits). Each step's programme imposes the rows near their bound
+(within 5 %) as linear inequalities that cut the broken ones by a fraction τ (1, halved with each rejected
+trial, doubled after an accepted one: from far outside, a full correction of the limits in one step can throw
+the goal rows off). The residual's Jacobian is exact in x (the goal rows'
+exact Jacobian, the Bernstein rows are linear) and a forward difference in T (δ = 1e-6·T, the coefficients
+rescaled); each step solves (JᵀJ + σS) d = −JᵀR with S the diagonal of JᵀJ (Marquardt's scaling) plus a floor,
+and σ follows the ratio of the actual to the predicted decrease of m (×4 when below ¼, ÷3 above ¾; Nocedal &
+Wright, *Numerical Optimization*, §10.3). T is clipped to its range.
+
+It ends ``feasible`` when every goal row is met to ``tol`` and every tightened row to ``tol``, or ``stalled``
+when the predicted decrease of a step falls below 1e-12 of m (a local minimum of the violation: infeasible
+there) or after ``max_steps``. Pure maths: no I/O.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.constraints.penalty import LimitRows
+from hoc_cli.errors import NumericalError
+from hoc_cli.free_time import rescale
+from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.mesh import mesh_fractions
+from hoc_cli.goals.qp_step import solve_qp, upper_factor
+from hoc_cli.goals.replan_point import evaluate_point
+
+_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
+MARGIN = 0.05  # κ: the rows tightened by this fraction of the limit's size
+TOL = 1e-9  # the goal rows (m, rad, m/s) and the tightened rows (relative) met to this: feasible
+GAP = 0.05  # the rows within this (relative) of the tightened bound enter each step's programme
+STALL_RTOL = 1e-12  # a step whose predicted decrease is below this·m: a local minimum of the violation
+SIGMA_MAX = 1e12  # σ beyond which no step decreases m: a local minimum of the violation
+
+
+@dataclass(frozen=True, eq=False)
+class Restoration:
+    """Where the restoration ended: T [s], the coefficients C (N+1, m, n) on the mesh at T, the largest goal-row
+    violation and the largest tightened limit row (g + κ; ≤ 0 within), ``feasible``, the steps taken.
+    """
+
+    T: float
+    coeffs: np.ndarray
+    violation: float
+    row_violation: float
+    feasible: bool
+    steps: int
+
+
+def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, tol: float = TOL,
+            max_steps: int = 60) -> Restoration:
+    """Minimise the violation m(x, T) from the plan ``plan0`` (a ``GoalResult``: its mesh, coefficients, G,
+    cost, x0) over x, and over T in ``span`` (a ``TimeRange``) when given (module docstring); ``limits``: the
+    enforced ``JointLimits`` (its kinematic rows enter m).
+    """
+    mesh0, problem0 = plan0.mesh, plan0.problem
+    order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
+    fractions = mesh_fractions(mesh0)
+    q0, dq0 = problem0.boundary[:2]
+    lam = [np.zeros(p.residual.size) for p in problem0.points]
+    r = sum(v.size for v in lam)
+    cache: dict = {}
+
+    def at(T_: float, C_: np.ndarray) -> _Point:
+        pt = evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam, None, None, 0.0, False, cache,
+                            fractions=fractions)
+        problem, rows, where = cache[T_]
+        if rows is None:  # without limits ``evaluate_point`` caches no limit rows
+            rows = LimitRows.build(problem.mesh, problem.layout.free, limits.n)
+            cache[T_] = (problem, rows, where)
+        g = all_rows(system, limits, rows, pt.C)
+        g = [v + margin for v in g.g_lo[:KINEMATIC] + g.g_hi[:KINEMATIC]]
+        over = sum(float(np.sum(np.maximum(v, 0.0) ** 2)) for v in g)
+        c = pt.c[:r]
+        return _Point(pt, T_, rows, g, 0.5 * float(c @ c) + 0.5 * over, float(np.max(np.abs(c), initial=0.0)),
+                      max(float(np.max(v, initial=-math.inf)) for v in g))
+
+    def limit_rows(p: _Point, select: ActiveRows) -> tuple[np.ndarray, np.ndarray]:
+        """(g + κ (a,), ∂g/∂x (a, P)) of the selected rows at p."""
+        A, A_full = select.jacobian(p.rows, limits, p.pt.problem.layout.free)
+        return A_full @ p.pt.C.ravel() + select.offsets(limits) + margin, A
+
+    p = at(mesh0.T, np.array(plan0.coeffs))
+    sigma, tau, steps = 1e-3, 1.0, 0
+    while not (p.violation <= tol and p.row_violation <= tol) and steps < max_steps:
+        half = len(p.g) // 2
+        select = ActiveRows.where(tuple(v > -GAP for v in p.g[:half]), tuple(v > -GAP for v in p.g[half:]))
+        gA, A = limit_rows(p, select)
+        T, pt = p.T, p.pt
+        E, c = pt.D[:r], pt.c[:r]
+        P = pt.x.size
+        b = -gA + (1.0 - tau) * np.maximum(gA, 0.0)  # the broken rows cut by the fraction τ this step
+        if span is not None:  # the T column by a forward difference, the coefficients rescaled
+            delta = 1e-6 * T
+            ph = at(T + delta, rescale(pt.C, T, T + delta))
+            E = np.hstack([E, ((ph.pt.c[:r] - c) / delta)[:, None]])
+            A = np.hstack([A, ((limit_rows(ph, select)[0] - gA) / delta)[:, None]])
+            bounds = np.zeros((2, P + 1))
+            bounds[0, -1], bounds[1, -1] = 1.0, -1.0
+            A = np.vstack([A, bounds])
+            b = np.concatenate([b, [span.max - T, T - span.min]])
+        JtJ, grad = E.T @ E, E.T @ c
+        scale = np.diag(JtJ) + 1e-9 * max(float(np.mean(np.diag(JtJ))), 1e-300)  # Marquardt's, with a floor
+        trial = None
+        while trial is None and sigma <= SIGMA_MAX:
+            b[:gA.size] = -gA + (1.0 - tau) * np.maximum(gA, 0.0)
+            try:
+                d = solve_qp(upper_factor(JtJ + sigma * np.diag(scale)), grad, np.zeros((0, grad.size)), np.zeros(0),
+                             A, b).d
+            except NumericalError:
+                break
+            rows_after = np.maximum(gA + A[:gA.size] @ d, 0.0)
+            predicted = p.m - 0.5 * float(np.sum((c + E @ d) ** 2)) - 0.5 * float(rows_after @ rows_after)
+            if predicted <= STALL_RTOL * p.m:
+                break
+            T_try = T if span is None else min(max(T + float(d[P]), span.min), span.max)
+            try:
+                candidate = at(T_try, rescale(pt.problem.coefficients(pt.x + d[:P]), T, T_try))
+                ratio = (p.m - candidate.m) / predicted
+            except NumericalError:
+                ratio = -math.inf
+            if ratio > 0.25:
+                trial = candidate
+                sigma = sigma / 3.0 if ratio > 0.75 else sigma
+                tau = min(1.0, 2.0 * tau)
+            else:
+                sigma, tau = 4.0 * sigma, 0.5 * tau
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(f"restoration step {steps} T {T:.6f} m {p.m:.3e} goal rows {p.violation:.1e} "
+                       f"limit rows {p.row_violation:.1e} sigma {sigma:.1e}")
+        if trial is None:
+            break
+        steps += 1
+        p = trial
+    return Restoration(T=p.T, coeffs=p.pt.C, violation=p.violation, row_violation=p.row_violation,
+                       feasible=p.violation <= tol and p.row_violation <= tol, steps=steps)
+
+
+@dataclass(frozen=True, eq=False)
+class _Point:
+    """The restoration at one (x, T): the goal rows' ``LagrangianPoint``, T, the mesh's limit rows, every
+    kinematic row's g + κ (lower rows per kind, then upper), m, the largest |c| and the largest g + κ.
+    """
+
+    pt: object
+    T: float
+    rows: object
+    g: list
+    m: float
+    violation: float
+    row_violation: float

@@ -1,0 +1,98 @@
+"""A fast catch on a third-party robot whose guess T admits no plan within the limits (issue 23).
+
+UR5 (example-robot-data), ``tool0`` catches a ball tossed from (0.9, 0.6, 0.2) m at (−0.86, −0.3, 2.8) m/s
+under gravity, ``match_velocity``, T free in [0.3, 0.8] s from the guess 0.5 s, N = 8, the URDF's limits
+enforced. At T = 0.5 s the catch is infeasible within the limits (IPOPT: ``Infeasible_Problem_Detected``
+at K = 8 and 32); the free-T SQP must move T (``hoc_cli.goals.restoration``) instead of pushing the
+trajectory at the guess.
+
+The reference is CasADi + IPOPT on the same continuous problem (benchmarks/_casadi_goals.py, degree-3
+Radau collocation, the URDF's position, velocity and effort limits), cold from the quintic to hoc's
+inverse-kinematics guess at T = 0.5 s, measured 2026-12-01 by
+``python benchmarks/bench_robust.py --ipopt --K 8 32`` (casadi 3.8.2):
+
+    K =  8: T* = 0.5893717504 s, J* = 99.0494090733
+    K = 32: T* = 0.5893715205 s, J* = 99.0495892335
+
+hoc (N = 8) must meet both within 1 % (the issue's bar; measured: T to 1e-6, J to 2e-5), end converged,
+meet the goal by Pinocchio's forward kinematics and break no limit by hoc's exact check.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from _robots import ERD, PinocchioOracle
+
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.model import load_robot
+
+URDF = ERD / "ur_description/urdf/ur5_robot.urdf"
+pytestmark = pytest.mark.skipif(not URDF.is_file(), reason="example-robot-data is not installed")
+
+T_IPOPT, J_IPOPT = 0.5893715205, 99.0495892335  # K = 32 (module docstring)
+P0, V0, A0 = np.array([0.9, 0.6, 0.2]), np.array([-0.86, -0.3, 2.8]), np.array([0.0, 0.0, -9.81])
+
+
+def catch_task(path) -> None:
+    path.write_text(f"""robot: {URDF}
+x0: {{q: [0, -1.57, 1.57, -1.57, -1.57, 0]}}
+x1:
+  link: tool0
+  target: {{position: {P0.tolist()}, velocity: {V0.tolist()}, acceleration: {A0.tolist()}}}
+  match_velocity: true
+T: {{free: true, min: 0.3, max: 0.8, guess: 0.5}}
+N: 8
+""")
+
+
+def test_a_catch_infeasible_at_its_guess_moves_T_and_meets_ipopt(tmp_path):
+    task = tmp_path / "ur5_catch.yaml"
+    catch_task(task)
+    code = "import sys; from hoc_cli.cli import app; sys.exit(app())"
+    out = subprocess.run([sys.executable, "-c", code, "plan", str(task), "-o", "none", "--json"],
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    s = json.loads(out.stdout)
+    assert s["status"] == "converged" and s["T_converged"] and s["T_bound"] is None
+    assert abs(s["T"] - T_IPOPT) <= 1e-2 * T_IPOPT and abs(s["cost"] - J_IPOPT) <= 1e-2 * J_IPOPT
+    assert abs(s["dJ_dT"]) <= 1e-4 * s["cost"] / s["T"]  # stationary in T (weight 0)
+    assert s["limit_violations"] == []
+    model = load_robot(URDF)
+    q1 = np.array([s["final_q"][j] for j in model.joint_names])
+    T = s["T"]
+    reached = PinocchioOracle(model).link_pose(q1, "tool0")[:3, 3]
+    assert np.abs(reached - (P0 + V0 * T + 0.5 * A0 * T * T)).max() < 1e-9
+
+
+def test_the_restoration_finds_a_T_where_the_catch_meets_its_goal_within_the_kinematic_limits():
+    """``restore`` from the initial trajectory at the guess: over x alone it cannot meet the rows at T = 0.5 s
+    (infeasible there, by IPOPT); over x and T it ends at a T in (0.5, T*] where the returned trajectory meets the
+    goal (Pinocchio's forward kinematics, 1e-8 m) and the kinematic limits by hoc's exact extrema check (the
+    restoration leaves effort to the steps that follow)."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli.constraints.bounds import KINEMATIC
+    from hoc_cli.constraints.check import check_limits
+    from hoc_cli.goals.replan import TimeRange
+    from hoc_cli.goals.restoration import restore
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    goals = problem.goals()
+    start = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits).initial(0.5)
+    assert not restore(arm, start, goals, limits, max_steps=20).feasible
+    found = restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
+    assert found.feasible and 0.5 < found.T <= T_IPOPT
+    mesh = HermiteMesh("quintic", found.T, 8)
+    check = check_limits(arm, limits, mesh, found.coeffs)
+    assert np.all(check.hi_excess[:KINEMATIC] <= 0) and np.all(check.lo_excess[:KINEMATIC] <= 0)
+    reached = PinocchioOracle(model).link_pose(found.coeffs[-1, 0], "tool0")[:3, 3]
+    assert np.abs(reached - (P0 + V0 * found.T + 0.5 * A0 * found.T ** 2)).max() < 1e-8
