@@ -121,8 +121,12 @@ def solve(problem: OptimalControlProblem, options: SolveOptions | None = None,
     options = options or SolveOptions()
     if options.starts > 1 and (problem.has_goals or problem.N is None):
         raise TaskError("multi-start applies to joint goals in a fixed T and a fixed N", key="solver.starts")
+    from hoc_cli.optimize.blas import one_thread
+
     start = time.perf_counter()
-    with np.errstate(all="ignore"):  # NaN and inf are detected and reported (exit 1), not warned about
+    # one BLAS thread (hoc_cli/optimize/blas.py), also when numpy was loaded with more before hoc;
+    # NaN and inf are detected and reported (exit 1), not warned about
+    with one_thread(), np.errstate(all="ignore"):
         if problem.has_goals:
             plan = _solve_goals(problem, options, warm)
         elif problem.N is None:

@@ -144,7 +144,7 @@ class OptimalControlProblem:
 
         A link goal's final state for the initial trajectory comes from inverse kinematics at T (from
         q0, within the position limits); with ``match_velocity`` its q̇ is the least-squares joint rate
-        of the target's velocity.
+        of the target's velocity, scaled down into the velocity limits where it breaks them.
         """
         if not self.has_goals:
             return None
@@ -158,4 +158,9 @@ class OptimalControlProblem:
         dq1 = None
         if g.match_velocity:
             dq1 = np.linalg.pinv(frame_jacobian(model, q1, g.link)[:3]) @ g.target(self.T)[1]
+            if self.limits is not None:  # a guess beyond the velocity limits starts the solve infeasible: scaled in
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    over = np.max(np.where(np.isfinite(self.limits.velocity), np.abs(dq1) / self.limits.velocity, 0.0))
+                if over > 1.0:
+                    dq1 = dq1 / over
         return Goals(final=g, final_dq=self.final_dq, vias=self.vias, q1_guess=q1, dq1_guess=dq1)
