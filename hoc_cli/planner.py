@@ -171,10 +171,10 @@ class _Session:
                 callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
                                              n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
 
-        # With limit penalties the objective is only once differentiable (its curvature jumps where a
+        # With limit (or other: ``ControlProblem.terms``) penalties the objective is only once differentiable (its curvature jumps where a
         # row becomes active): Newton steps (β = 0) and a loose curvature condition accept more unit
         # steps there (measured: 20-25 % fewer evaluations on lbr7_swing; docs/limits.md).
-        penalized = isinstance(problem, PenalizedProblem) and self.precondition
+        penalized = self.precondition and (isinstance(problem, PenalizedProblem) or bool(getattr(problem, "terms", ())))
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
                        tol=tol_level, max_iter=max(self.max_iter - totals["it"], 0),

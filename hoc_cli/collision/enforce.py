@@ -1,8 +1,9 @@
 """Collision avoidance enforced: the augmented-Lagrangian outer loop, with the certificate as its stopping test.
 
 Imposed: d ≥ bound at ``POINTS_PER_ELEMENT`` points of every element (t = 0 and T excluded: x0 and
-x1 are data, checked before the solve), for every (point, pair) closer than bound + ``INFLUENCE``
-or with a positive multiplier, re-selected each outer iteration. bound = margin + inflation, the
+x1 are data, checked before the solve), at every point for every pair that comes closer than
+bound + ``INFLUENCE`` at some point or has a positive multiplier, re-selected each outer iteration
+(a pair is imposed along the whole trajectory: an inner solve may move its contact in time). bound = margin + inflation, the
 inflation ``INFLATION`` (lowered for a pair whose x0 or x1 distance leaves less room). The terms
 are ``constraint.CollisionTerms`` (PHR), added to the control problem through its ``terms`` hook.
 
@@ -27,6 +28,7 @@ ends infeasible, it runs again from ``via_guess`` through each of ``VIA_TRIES`` 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -41,11 +43,13 @@ from hoc_cli.collision.scene import CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
+_log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
 POINTS_PER_ELEMENT = 8
 INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at a point are imposed there
 INFLATION = 1e-3      # m imposed above the margin at the points
 VIOLATION_TOL = 1e-5  # m: the points' worst violation at which the certificate is asked
-RHO_START = 1e4       # ρ0 = RHO_START·max(|J|, 1e-6)/T, cost units per m² per s (a 1 cm dip costs about J)
+RHO_START = 1.0       # ρ0 = RHO_START·max(|J|, 1e-6)/(T·c0²): the start's worst violation c0 (at least
+MIN_VIOLATION = 0.01  # MIN_VIOLATION m) costs about J; cost units per m² per s
 RHO_GROWTH = 10.0
 RHO_RANGE = 1e8
 STALL_RATIO = 0.9
@@ -171,7 +175,9 @@ class CollisionConstraint:
         bound = self._bounds(problem)                                   # (Q,)
         points = _base_points(mesh)
         J0 = problem.bare_cost(x)
-        rho0 = RHO_START * max(abs(J0), 1e-6) / mesh.T
+        D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+        c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
+        rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
         lam, rho = (np.zeros((points.size, scene.size)), rho0) if warm is None else (_transfer(warm, points), warm.rho)
         prev = math.inf
         refinements = 0
@@ -180,7 +186,8 @@ class CollisionConstraint:
         try:
             for outer in range(1, max_outer + 1):
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
-                p, k = np.nonzero((D < bound + INFLUENCE) | (lam > 0))
+                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed at every point
+                p, k = np.nonzero(np.broadcast_to(near, D.shape))
                 rows = p.size
                 problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
                 res, _, er = inner(problem, x, tol)
@@ -190,6 +197,10 @@ class CollisionConstraint:
                 lam = np.zeros_like(D)
                 lam[p, k] = terms.multipliers(D[p, k])
                 excess = float(np.max(bound - D, initial=0.0))
+                if _log.isEnabledFor(logging.DEBUG):
+                    _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
+                               f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
+                               f"min d {float(D.min()):.4f}")
                 if excess <= VIOLATION_TOL:
                     if not full:
                         status, message = "converged", f"clear at the points (outer iterations: {outer})"
