@@ -106,7 +106,7 @@ def test_the_shipped_table_reach_is_certified_and_coal_agrees_at_1_khz(workdir):
     doc["output"] = {"rate": 1000.0}
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
-    assert s["collision_mode"] == "check" and s["collisions"] == []
+    assert s["collision_mode"] == "enforce" and s["collisions"] == []  # the section's default
     c = s["min_clearance"]
     assert c["certified"] and c["lower_bound"] >= c["margin"] == 0.01
     obstacle, self_ = _coal_clearance(doc, workdir / "out.csv")
@@ -119,7 +119,7 @@ def test_a_plan_through_an_obstacle_is_reported_with_its_interval(workdir):
     doc = table_task()
     doc["robot"] = "../robots/lbr7.urdf"
     doc["collision"]["obstacles"].append({"name": "bar", "box": {"size": [0.04, 0.04, 0.1]}, "position": [0.21, 0.07, 0.45]})
-    r, s = plan(workdir, doc)
+    r, s = plan(workdir, doc, "--collision", "check")
     assert r.exit_code == 0, r.stderr  # check mode: reported, not enforced
     assert not s["min_clearance"]["certified"] and s["min_clearance"]["distance"] < 0
     hits = [c for c in s["collisions"] if "bar" in c["pair"]]
@@ -149,8 +149,10 @@ def test_collision_off_and_check_on_a_task_without_a_section(workdir):
     assert r.exit_code == 0 and s["collision_mode"] == "off"
     r, s = plan(workdir, doc, "--collision", "check")  # the URDF has no collision geometry: nothing to check
     assert r.exit_code == 0 and s["collision_mode"] == "check" and s["min_clearance"] is None and s["collisions"] == []
-    r, _ = plan(workdir, doc, "--collision", "enforce")
-    assert r.exit_code == 2 and "--collision: expected one of check, off" in r.stderr
+    r, s = plan(workdir, doc, "--collision", "enforce")  # asked for: reported as such, with nothing to impose
+    assert r.exit_code == 0 and s["collision_mode"] == "enforce" and s["min_clearance"] is None
+    r, _ = plan(workdir, doc, "--collision", "on")
+    assert r.exit_code == 2 and "--collision: expected one of enforce, check, off" in r.stderr
 
 
 @pytest.mark.parametrize("edit, message", [

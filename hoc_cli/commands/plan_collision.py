@@ -90,8 +90,8 @@ def enforced_problem(task, model, scene: CollisionScene | None, problem, *, expl
                             "(use --collision check to plan without it and certify the clearance)",
                             file=task.path, key="collision.mode")
         return problem, "check"
-    if scene is None or scene.size == 0:
-        return problem, "check"
+    if scene is None or scene.size == 0:  # nothing to impose
+        return problem, mode if explicit or task.collision.mode_given else "check"
     from hoc_cli.collision.enforce import CollisionConstraint
 
     return replace(problem, constraint=CollisionConstraint(model, scene)), mode
