@@ -253,7 +253,8 @@ class _Session:
             change = abs(J4 - J) / max(abs(J4), 1e-300)
             noise = problem.last.noise if problem.last is not None else 0.0
             resolved = change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise  # else: truncation, refine
-            if resolved or not res.converged or problem.G >= 32:
+            failed = self.outcome is not None and self.outcome.status != "converged"  # the constraint's outer loop
+            if resolved or not res.converged or failed or problem.G >= 32:
                 break
             G, C_start = problem.G + 4, C
         self.levels.append(Level(mesh.N, float(J), True))

@@ -22,8 +22,9 @@ The loop (one level of the planner's continuation):
 Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
 
 A start in collision (``solve`` on the plan's first level): when the loop from the given start
-ends infeasible, it runs again from ``via_guess`` through each of ``VIA_TRIES`` vias found by
-``guess.via_candidates``, and keeps the lowest-cost converged plan; infeasible if none converges.
+ends infeasible, it runs again from ``via_guess`` through each of the ``VIA_TRIES`` clearest vias
+found by ``guess.via_candidates`` whose straight path q0 → q_v → q1 is clear at its samples, and keeps
+the lowest-cost converged plan; infeasible if none converges.
 """
 from __future__ import annotations
 
@@ -51,14 +52,14 @@ VIOLATION_TOL = 1e-5  # m: the points' worst violation at which the certificate 
 RHO_START = 1.0       # ρ0 = RHO_START·max(|J|, 1e-6)/(T·c0²): the start's worst violation c0 (at least
 MIN_VIOLATION = 0.01  # MIN_VIOLATION m) costs about J; cost units per m² per s
 RHO_GROWTH = 10.0
-RHO_RANGE = 1e8
+RHO_RANGE = 1e4       # infeasible once ρ has grown this much and the violation no longer falls
 STALL_RATIO = 0.9
 MAX_OUTER = 30
 COARSE_MAX_OUTER = 8
 REFINE_POINTS = 4
 MAX_REFINEMENTS = 6
 VIA_TRIES = 3
-VIA_MAX_OUTER = 15
+VIA_MAX_OUTER = 10
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,15 +151,18 @@ class CollisionConstraint:
             return got
         mesh = problem.mesh
         q0, dq0, q1, dq1 = problem.boundary
-        best = None
-        for qv, _ in via_candidates(self.model, self.scene, q0, q1, count=VIA_TRIES):
+        best, tried = None, 0
+        for qv, clearance in via_candidates(self.model, self.scene, q0, q1, count=VIA_TRIES):
+            if clearance < 0:  # its straight path collides too: not a way round
+                continue
+            tried += 1
             x = problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))
             tried = self._loop(problem, x, tol, inner, None, full, VIA_MAX_OUTER, "via")
             if tried[3].status == "converged" and (best is None or tried[1] < best[1]):
                 best = tried
         if best is None:
             o = got[3]
-            message = f"{o.message} (from the minimum-jerk guess and from {VIA_TRIES} via guesses)"
+            message = f"{o.message} (from the minimum-jerk guess and {tried} via guesses)"
             return got[:3] + (dataclasses.replace(o, message=message),)
         return best
 
