@@ -219,7 +219,7 @@ class _Session:
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
-        use_sqp = self.precondition and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
+        use_sqp = self.precondition and self.constraint is None and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
                      max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
