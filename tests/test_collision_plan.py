@@ -128,6 +128,41 @@ def test_a_plan_through_an_obstacle_is_reported_with_its_interval(workdir):
     assert (workdir / "out.csv").exists()
 
 
+def test_enforced_the_reach_past_the_bar_is_certified_clear_and_coal_agrees_at_1_khz(workdir):
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["N"] = 8
+    doc["output"] = {"rate": 1000.0}
+    doc["collision"]["obstacles"].append({"name": "bar", "box": {"size": [0.04, 0.04, 0.1]}, "position": [0.21, 0.07, 0.45]})
+    r, s = plan(workdir, doc, "--collision", "check")
+    assert r.exit_code == 0 and s["min_clearance"]["distance"] < 0  # the free plan drives the tool through the bar
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    c = s["min_clearance"]
+    assert s["collision_mode"] == "enforce" and s["converged"] and s["collisions"] == []
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9
+    obstacle, self_ = _coal_clearance(doc, workdir / "out.csv")
+    assert min(obstacle, self_) >= 0.01 - 1e-9
+
+
+def test_enforced_self_collision_keeps_the_wrist_from_the_forearm(workdir):
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["N"] = 8
+    doc["output"] = {"rate": 1000.0}
+    doc["collision"].update({"obstacles": [], "ignore": [], "margin": 0.03})
+    doc["x0"], doc["x1"] = {"q": [0.0, 0.6, 0.0, -2.0, -1.5, 1.8, 0.0]}, {"q": [0.0, 0.6, 0.0, -2.0, 1.5, 1.8, 0.0]}
+    r, free = plan(workdir, doc, "--collision", "check")
+    assert r.exit_code == 0 and free["min_clearance"]["distance"] < 0.02
+    assert free["min_clearance"]["pair"] == ["lbr_link_5", "lbr_link_7"]
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["min_clearance"]["certified"] and s["min_clearance"]["lower_bound"] >= 0.03 - 1e-9
+    _, self_ = _coal_clearance(doc, workdir / "out.csv")
+    assert self_ >= 0.03 - 1e-9
+    assert s["cost"] >= free["cost"]
+
+
 def test_a_start_in_collision_is_an_input_error_naming_the_pair_and_depth(workdir):
     doc = table_task()
     doc["robot"] = "../robots/lbr7.urdf"
