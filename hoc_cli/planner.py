@@ -143,6 +143,7 @@ class _Session:
         self.constraint = constraint  # an outer loop of its own around each level's solve (``plan``)
         self.constraint_warm = None  # ... and what it hands to the next level
         self.outcome = None  # ... and its outcome on the last level
+        self.spent = 0  # iterations not counted against max_iter (each of the constraint's inner solves has its own)
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
@@ -177,7 +178,7 @@ class _Session:
         penalized = self.precondition and (isinstance(problem, PenalizedProblem) or bool(getattr(problem, "terms", ())))
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
-                       tol=tol_level, max_iter=max(self.max_iter - totals["it"], 0),
+                       tol=tol_level, max_iter=max(self.max_iter - totals["it"] + self.spent, 0),
                        callback=report, noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
@@ -207,9 +208,12 @@ class _Session:
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
         if self.constraint is None:
             return self._limited(problem, x0, tol_level, max_outer)
-        res, J, er, self.outcome = self.constraint.solve(
-            problem, x0, tol_level, lambda p, x, t: self._limited(p, x, t, max_outer), warm=self.constraint_warm,
-            full=full)
+        def inner(p, x, t):
+            self.spent = self.totals["it"]
+            return self._limited(p, x, t, max_outer)
+
+        res, J, er, self.outcome = self.constraint.solve(problem, x0, tol_level, inner, warm=self.constraint_warm,
+                                                         full=full)
         self.constraint_warm = self.outcome.warm
         return res, J, er
 

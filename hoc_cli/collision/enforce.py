@@ -17,14 +17,19 @@ The loop (one level of the planner's continuation):
    margin itself). Certified and the inner solve converged: done. Not certified (the clearance
    dips between points): ``REFINE_POINTS`` points are added inside each interval the certificate
    could not prove, and the loop goes on; at most ``MAX_REFINEMENTS`` times.
-4. Infeasible when ρ has grown ``RHO_RANGE``-fold and the violation no longer falls by a tenth.
+4. Infeasible when ρ has grown ``RHO_RANGE``-fold and the violation, still above the inflation
+   (the distance below the margin itself), no longer falls by a tenth; else the loop goes on (ρ at
+   most ``RHO_MAX``·ρ0) until ``MAX_OUTER`` outer iterations, and the certificate decides: a plan
+   that comes closer than the margin is infeasible, one that does not but is not proven clear is
+   not converged.
 
 Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
 
-A start in collision (``solve`` on the plan's first level): when the loop from the given start
-ends infeasible, it runs again from ``via_guess`` through each of the ``VIA_TRIES`` clearest vias
-found by ``guess.via_candidates`` whose straight path q0 → q_v → q1 is clear at its samples, and keeps
-the lowest-cost converged plan; infeasible if none converges.
+A start in collision (``solve``): when the loop from the level's start ends infeasible, it runs
+again from the minimum-jerk guess (when the start was a coarser level's plan) and from ``via_guess``
+through each of the ``VIA_TRIES`` vias of ``guess.via_candidates`` whose straight path
+q0 → q_v → q1 is clear at its samples, and keeps the lowest-cost converged plan; infeasible if none
+converges. Each level starts at its own ρ0, with the coarser level's multipliers.
 """
 from __future__ import annotations
 
@@ -46,6 +51,7 @@ from hoc_cli.model.tree import RobotModel
 
 _log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
 POINTS_PER_ELEMENT = 8
+MIN_POINTS = 64       # points per level at least (a coarse level's path must not slip between its points)
 INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at a point are imposed there
 INFLATION = 1e-3      # m imposed above the margin at the points
 VIOLATION_TOL = 1e-5  # m: the points' worst violation at which the certificate is asked
@@ -54,6 +60,7 @@ MIN_VIOLATION = 0.01  # MIN_VIOLATION m) costs about J; cost units per m² per s
 RHO_GROWTH = 10.0
 RHO_RANGE = 1e4       # infeasible once ρ has grown this much and the violation no longer falls
 STALL_RATIO = 0.9
+RHO_MAX = 1e7         # ρ stays below RHO_MAX·ρ0 (the inner problems' conditioning)
 MAX_OUTER = 30
 COARSE_MAX_OUTER = 8
 REFINE_POINTS = 4
@@ -64,7 +71,9 @@ VIA_MAX_OUTER = 10
 
 @dataclass(frozen=True, eq=False)
 class CollisionWarm:
-    """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ."""
+    """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ (reported only: each
+    level starts at its own ρ0).
+    """
 
     t: np.ndarray
     w: np.ndarray
@@ -78,7 +87,8 @@ class CollisionOutcome:
 
     status : "converged" | "infeasible" | "not_converged"; message; certificate : the plan's (None on
     coarse levels); outer_iterations; rho; rows : rows imposed last; points : points used;
-    start : "guess" or "via" (the start that gave the plan); warm : multipliers for the next level.
+    start : "start" (the level's start: the guess or the coarser level's plan), "guess" (the minimum-jerk
+    guess, after the coarser plan failed) or "via" (a via guess); warm : multipliers for the next level.
     """
 
     status: str
@@ -97,9 +107,14 @@ class CollisionOutcome:
                 "rows": self.rows, "start": self.start}
 
 
+def _per_element(mesh) -> int:
+    """Points per element: ``POINTS_PER_ELEMENT``, more on coarse meshes (``MIN_POINTS`` in all)."""
+    return max(POINTS_PER_ELEMENT, -(-MIN_POINTS // mesh.N))
+
+
 def _base_points(mesh) -> PointSet:
-    """``POINTS_PER_ELEMENT`` points per element at s = (j + ½)/S (neither t = 0 nor t = T)."""
-    S = POINTS_PER_ELEMENT
+    """``_per_element`` points per element at s = (j + ½)/S (neither t = 0 nor t = T)."""
+    S = _per_element(mesh)
     e = np.repeat(np.arange(mesh.N), S)
     s = np.tile((np.arange(S) + 0.5) / S, mesh.N)
     return PointSet.build(mesh, e, s, mesh.hs[e] / S)
@@ -115,7 +130,7 @@ def _add_points(points: PointSet, intervals) -> PointSet:
     e, s = mesh.element_of(t)
     e = np.concatenate([points.e, e])
     s = np.concatenate([points.s, s])
-    return PointSet.build(mesh, e, s, mesh.hs[e] / POINTS_PER_ELEMENT)
+    return PointSet.build(mesh, e, s, mesh.hs[e] / _per_element(mesh))
 
 
 def _transfer(warm: CollisionWarm, points: PointSet) -> np.ndarray:
@@ -146,23 +161,24 @@ class CollisionConstraint:
         ``inner(problem, x, tol) -> (result, J, limits outcome)`` minimises ``problem`` (with its ``terms``).
         Without ``warm`` (the plan's first level) a start the loop cannot free tries via guesses.
         """
-        got = self._loop(problem, x0, tol, inner, warm, full, MAX_OUTER if full else COARSE_MAX_OUTER, "guess")
-        if warm is not None or got[3].status != "infeasible":
+        got = self._loop(problem, x0, tol, inner, warm, full, MAX_OUTER if full else COARSE_MAX_OUTER, "start")
+        if got[3].status != "infeasible":
             return got
         mesh = problem.mesh
         q0, dq0, q1, dq1 = problem.boundary
-        best, tried = None, 0
+        starts = [] if warm is None else [("guess", problem.initial_guess())]  # a coarser level's plan failed here
         for qv, clearance in via_candidates(self.model, self.scene, q0, q1, count=VIA_TRIES):
-            if clearance < 0:  # its straight path collides too: not a way round
-                continue
-            tried += 1
-            x = problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))
-            tried = self._loop(problem, x, tol, inner, None, full, VIA_MAX_OUTER, "via")
+            if clearance >= 0:  # a via whose straight path collides too is no way round
+                starts.append(("via", problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))))
+        best = None
+        for label, x in starts:
+            tried = self._loop(problem, x, tol, inner, None, full, VIA_MAX_OUTER, label)
             if tried[3].status == "converged" and (best is None or tried[1] < best[1]):
                 best = tried
         if best is None:
             o = got[3]
-            message = f"{o.message} (from the minimum-jerk guess and {tried} via guesses)"
+            vias = sum(label == "via" for label, _ in starts)
+            message = f"{o.message} (from the start and {vias} via guesses)"
             return got[:3] + (dataclasses.replace(o, message=message),)
         return best
 
@@ -182,7 +198,7 @@ class CollisionConstraint:
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
         c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
         rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
-        lam, rho = (np.zeros((points.size, scene.size)), rho0) if warm is None else (_transfer(warm, points), warm.rho)
+        lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
         prev = math.inf
         refinements = 0
         status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
@@ -228,10 +244,10 @@ class CollisionConstraint:
                     break
                 cert = None
                 if excess > 0.25 * prev:
-                    if rho >= rho0 * RHO_RANGE and excess > STALL_RATIO * prev:
-                        status = "infeasible"
+                    if rho >= rho0 * RHO_RANGE and excess > STALL_RATIO * prev and excess > INFLATION:
+                        status = "infeasible"  # still in collision (beyond the margin) and no longer improving
                         break
-                    rho *= RHO_GROWTH
+                    rho = min(rho * RHO_GROWTH, rho0 * RHO_MAX)
                 prev = min(prev, excess) if math.isfinite(prev) else excess
             else:
                 message = f"not clear after {max_outer} outer iterations"

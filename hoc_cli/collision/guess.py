@@ -5,7 +5,7 @@ runs through an obstacle the penalty pushes the path out along the nearest conta
 can hold it against the obstacle's far side. ``via_candidates`` draws joint states q_v about the
 midpoint (seeded, reproducible), scores the two straight segments q0 → q_v → q1 by their smallest
 clearance at ``SEGMENT_SAMPLES`` configurations each (a search heuristic, not a proof: the plan is
-certified afterwards), and returns the clearest; ``via_guess`` is the trajectory through q_v at T/2.
+certified afterwards), and returns the shortest clear ones; ``via_guess`` is the trajectory through q_v at T/2.
 
 Symbols: n joints; distances in m; joint values in rad (m for prismatic joints).
 """
@@ -19,14 +19,16 @@ from hoc_cli.elements import HermiteMesh
 from hoc_cli.model.tree import RobotModel
 
 SEGMENT_SAMPLES = 12
-SCALES = (0.35, 0.7, 1.2)  # rad: the spread of the candidates about the midpoint, one third of them each
-CANDIDATES = 48
+SCALES = (0.35, 0.7, 1.2, 2.0)  # rad: the spread of the candidates about the midpoint, a quarter of them each
+CANDIDATES = 128
 
 
 def via_candidates(model: RobotModel, scene: CollisionScene, q0: np.ndarray, q1: np.ndarray, *,
                    count: int = 3, candidates: int = CANDIDATES, seed: int = 0) -> list[tuple[np.ndarray, float]]:
-    """Up to ``count`` vias (q_v (n,), clearance m), clearest first, among ``candidates`` seeded draws
-    q_v = (q0 + q1)/2 + σ z (z standard normal, σ in ``SCALES``) within the position limits.
+    """Up to ``count`` vias (q_v (n,), clearance m) among ``candidates`` seeded draws
+    q_v = (q0 + q1)/2 + σ z (z standard normal, σ in ``SCALES``) within the position limits: those
+    clear by the margin shortest first (joint-space length |q_v − q0| + |q1 − q_v|), then the others
+    clearest first.
 
     The clearance of a via is the smallest signed distance over every pair at ``SEGMENT_SAMPLES``
     configurations on each straight segment q0 → q_v → q1 (ends excluded).
@@ -43,7 +45,9 @@ def via_candidates(model: RobotModel, scene: CollisionScene, q0: np.ndarray, q1:
     q = np.concatenate([first, second, vias[:, None, :]], axis=1)       # (V, 2S + 1, n)
     d = distances(model, scene, q.reshape(-1, n)).reshape(candidates, -1)
     clearance = d.min(axis=1) if d.size else np.full(candidates, np.inf)
-    order = np.argsort(-clearance, kind="stable")[:count]
+    length = np.linalg.norm(vias - q0, axis=1) + np.linalg.norm(q1 - vias, axis=1)
+    clear = clearance >= scene.margin
+    order = np.lexsort((np.where(clear, length, -clearance), ~clear))[:count]
     return [(vias[i], float(clearance[i])) for i in order]
 
 
