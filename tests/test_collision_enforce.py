@@ -176,3 +176,18 @@ def test_the_curvature_blocks_are_the_gauss_newton_matrix_of_the_active_rows(lbr
     assert active.sum() >= 5
     ref = float(np.sum(terms.rho_rows[active] * dd[active] ** 2))
     assert quad == pytest.approx(ref, rel=1e-5)
+
+
+def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):
+    pytest.importorskip("pyarrow")
+    pytest.importorskip("distributed")
+    from hoc_cli.batch import execute_batch
+    from hoc_cli.batch.engine import connect
+
+    r, single = plan(workdir, two_link([BALL]))
+    assert r.exit_code == 0 and single["collision_mode"] == "enforce"
+    with connect(workers=1) as client:
+        run = execute_batch([str(workdir / "task.yaml")], client, out_dir=workdir / "out")
+    (row,) = run.table.to_pylist()
+    assert row["status"] == "converged" and abs(row["cost"] - single["cost"]) <= 1e-12 * single["cost"]
+    assert row["min_clearance"] == single["min_clearance"]["distance"] >= 0.01
