@@ -191,3 +191,40 @@ def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_colu
     (row,) = run.table.to_pylist()
     assert row["status"] == "converged" and abs(row["cost"] - single["cost"]) <= 1e-12 * single["cost"]
     assert row["min_clearance"] == single["min_clearance"]["distance"] >= 0.01
+
+
+def test_via_candidates_are_clear_shortest_first_where_the_straight_path_is_not():
+    from hoc_cli.collision.guess import FINE_SAMPLES, via_candidates, via_guess
+
+    model = load_robot(ROOT / "robots" / "two_link.urdf")
+    shapes = {k: [Shape("capsule", radius=0.05, a=np.zeros(3), b=np.array([1.0, 0, 0]))] for k in ARM}
+    robot = robot_geometry(model, {}, shapes)
+    scene = collision_scene(model, robot, [Obstacle("ball", sphere(BALL["position"], 0.1))], margin=0.01)
+    q0, q1 = np.zeros(2), np.array([1.2, -0.6])
+    s = np.linspace(0, 1, 201)[1:-1, None]
+    assert distances(model, scene, q0 + s * (q1 - q0)).min() < 0  # the straight path hits the ball
+    vias = via_candidates(model, scene, q0, q1, count=3)
+    clear = [c >= 0.01 for _, c in vias]
+    assert clear[0] and clear == sorted(clear, reverse=True)  # the clear ones first
+    fine = np.linspace(0, 1, 8 * FINE_SAMPLES + 1)[1:, None]
+    lengths = []
+    for qv, _ in vias[:sum(clear)]:
+        path = np.concatenate([q0 + fine * (qv - q0), qv + fine * (q1 - qv)])
+        assert distances(model, scene, path).min() > 0  # clear between its samples too
+        lengths.append(np.linalg.norm(qv - q0) + np.linalg.norm(q1 - qv))
+    assert lengths == sorted(lengths)
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    C = via_guess(mesh, q0, np.zeros(2), vias[0][0], q1, np.zeros(2))
+    assert np.allclose(mesh.evaluate(C, np.array([0.75]))[0], vias[0][0])
+    assert np.allclose(C[0, 0], q0) and np.allclose(C[-1, 0], q1) and not C[0, 1].any() and not C[-1, 1].any()
+
+
+def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatch):
+    import hoc_cli.collision.enforce as enforce
+
+    monkeypatch.setattr(enforce, "MAX_OUTER", 1)  # the start gets one outer iteration: it stays in collision
+    monkeypatch.setattr(enforce, "COARSE_MAX_OUTER", 1)
+    r, s = plan(workdir, two_link([BALL], N=4))
+    assert r.exit_code == 0, r.stderr
+    assert s["collision_enforce"]["start"] in ("guess", "via") and s["min_clearance"]["certified"]
+    assert _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9

@@ -4,8 +4,8 @@ The minimum-jerk guess moves every joint along the straight segment q0 → q1; w
 runs through an obstacle the penalty pushes the path out along the nearest contact normal, which
 can hold it against the obstacle's far side. ``via_candidates`` draws joint states q_v about the
 midpoint (seeded, reproducible), scores the two straight segments q0 → q_v → q1 by their smallest
-clearance at ``SEGMENT_SAMPLES`` configurations each (a search heuristic, not a proof: the plan is
-certified afterwards), and returns the shortest clear ones; ``via_guess`` is the trajectory through q_v at T/2.
+clearance at ``SEGMENT_SAMPLES`` configurations each, the best of them again at ``FINE_SAMPLES`` (a
+search heuristic, not a proof: the plan is certified afterwards), and returns the shortest clear ones; ``via_guess`` is the trajectory through q_v at T/2.
 
 Symbols: n joints; distances in m; joint values in rad (m for prismatic joints).
 """
@@ -18,7 +18,9 @@ from hoc_cli.collision.scene import CollisionScene
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model.tree import RobotModel
 
-SEGMENT_SAMPLES = 12
+SEGMENT_SAMPLES = 12  # configurations per straight segment when screening the candidates
+FINE_SAMPLES = 96     # ... and when checking the best CHECKED·count of them
+CHECKED = 4
 SCALES = (0.35, 0.7, 1.2, 2.0)  # rad: the spread of the candidates about the midpoint, a quarter of them each
 CANDIDATES = 128
 
@@ -31,7 +33,8 @@ def via_candidates(model: RobotModel, scene: CollisionScene, q0: np.ndarray, q1:
     clearest first.
 
     The clearance of a via is the smallest signed distance over every pair at ``SEGMENT_SAMPLES``
-    configurations on each straight segment q0 → q_v → q1 (ends excluded).
+    configurations on each straight segment q0 → q_v → q1 (ends excluded) to rank all candidates,
+    then at ``FINE_SAMPLES`` for the best ``CHECKED``·count (the clearance returned).
     """
     rng = np.random.default_rng(seed)
     n = q0.size
@@ -39,16 +42,26 @@ def via_candidates(model: RobotModel, scene: CollisionScene, q0: np.ndarray, q1:
     hi = np.where(np.isfinite(model.upper), model.upper, np.pi)
     sigma = np.repeat(SCALES, -(-candidates // len(SCALES)))[:candidates]
     vias = np.clip((q0 + q1) / 2 + sigma[:, None] * rng.standard_normal((candidates, n)), lo, hi)
-    s = (np.arange(SEGMENT_SAMPLES) + 1) / (SEGMENT_SAMPLES + 1)
+    length = np.linalg.norm(vias - q0, axis=1) + np.linalg.norm(q1 - vias, axis=1)
+    order, clearance = _ranked(model, scene, q0, q1, vias, length, SEGMENT_SAMPLES)
+    best = order[:CHECKED * count]  # the best of the screening, checked on a finer sampling
+    order_fine, fine = _ranked(model, scene, q0, q1, vias[best], length[best], FINE_SAMPLES)
+    return [(vias[best[i]], float(fine[i])) for i in order_fine[:count]]
+
+
+def _ranked(model, scene, q0, q1, vias, length, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the vias' order: clear by the margin shortest first, then clearest first; each via's clearance (V,) m)
+    at ``samples`` configurations per straight segment.
+    """
+    V, n = vias.shape
+    s = (np.arange(samples) + 1) / (samples + 1)
     first = q0 + s[None, :, None] * (vias[:, None, :] - q0)            # (V, S, n)
     second = vias[:, None, :] + s[None, :, None] * (q1 - vias[:, None, :])
     q = np.concatenate([first, second, vias[:, None, :]], axis=1)       # (V, 2S + 1, n)
-    d = distances(model, scene, q.reshape(-1, n)).reshape(candidates, -1)
-    clearance = d.min(axis=1) if d.size else np.full(candidates, np.inf)
-    length = np.linalg.norm(vias - q0, axis=1) + np.linalg.norm(q1 - vias, axis=1)
+    d = distances(model, scene, q.reshape(-1, n)).reshape(V, -1)
+    clearance = d.min(axis=1) if d.size else np.full(V, np.inf)
     clear = clearance >= scene.margin
-    order = np.lexsort((np.where(clear, length, -clearance), ~clear))[:count]
-    return [(vias[i], float(clearance[i])) for i in order]
+    return np.lexsort((np.where(clear, length, -clearance), ~clear)), clearance
 
 
 def _quintic(p0, v0, p1, v1, h: float, tau: np.ndarray) -> tuple[np.ndarray, ...]:
