@@ -17,7 +17,7 @@ element of the point, so the Newton matrix stays block-banded (``PointSet.sample
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -57,6 +57,17 @@ class CollisionTerms:
     lam: np.ndarray
     rho: float
     bound: float
+    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
+
+    def _gradient(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(d (M,), ∂d/∂q (M, n)) of the rows at C; the Newton matrix at the point just evaluated reuses them."""
+        if self._last and np.array_equal(self._last[0], C):
+            return self._last[1], self._last[2]
+        q = point_configurations(self.points, C)
+        used, inverse = np.unique(self.rows, return_inverse=True)
+        d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        self._last[:] = [np.array(C), d, dd]
+        return d, dd
 
     @property
     def rho_rows(self) -> np.ndarray:
@@ -78,12 +89,10 @@ class CollisionTerms:
         n = C.shape[-1]
         if self.rows.size == 0:
             return 0.0, (np.zeros_like(C) if grad else None)
-        q = point_configurations(self.points, C)
         if grad:
-            used, inverse = np.unique(self.rows, return_inverse=True)
-            d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+            d, dd = self._gradient(C)
         else:
-            d = point_distances(self.model, self.scene, q, self.rows, self.pairs)
+            d = point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
         rr = self.rho_rows
         mu = self.multipliers(d)
         value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
@@ -99,9 +108,8 @@ class CollisionTerms:
         size = 2 * mesh.m * n
         if self.rows.size == 0:
             return np.zeros((mesh.N, size, size))
-        q = point_configurations(self.points, C)
         used, inverse = np.unique(self.rows, return_inverse=True)
-        d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        d, dd = self._gradient(C)
         rr = self.rho_rows
         on = self.lam + rr * (self.bound - d) > 0
         if not on.any():
