@@ -2,6 +2,7 @@
 
 Run:  python benchmarks/bench_collision.py              (3 problems, N = 8: about 1.5 minutes on 2 cores)
       python benchmarks/bench_collision.py --count 20 --N 16 --json collision.json
+      python benchmarks/bench_collision.py --drake      (Drake's sampled constraint beside hoc)
 
 Problems (seeded, reproducible): the Panda (example-robot-data, its SRDF's pairs off, fingers
 locked at 0.02 m) over a table, with a wall standing between the start and the goal and 2 boxes on
@@ -15,8 +16,11 @@ hoc's distance and certificate code; skipped without coal). Summary: success rat
 certified), plan time median and 98th percentile, the smallest coal clearance over the successes
 (it must be >= margin − 1e-9: no collision between samples).
 
-Not here: Drake's KinematicTrajectoryOptimization with MinimumDistanceLowerBoundConstraint on the
-same problems (docs/collision.md, "Not built yet").
+``--drake`` (benchmark-only: ``pip install drake``): beside it, Drake's KinematicTrajectoryOptimization
+with MinimumDistanceLowerBoundConstraint at 25 sampled points of the path, on the same capsules and
+pairs (benchmarks/_drake_collision.py; its cost is the path length, not hoc's effort: compare the
+clearance, not J), and its clearance at 1 kHz by hoc's distances: a sampled constraint can pass an
+obstacle between its samples.
 """
 from __future__ import annotations
 
@@ -171,12 +175,32 @@ def run(doc: dict, workdir: Path) -> dict:
             "coal_1khz": _coal_clearance(doc, workdir / "out.csv") if ok else None}
 
 
+def drake_row(doc: dict, workdir: Path) -> dict:
+    """Drake's plan of the same problem: success, solve time, its smallest distance at 1 kHz (hoc's distances)."""
+    from _drake_collision import drake_plan
+
+    from hoc_cli.collision.evaluate import distances
+    from hoc_cli.commands.common import load_model
+    from hoc_cli.commands.plan_collision import task_collision
+    from hoc_cli.io.task import load_task
+
+    path = workdir / "task.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    task = load_task(path, purpose="plan")
+    model = load_model(task)
+    scene = task_collision(task, model)
+    ok, elapsed, Q, _ = drake_plan(PANDA.read_text(), scene, np.array(doc["x0"]["q"]), np.array(doc["x1"]["q"]),
+                                   2.0, MARGIN)
+    return {"success": ok, "time_s": elapsed, "clearance_1khz": float(distances(model, scene, Q).min())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=3)
     ap.add_argument("--N", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--drake", action="store_true", help="Drake's sampled minimum-distance plan beside each")
     args = ap.parse_args()
     docs = problems(args.count, args.N, args.seed)
     results = []
@@ -186,8 +210,12 @@ def main() -> None:
             r = run(doc, Path(tmp))
             results.append(r)
             coal = "-" if r["coal_1khz"] is None else f"{r['coal_1khz']:.5f}"
+            drake = ""
+            if args.drake:
+                r["drake"] = d = drake_row(doc, Path(tmp))
+                drake = f"  | Drake {'ok' if d['success'] else 'failed'} {d['time_s']:.2f} s, 1 kHz {d['clearance_1khz']:.5f}"
             print(f"{i:>3} {r['guess_clearance']:>8.4f} {r['status']:>11} {r['J']:>10.4f} {r['time_s']:>7.2f} "
-                  f"{r['lower_bound']:>10.5f} {coal:>10}  {r['start']}", flush=True)
+                  f"{r['lower_bound']:>10.5f} {coal:>10}  {r['start']}{drake}", flush=True)
     ok = [r for r in results if r["success"]]
     times = np.array([r["time_s"] for r in results])
     coal = [r["coal_1khz"] for r in ok if r["coal_1khz"] is not None]
@@ -195,6 +223,13 @@ def main() -> None:
           f"{sum(r['guess_clearance'] < MARGIN for r in results)}/{len(results)}; plan time median "
           f"{np.median(times):.2f} s, 98th percentile {np.percentile(times, 98):.2f} s; smallest coal clearance at 1 kHz "
           f"over the successes {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
+    if args.drake:
+        dr = [r["drake"] for r in results]
+        dok = [d for d in dr if d["success"]]
+        print(f"Drake: success {len(dok)}/{len(dr)} (SNOPT's own test), plan time median "
+              f"{np.median([d['time_s'] for d in dr]):.2f} s; of its successes, below the margin between its samples "
+              f"{sum(d['clearance_1khz'] < MARGIN - 1e-9 for d in dok)}, in collision (< 0) "
+              f"{sum(d['clearance_1khz'] < 0 for d in dok)}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
 
