@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from hoc_cli.cli import app
 from hoc_cli.collision.constraint import CollisionTerms, point_configurations
-from hoc_cli.collision.enforce import _base_points
+from hoc_cli.collision.enforce import base_points
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
@@ -129,7 +129,7 @@ def lbr7_scene():
 
 
 def _terms(model, scene, mesh, C, rho=50.0):
-    points = _base_points(mesh)
+    points = base_points(mesh)
     D = distances(model, scene, point_configurations(points, C))
     p, k = np.nonzero(D < 0.1)
     lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % 2)  # half of them with λ > 0

@@ -114,7 +114,7 @@ def _per_element(mesh) -> int:
     return max(POINTS_PER_ELEMENT, -(-MIN_POINTS // mesh.N))
 
 
-def _base_points(mesh) -> PointSet:
+def base_points(mesh) -> PointSet:
     """``_per_element`` points per element at s = (j + ½)/S (neither t = 0 nor t = T)."""
     S = _per_element(mesh)
     e = np.repeat(np.arange(mesh.N), S)
@@ -195,7 +195,7 @@ class CollisionConstraint:
               max_outer: int, start: str):
         model, scene, mesh = self.model, self.scene, problem.mesh
         bound = self._bounds(problem)                                   # (Q,)
-        points = _base_points(mesh)
+        points = base_points(mesh)
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
         c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
