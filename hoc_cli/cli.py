@@ -94,8 +94,9 @@ def plan(
         "--limits", help="enforce (default: the plan respects every joint limit) | report (the unconstrained "
         "optimum; violations are only reported). Overrides limits.mode.")] = None,
     collision: Annotated[Optional[str], typer.Option(
-        "--collision", help="check (plan, then certify the clearance between samples and report collisions; the "
-        "default with a collision section) | off. Overrides collision.mode.")] = None,
+        "--collision", help="enforce (plan clear of obstacles and of the robot itself, certified between samples; "
+        "the default with a collision section) | check (plan without the constraint, then certify and report "
+        "collisions) | off. Overrides collision.mode.")] = None,
     check_gradient: Annotated[bool, typer.Option(
         "--check-gradient", help="Only check the cost gradient at the initial guess against central differences; "
         "exit 1 if the max relative error exceeds 1e-6.")] = False,

@@ -67,9 +67,12 @@ class PlanResult:
     limits: EnforceResult | None = None
     levels: tuple[Level, ...] = ()
     coarser: PlanResult | None = None
+    constraint: object | None = None  # the outcome of ``plan``'s ``constraint`` on this level (status, message, …)
 
     @property
     def converged(self) -> bool:
+        if self.constraint is not None and self.constraint.status != "converged":
+            return False
         if self.limits is not None:
             return self.limits.status == "converged"
         return self.optimizer.converged
@@ -131,12 +134,16 @@ class _Session:
 
     def __init__(self, system: System, boundary, *, cost: str, method: str, max_iter: int, precondition: bool,
                  callback: Callable[[IterLog], None] | None, limits: JointLimits | None,
-                 working: np.ndarray | None) -> None:
+                 working: np.ndarray | None, constraint=None) -> None:
         self.system, self.boundary, self.cost, self.method = system, boundary, cost, method
         self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
         self.limits = limits if limits is not None and limits.any else None
         self.working = working
         self.duals = None  # the last converged level's multipliers (``Duals``): the next solve's warm start
+        self.constraint = constraint  # an outer loop of its own around each level's solve (``plan``)
+        self.constraint_warm = None  # ... and what it hands to the next level
+        self.outcome = None  # ... and its outcome on the last level
+        self.spent = 0  # iterations not counted against max_iter (each of the constraint's inner solves has its own)
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
         self.history: list[IterLog] = []
         self.levels: list[Level] = []
@@ -165,13 +172,13 @@ class _Session:
                 callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
                                              n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
 
-        # With limit penalties the objective is only once differentiable (its curvature jumps where a
+        # With limit (or other: ``ControlProblem.terms``) penalties the objective is only once differentiable (its curvature jumps where a
         # row becomes active): Newton steps (β = 0) and a loose curvature condition accept more unit
         # steps there (measured: 20-25 % fewer evaluations on lbr7_swing; docs/limits.md).
-        penalized = isinstance(problem, PenalizedProblem) and self.precondition
+        penalized = self.precondition and (isinstance(problem, PenalizedProblem) or bool(getattr(problem, "terms", ())))
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
-                       tol=tol_level, max_iter=max(self.max_iter - totals["it"], 0),
+                       tol=tol_level, max_iter=max(self.max_iter - totals["it"] + self.spent, 0),
                        callback=report, noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
@@ -196,13 +203,27 @@ class _Session:
         totals["ev"] += res.n_evals
         totals["pre"] += res.n_precond
 
-    def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int = 40):
+    def solve_level(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int = 40,
+                    full: bool = True):
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
+        if self.constraint is None:
+            return self._limited(problem, x0, tol_level, max_outer)
+        def inner(p, x, t):
+            self.spent = self.totals["it"]
+            return self._limited(p, x, t, max_outer)
+
+        res, J, er, self.outcome = self.constraint.solve(problem, x0, tol_level, inner, warm=self.constraint_warm,
+                                                         full=full)
+        self.constraint_warm = self.outcome.warm
+        return res, J, er
+
+    def _limited(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int):
+        """``solve_level`` without ``constraint``: the plain solve, or within the joint limits."""
         self.current_N = problem.mesh.N
         if self.limits is None:
             res = self.solve(problem, x0, tol_level)
             return res, res.fun, None
-        use_sqp = self.precondition and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
+        use_sqp = self.precondition and self.constraint is None and not (self.sqp_failed and problem.mesh.N != self.sqp_mesh)
         er = enforce(problem, self.system, self.limits, x0, tol_level, self.solve, working=self.working,
                      max_outer=max_outer, use_sqp=use_sqp, record=self.record, duals=self.duals)
         self.working = er.working
@@ -218,7 +239,7 @@ class _Session:
         """One coarse level to max(tol, ``COARSE_TOL``); returns its coefficients."""
         problem = self.problem(mesh, G)
         x0 = problem.initial_guess() if C_start is None else problem.layout.pack(C_start)
-        res, J, _ = self.solve_level(problem, x0, max(tol, COARSE_TOL), max_outer=COARSE_MAX_OUTER)
+        res, J, _ = self.solve_level(problem, x0, max(tol, COARSE_TOL), max_outer=COARSE_MAX_OUTER, full=False)
         self.levels.append(Level(mesh.N, float(J), False))
         return problem.coefficients(res.x)
 
@@ -236,7 +257,8 @@ class _Session:
             change = abs(J4 - J) / max(abs(J4), 1e-300)
             noise = problem.last.noise if problem.last is not None else 0.0
             resolved = change <= QUADRATURE_RTOL or abs(J4 - J) <= 4 * noise  # else: truncation, refine
-            if resolved or not res.converged or problem.G >= 32:
+            failed = self.outcome is not None and self.outcome.status != "converged"  # the constraint's outer loop
+            if resolved or not res.converged or failed or problem.G >= 32:
                 break
             G, C_start = problem.G + 4, C
         self.levels.append(Level(mesh.N, float(J), True))
@@ -245,14 +267,14 @@ class _Session:
                                   restarts=t["restarts"], history=tuple(self.history))
         return PlanResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
                           wall_time_s=time.perf_counter() - start, problem=problem, limits=er,
-                          levels=tuple(self.levels), coarser=coarser)
+                          levels=tuple(self.levels), coarser=coarser, constraint=self.outcome)
 
 
 def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "covariant", method: str = "pr-cg",
          tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
          precondition: bool = True, continuation: bool = True,
          callback: Callable[[IterLog], None] | None = None, limits: JointLimits | None = None,
-         working: np.ndarray | None = None) -> PlanResult:
+         working: np.ndarray | None = None, constraint=None) -> PlanResult:
     """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
 
     Coarse to fine (``continuation``, unless ``C_init`` is given), over ``continuation_levels(N)``:
@@ -270,10 +292,17 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     starts from ``working`` (K, n) bool when given (e.g. a coarser plan's); so do a converged level's
     multipliers (``Duals``, prolonged onto the next mesh: the warm start of its SQP, and of the
     augmented Lagrangian on the same mesh).
+
+    With ``constraint`` (e.g. ``hoc_cli.collision.enforce.CollisionConstraint``) every level's solve
+    runs inside its outer loop: ``constraint.solve(problem, x0, tol, inner, warm=…, full=…)`` returns
+    (result, J without its terms, limits outcome, outcome); ``inner`` is the level's solve without it
+    (within the limits, if any), the outcome's ``warm`` starts the next level, and the finest level's
+    outcome is ``PlanResult.constraint``.
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,
-                       precondition=precondition, callback=callback, limits=limits, working=working)
+                       precondition=precondition, callback=callback, limits=limits, working=working,
+                       constraint=constraint)
     full = [mesh.N]
     prev_mesh, C_prev = None, None
     if C_init is None and continuation and precondition:

@@ -27,6 +27,10 @@ Hooks for further terms (penalties on the samples, e.g. joint limits)
 ``ControlProblem.gradient_from_samples`` maps per-sample partial derivatives to the design
 gradient; ``hoc_cli.banded.element_blocks`` maps per-sample Hessians (``hessian_samples`` for the
 cost) to element blocks, which ``positive_definite`` turns into the banded Newton matrix.
+``ControlProblem.terms`` holds extra objective terms that ``evaluate`` and ``newton`` add (an
+outer loop's penalties, e.g. ``hoc_cli.collision.constraint.CollisionTerms``): each has
+``evaluate(C, grad) -> (value, ∂/∂C (N+1, m, n) or None)`` and ``newton_blocks(C) -> (N, 2mn, 2mn)``
+(positive semi-definite element blocks). ``ControlProblem.bare_cost`` is I(q_h) without them.
 """
 from __future__ import annotations
 
@@ -189,6 +193,7 @@ class ControlProblem:
         self.C_fixed = boundary_coefficients(mesh, q0, dq0, q1, dq1)
         self.boundary = tuple(np.asarray(v, float) for v in (q0, dq0, q1, dq1))
         self.n_evals = 0
+        self.terms: tuple = ()  # extra objective terms (module docstring, "Hooks"); set by an outer loop
         self.last: Evaluation | None = None
         self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
 
@@ -245,6 +250,8 @@ class ControlProblem:
             J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+            if self.terms:
+                J += sum(term.evaluate(C, grad=False)[0] for term in self.terms)
             return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
         s = self.sample_gradients(q, dq, ddq, jacobians=False)
         J = float(np.dot(wt, s.L))
@@ -256,6 +263,9 @@ class ControlProblem:
         Mddq = np.einsum("kij,kj->ki", M, ddq)
         size = np.abs(Mddq) + np.abs(u - Mddq)
         noise = 64 * np.finfo(float).eps * float(np.dot(wt, np.einsum("ki,ki->k", np.abs(w), size)))
+        for term in self.terms:
+            value, gC = term.evaluate(C, grad=True)
+            J, g = J + value, g + self.layout.pack(gC)
         ev = Evaluation(x=x, J=J, grad=g, q=q, dq=dq, ddq=ddq, u=u, noise=noise)
         self.last = ev
         return ev
@@ -269,8 +279,16 @@ class ControlProblem:
         return self.layout.pack(self.op.transpose(gq, gdq, gddq))
 
     def value(self, x: np.ndarray) -> float:
-        """I(q_h) alone (no gradient)."""
+        """The objective (I(q_h) plus ``terms``) alone (no gradient)."""
         return self.evaluate(x, grad=False).J
+
+    def bare_cost(self, x: np.ndarray) -> float:
+        """I(q_h) without ``terms``."""
+        terms, self.terms = self.terms, ()
+        try:
+            return self.evaluate(x, grad=False).J
+        finally:
+            self.terms = terms
 
     # -- Newton matrix -------------------------------------------------------------------------------
     # It is assembled on its own, coarser quadrature (``self.op_h``, G_h = m + 3 points per
@@ -354,6 +372,10 @@ class ControlProblem:
         added to both.
         """
         Hb, GNs = self._element_hessians(ev)
+        if self.terms:
+            C = self.coefficients(ev.x)
+            more = sum(term.newton_blocks(C) for term in self.terms)
+            extra = more if extra is None else extra + more
         if extra is None:
             return self.positive_definite(Hb, lambda: element_blocks(self.op_h, GNs), shift)
         return self.positive_definite(Hb + extra, lambda: element_blocks(self.op_h, GNs) + extra, shift)

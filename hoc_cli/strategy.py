@@ -121,6 +121,9 @@ def solve(problem: OptimalControlProblem, options: SolveOptions | None = None,
     options = options or SolveOptions()
     if options.starts > 1 and (problem.has_goals or problem.N is None):
         raise TaskError("multi-start applies to joint goals in a fixed T and a fixed N", key="solver.starts")
+    if problem.constraint is not None and (problem.has_goals or problem.N is None or options.starts > 1):
+        raise TaskError("collision enforcement plans joint goals in a fixed T and N with one start (use "
+                        "--collision check to plan without it and report the clearance)", key="collision.mode")
     from hoc_cli.optimize.blas import one_thread
 
     start = time.perf_counter()
@@ -152,8 +155,9 @@ def _solve_fixed(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
     bc = (problem.q0, problem.dq0, problem.q1, problem.dq1)
     multi = None
     if options.starts <= 1:
+        more = {} if problem.constraint is None else {"constraint": problem.constraint}
         result = plan(problem.system, mesh, *bc, C_init=None if warm is None else warm.coeffs,
-                      callback=options.callback, **common)
+                      callback=options.callback, **common, **more)
     else:
         from hoc_cli.multistart import solve_starts
 
@@ -161,7 +165,7 @@ def _solve_fixed(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
                              client=options.client, on_start=options.on_start, **common)  # (a callback would travel to the workers)
         result = multi.best
     error = None
-    if options.estimate_error:
+    if options.estimate_error and problem.constraint is None:  # the estimate's solves do not take the constraint
         # the estimate's solves may take as many iterations as the plan did (each costs about twice as
         # much on 2N elements), so it at most about doubles the time; else it reports null
         budget = min(options.max_iter, max(ESTIMATE_MIN_ITER, result.optimizer.iterations))

@@ -106,7 +106,7 @@ def test_the_shipped_table_reach_is_certified_and_coal_agrees_at_1_khz(workdir):
     doc["output"] = {"rate": 1000.0}
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
-    assert s["collision_mode"] == "check" and s["collisions"] == []
+    assert s["collision_mode"] == "enforce" and s["collisions"] == []  # the section's default
     c = s["min_clearance"]
     assert c["certified"] and c["lower_bound"] >= c["margin"] == 0.01
     obstacle, self_ = _coal_clearance(doc, workdir / "out.csv")
@@ -119,13 +119,48 @@ def test_a_plan_through_an_obstacle_is_reported_with_its_interval(workdir):
     doc = table_task()
     doc["robot"] = "../robots/lbr7.urdf"
     doc["collision"]["obstacles"].append({"name": "bar", "box": {"size": [0.04, 0.04, 0.1]}, "position": [0.21, 0.07, 0.45]})
-    r, s = plan(workdir, doc)
+    r, s = plan(workdir, doc, "--collision", "check")
     assert r.exit_code == 0, r.stderr  # check mode: reported, not enforced
     assert not s["min_clearance"]["certified"] and s["min_clearance"]["distance"] < 0
     hits = [c for c in s["collisions"] if "bar" in c["pair"]]
     assert hits and all(c["depth"] > 0 and c["certain"] and 0 < c["interval"][0] < c["interval"][1] < 1.5 for c in hits)
     assert "and bar overlap by" in r.stderr and "hoc: warning:" in r.stderr
     assert (workdir / "out.csv").exists()
+
+
+def test_enforced_the_reach_past_the_bar_is_certified_clear_and_coal_agrees_at_1_khz(workdir):
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["N"] = 8
+    doc["output"] = {"rate": 1000.0}
+    doc["collision"]["obstacles"].append({"name": "bar", "box": {"size": [0.04, 0.04, 0.1]}, "position": [0.21, 0.07, 0.45]})
+    r, s = plan(workdir, doc, "--collision", "check")
+    assert r.exit_code == 0 and s["min_clearance"]["distance"] < 0  # the free plan drives the tool through the bar
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    c = s["min_clearance"]
+    assert s["collision_mode"] == "enforce" and s["converged"] and s["collisions"] == []
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9
+    obstacle, self_ = _coal_clearance(doc, workdir / "out.csv")
+    assert min(obstacle, self_) >= 0.01 - 1e-9
+
+
+def test_enforced_self_collision_keeps_the_wrist_from_the_forearm(workdir):
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["N"] = 8
+    doc["output"] = {"rate": 1000.0}
+    doc["collision"].update({"obstacles": [], "ignore": [], "margin": 0.03})
+    doc["x0"], doc["x1"] = {"q": [0.0, 0.6, 0.0, -2.0, -1.5, 1.8, 0.0]}, {"q": [0.0, 0.6, 0.0, -2.0, 1.5, 1.8, 0.0]}
+    r, free = plan(workdir, doc, "--collision", "check")
+    assert r.exit_code == 0 and free["min_clearance"]["distance"] < 0.02
+    assert free["min_clearance"]["pair"] == ["lbr_link_5", "lbr_link_7"]
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["min_clearance"]["certified"] and s["min_clearance"]["lower_bound"] >= 0.03 - 1e-9
+    _, self_ = _coal_clearance(doc, workdir / "out.csv")
+    assert self_ >= 0.03 - 1e-9
+    assert s["cost"] >= free["cost"]
 
 
 def test_a_start_in_collision_is_an_input_error_naming_the_pair_and_depth(workdir):
@@ -149,8 +184,10 @@ def test_collision_off_and_check_on_a_task_without_a_section(workdir):
     assert r.exit_code == 0 and s["collision_mode"] == "off"
     r, s = plan(workdir, doc, "--collision", "check")  # the URDF has no collision geometry: nothing to check
     assert r.exit_code == 0 and s["collision_mode"] == "check" and s["min_clearance"] is None and s["collisions"] == []
-    r, _ = plan(workdir, doc, "--collision", "enforce")
-    assert r.exit_code == 2 and "--collision: expected one of check, off" in r.stderr
+    r, s = plan(workdir, doc, "--collision", "enforce")  # asked for: reported as such, with nothing to impose
+    assert r.exit_code == 0 and s["collision_mode"] == "enforce" and s["min_clearance"] is None
+    r, _ = plan(workdir, doc, "--collision", "on")
+    assert r.exit_code == 2 and "--collision: expected one of enforce, check, off" in r.stderr
 
 
 @pytest.mark.parametrize("edit, message", [

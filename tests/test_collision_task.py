@@ -45,7 +45,7 @@ def test_every_obstacle_kind_with_its_pose(tmp_path):
             - {name: bar, capsule: {a: [0, 0, 0], b: [0.2, 0, 0], radius: 0.02}, position: [1, 1, 1]}
             - {name: floor, half_space: {normal: [0, 0, 2]}, position: [0, 0, -0.1]}
         """).collision
-    assert spec.given and spec.mode == "check" and spec.margin == 0.02 and spec.self_collision
+    assert spec.given and spec.mode == "enforce" and not spec.mode_given and spec.margin == 0.02 and spec.self_collision
     assert spec.ignore == (("lbr_link_7", "table"),)
     assert [s.kind for s in spec.robot["lbr_link_5"]] == ["capsule", "sphere"] and spec.robot["lbr_link_6"] == ()
     assert spec.robot["lbr_link_5"][1].pose[2, 3] == 0.2
@@ -97,7 +97,7 @@ SCENE_OK = ("world: {collision_objects: [{id: a, primitives: [{type: box, dimens
 
 @pytest.mark.parametrize("body,key,expect", [
     ("collision: 3", "collision", "a mapping"),
-    ("collision: {mode: enforce}", "collision.mode", "one of check, off"),
+    ("collision: {mode: on}", "collision.mode", "one of enforce, check, off"),
     ("collision: {margin: -1}", "collision.margin", "a length >= 0"),
     ("collision: {self: maybe}", "collision.self", "true or false"),
     ("collision: {wat: 1}", "collision.wat", "unknown key"),

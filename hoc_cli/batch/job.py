@@ -61,6 +61,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
     from hoc_cli.commands.outputs import write_outputs
     from hoc_cli.commands.plan import reproducible_summary, sample_plan, summarise
+    from hoc_cli.commands.plan_collision import collision_summary, prepare_collision
     from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, refuse_infeasible
     from hoc_cli.commands.starts import check_starts, starts_summary
@@ -89,6 +90,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     seed = task.solver.seed if job.seed is None else job.seed
     check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts", scheduler=False)
     problem = problem_from_task(task, model, states, limits if task.limits.mode == "enforce" else None)
+    collision, problem, collision_mode = prepare_collision(task, model, states, problem, starts=starts)
     if problem.has_goals and starts > 1:
         raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
                         file=task.path, key="solver.starts")
@@ -108,6 +110,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     extra, multi, goals = dict(planned.details), planned.multi, planned.goals
     summary = summarise(task, model, result, states)
     summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
+    summary.update(collision_summary(model, collision, collision_mode, result))
     summary.update(starts_summary(multi, seed))
     summary.update(extra | goal_summary(model, result, goals))
     summary.update(goal_miss(result, summary))  # "goal missed by X (key)", not "the stopping test held"
@@ -136,6 +139,8 @@ def row_of(job: Job, summary: dict, outputs: list[str]) -> dict:
         "limit_violations": json.dumps(viol, sort_keys=True) if viol else None,
         "outputs": list(outputs), "error": None,
     }
+    if summary.get("min_clearance"):  # a collision section: the certificate's smallest distance [m]
+        row["min_clearance"] = float(summary["min_clearance"]["distance"])
     if "dJ_dT" in summary:  # a free T: the optimal duration [s] (not "T": a sweep over T has that column)
         row["T_optimal"] = float(summary["T"])
     if "starts" in summary:

@@ -13,7 +13,8 @@ parameter (its derivative is piecewise linear between the knots where the segmen
 plane: the minimiser is an end or the zero of that derivative between two knots) and, when the
 segment meets the box, takes the penetration depth by
 separating axes: the box's face normals and the cross products of its axes with the segment, the
-facet normals of box ⊕ (−segment).
+facet normals of box ⊕ (−segment); on an edge axis the witness on the segment is where it passes
+the supporting box edge (an end for a face axis).
 """
 from __future__ import annotations
 
@@ -176,6 +177,19 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
         sign = np.where(np.take_along_axis(up, j, axis=-1)[:, 0] <= np.take_along_axis(down, j, axis=-1)[:, 0], 1.0, -1.0)
         n_in = sign[:, None] * axis
         deep = np.where((_dot(n_in, pi) <= _dot(n_in, pi + di))[:, None], pi, pi + di)  # the end deepest against n_in
+        # an edge axis e_i × d: every point of the segment is equally deep; the witness is where the segment passes
+        # the box edge that supports n_in (the closest points of the two lines), so that ∂d/∂q = n·∂x_A/∂q holds
+        edge = j[:, 0] >= 3
+        if edge.any():
+            k = j[edge, 0] - 3
+            r_ = np.arange(k.size)
+            y0 = hi[edge] * np.sign(n_in[edge])                     # the supporting edge passes through y0 along e_k
+            y0[r_, k] = 0.0
+            de, w0 = di[edge], pi[edge] - y0
+            aa, bb = _dot(de, de), de[r_, k]
+            det = aa - bb * bb
+            t_edge = (bb * w0[r_, k] - _dot(de, w0)) / np.where(det > 0, det, 1.0)
+            deep[edge] = pi[edge] + np.clip(t_edge, 0.0, 1.0)[:, None] * de
         overlap = pen > 0.0
         rows = np.flatnonzero(inside)[overlap]
         n_box[rows], xa[rows], dist_core[rows] = n_in[overlap], deep[overlap], -pen[overlap]

@@ -11,7 +11,7 @@ import numpy as np
 from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
-from hoc_cli.dynamics.kinematics import frame_jacobian, link_poses
+from hoc_cli.dynamics.kinematics import body_poses, link_poses
 from hoc_cli.model.tree import RobotModel
 
 
@@ -86,37 +86,55 @@ def distances(model: RobotModel, scene: CollisionScene, q) -> np.ndarray:
     return contacts(model, scene, q).distance
 
 
+def _ancestors(model: RobotModel) -> np.ndarray:
+    """(n + 1, n) bool: row b, whether joint j moves body b (j on the chain root → b); row n (body −1, the
+    fixed base) all False.
+    """
+    n = model.n
+    anc = np.zeros((n + 1, n), dtype=bool)
+    for b in range(n):
+        j = b
+        while j >= 0:
+            anc[b, j] = True
+            j = int(model.parent[j])
+    return anc
+
+
 def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance d (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q: (K, n)), and ∂d/∂q (M, n).
 
     With n̂ the contact normal and x_A, x_B the witness points on the two shapes, moving q by δq
     moves x_A by (J_v − [x_A − o]× J_ω) δq for the frame Jacobian J = (J_v, J_ω) of A's link (origin
-    o), so ∂d/∂q = n̂·J_v + ((x_A − o) × n̂)·J_ω, minus the same for B when B is a robot link. Exact
-    wherever the witness points are unique (the distance is differentiable there). The kinematics
-    run once per configuration, not per pair.
+    o), so ∂d/∂q = n̂·J_v + ((x_A − o) × n̂)·J_ω, minus the same for B when B is a robot link. Column j
+    of that Jacobian at x_A, for a joint j on A's chain with axis z_j through o_j, is z_j × (x_A − o_j)
+    (revolute) or z_j (prismatic): ∂d/∂q_j = n̂·(z_j × (x_A − o_j)) or n̂·z_j, every link at once from
+    one pass of the body poses. Exact wherever the witness points are unique (the distance is
+    differentiable there).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
     a, b = world_capsules(model, scene, q)
     c = pair_contacts(scene, a, b, rows, pairs)
     robot = scene.robot
-    poses = link_poses(model, q)
-    grad = np.zeros((rows.size, model.n))
-    link_a = robot.link_index[scene.prim[pairs]]
-    link_b = np.where(scene.kind[pairs] == KIND_SELF, robot.link_index[scene.other[pairs]], -1)
-    for k in np.unique(robot.link_index):
-        on_a, on_b = link_a == k, link_b == k
-        if not (on_a.any() or on_b.any()):
+    n = model.n
+    grad = np.zeros((rows.size, n))
+    if rows.size == 0 or n == 0:
+        return c.distance, grad
+    poses = body_poses(model, q.T, model.order)
+    Z = np.stack([poses[j][:, :3, 2] for j in range(n)], axis=2)     # (K, 3, n) joint axes, root frame
+    O = np.stack([poses[j][:, :3, 3] for j in range(n)], axis=2)     # (K, 3, n) points on them
+    revolute = ~np.asarray(model.is_prismatic, dtype=bool)
+    anc = _ancestors(model)
+    body_a = robot.body[scene.prim[pairs]]
+    body_b = np.where(scene.kind[pairs] == KIND_SELF, robot.body[scene.other[pairs]], -1)
+    Zr, Or = Z[rows], O[rows]
+    for body, point, sign in ((body_a, c.point_a, 1.0), (body_b, c.point_b, -1.0)):
+        moved = anc[np.where(body < 0, n, body)]                      # (M, n)
+        if not moved.any():
             continue
-        name = model.link_names[k]
-        J = frame_jacobian(model, q, name)        # (K, 6, n)
-        o = poses[name][:, :3, 3]                 # (K, 3)
-        for on, point, sign in ((on_a, c.point_a, 1.0), (on_b, c.point_b, -1.0)):
-            if on.any():
-                r = rows[on]
-                nrm = c.normal[on]
-                arm = np.cross(point[on] - o[r], nrm)
-                grad[on] += sign * (np.einsum("mi,mij->mj", nrm, J[r, 0:3]) + np.einsum("mi,mij->mj", arm, J[r, 3:6]))
+        turn = np.einsum("mi,mij->mj", c.normal, np.cross(Zr, point[:, :, None] - Or, axis=1))
+        slide = np.einsum("mi,mij->mj", c.normal, Zr)
+        grad += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
     return c.distance, grad
 
 

@@ -34,6 +34,7 @@ from hoc_cli.commands.plan_collision import (
     check_boundary_clearance,
     collision_markers,
     collision_summary,
+    enforced_problem,
     task_collision,
     warn_collisions,
 )
@@ -91,6 +92,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     collision = task_collision(task, model)  # None: collision.mode off (docs/collision.md)
     check_boundary_clearance(task, model, collision, states)
     problem = problem_from_task(task, model, states, limits if mode == "enforce" else None)
+    problem, collision_mode = enforced_problem(task, model, collision, problem, starts=starts,
+                                               explicit=(overrides or {}).get("collision") is not None)
     has_goals = problem.has_goals  # a link goal, vias or a free T
     auto = task.N is None
     mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
@@ -159,7 +162,7 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         if error is not None:  # goals: no estimate yet (docs/goals.md)
             summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
         summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
-        summary.update(collision_summary(model, collision, task.collision.mode, result))
+        summary.update(collision_summary(model, collision, collision_mode, result))
         summary.update(starts_summary(multi, seed))
         if auto or multi is not None:  # wall_time_s is the whole solve; the solve that gave the plan (the last
             # mesh, the best start) is under its own key

@@ -3,8 +3,8 @@
 The maths (``hoc_cli.collision``) takes arrays; this module reads the task's ``collision:`` section
 and the URDF's collision geometry into a ``CollisionScene``, refuses a start or goal state in
 collision (exit 2), and certifies a plan's clearance for the JSON summary's ``collision_mode``,
-``min_clearance`` and ``collisions`` (docs/collision.md). Enforcement in the optimiser is not
-built yet: ``check`` plans without the constraint and reports.
+``min_clearance`` and ``collisions`` (docs/collision.md). ``enforce`` plans with the constraint
+(``hoc_cli.collision.enforce``); ``check`` plans without it and reports.
 """
 from __future__ import annotations
 
@@ -70,6 +70,43 @@ def task_collision(task, model) -> CollisionScene | None:
                            disabled=spec.disabled + spec.ignore)
 
 
+def prepare_collision(task, model, states, problem, *, explicit: bool = False, starts: int = 1):
+    """(scene or None, the problem with the constraint when enforced, the mode in effect) for ``task``:
+    ``task_collision``, ``check_boundary_clearance`` and ``enforced_problem`` in one call (``hoc batch``).
+    """
+    scene = task_collision(task, model)
+    check_boundary_clearance(task, model, scene, states)
+    problem, mode = enforced_problem(task, model, scene, problem, explicit=explicit, starts=starts)
+    return scene, problem, mode
+
+
+def enforced_problem(task, model, scene: CollisionScene | None, problem, *, explicit: bool = False,
+                     starts: int = 1):
+    """(the problem, with the collision constraint when enforced, and the mode in effect).
+
+    ``enforce`` (the section's default) applies to joint goals in a fixed T and N with one start; a
+    task with goals, ``N: auto`` or several starts is planned with ``check`` instead when the mode is
+    the default, and refused (TaskError, exit 2) when ``enforce`` is asked for (``collision.mode`` or
+    ``--collision``: ``explicit``). Without pairs to check there is nothing to enforce: ``check``.
+    """
+    mode = task.collision.mode
+    if mode != "enforce":
+        return problem, mode
+    if problem.has_goals or problem.N is None or starts > 1:
+        if explicit or task.collision.mode_given:
+            why = ("link goals, vias and a free T" if problem.has_goals else
+                   "N: auto" if problem.N is None else "multi-start")
+            raise TaskError(f"collision enforcement plans joint goals in a fixed T and N with one start, not {why} "
+                            "(use --collision check to plan without it and certify the clearance)",
+                            file=task.path, key="collision.mode")
+        return problem, "check"
+    if scene is None or scene.size == 0:  # nothing to impose
+        return problem, mode if explicit or task.collision.mode_given else "check"
+    from hoc_cli.collision.enforce import CollisionConstraint
+
+    return replace(problem, constraint=CollisionConstraint(model, scene)), mode
+
+
 def _fixed_links(model) -> list[str]:
     """The links welded to the URDF root (the root included): their poses are constant."""
     return [name for name, body in zip(model.link_names, model.link_body) if body < 0]
@@ -97,13 +134,23 @@ def check_boundary_clearance(task, model, scene: CollisionScene | None, states) 
 
 
 def collision_summary(model, scene: CollisionScene | None, mode: str, result) -> dict:
-    """Summary keys ``collision_mode``, ``min_clearance`` and ``collisions`` (empty when mode is off)."""
+    """Summary keys ``collision_mode``, ``min_clearance`` and ``collisions`` (only the mode when off); with
+    enforcement also ``collision_enforce`` and, when it did not converge, ``status`` and ``message``.
+    """
     if scene is None:
         return {"collision_mode": mode}
     from hoc_cli.collision.certify import certify
 
-    cert = certify(model, scene, result.mesh, result.coeffs)
-    return {"collision_mode": mode, **cert.summary()}
+    cert = certify(model, scene, result.mesh, result.coeffs)  # every written plan: its own check
+    out = {"collision_mode": mode, **cert.summary()}
+    outcome = getattr(result, "constraint", None)
+    if outcome is not None:
+        out["collision_enforce"] = outcome.summary()
+        if outcome.status != "converged":
+            out["message"] = outcome.message
+            if outcome.status == "infeasible":
+                out["status"] = "infeasible"
+    return out
 
 
 def warn_collisions(collisions: list[dict]) -> None:

@@ -9,7 +9,8 @@ n joints; q [rad or m], q̇ [rad/s or m/s]; T [s]; N elements of a Hermite ``ord
     subject to      q(0) = q0, q̇(0) = dq0,
                     at T: the joint goal (q1, dq1), or a link goal (a ``FrameResidual``),
                     at fractions s of T: the vias (``GoalPoint`` rows),
-                    on [0, T]: the joint limits (``JointLimits``; None: not enforced).
+                    on [0, T]: the joint limits (``JointLimits``; None: not enforced),
+                    and ``constraint`` (e.g. collision avoidance; None: none).
 
 L is the covariant effort ½ uᵀM⁻¹u (``cost="covariant"``) or ½|u|² (``"torque"``), u the inverse
 dynamics of ``system``. Time is ``Fixed(T)`` or ``Free(min, max, weight, guess)``: one
@@ -82,6 +83,8 @@ class OptimalControlProblem:
     final_dq : with a link goal, "zero" (rest at T) or "free"
     vias : rows to meet at fractions s of T (``hoc_cli.ocp.goals.joint_via``, ``link_via``)
     accuracy : the target relative error of J for ``N=None`` (None: the default)
+    constraint : a further constraint imposed by an outer loop of its own around each solve (None:
+        none), e.g. ``hoc_cli.collision.enforce.CollisionConstraint``; joint goals in a fixed T and N only
     """
 
     system: object
@@ -98,6 +101,7 @@ class OptimalControlProblem:
     final_dq: str = "zero"
     vias: tuple[GoalPoint, ...] = field(default_factory=tuple)
     accuracy: float | None = None
+    constraint: object | None = None
 
     def __post_init__(self) -> None:
         n = self.system.n

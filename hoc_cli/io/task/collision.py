@@ -3,7 +3,7 @@
 .. code-block:: yaml
 
     collision:
-      mode: check                 # check (default) | off
+      mode: enforce               # enforce (default) | check | off
       margin: 0.01                # m, the clearance required (>= 0)
       self: true                  # check the robot against itself (default)
       srdf: robot.srdf            # <disable_collisions link1= link2=/> pairs are not checked
@@ -42,7 +42,7 @@ from hoc_cli.io.task.yaml12 import load_yaml
 if TYPE_CHECKING:  # imported on use: a task without a collision section does not load hoc_cli.collision
     from hoc_cli.collision.geometry import Shape
 
-COLLISION_MODES = ("check", "off")
+COLLISION_MODES = ("enforce", "check", "off")
 COLLISION_KEYS = ("mode", "margin", "self", "srdf", "ignore", "robot", "obstacles", "scene", "frames")
 SHAPE_KINDS = ("sphere", "capsule", "box", "cylinder", "half_space")
 SHAPE_KEYS = {"sphere": ("radius",), "capsule": ("a", "b", "radius"), "box": ("size",),
@@ -78,7 +78,8 @@ class CollisionSpec:
     """
 
     given: bool = False
-    mode: str = "off"  # without a collision section; "check" is the section's default
+    mode: str = "off"  # without a collision section; "enforce" is the section's default
+    mode_given: bool = False  # ``collision.mode`` written in the task (else the default)
     margin: float = DEFAULT_MARGIN
     self_collision: bool = True
     srdf: Path | None = None
@@ -91,7 +92,7 @@ class CollisionSpec:
 
 
 def check_collision_mode(c: Checker, value: Any, key: str) -> str:
-    """``check`` or ``off``."""
+    """``enforce``, ``check`` or ``off``."""
     return c.choice(value, key, COLLISION_MODES)
 
 
@@ -312,7 +313,7 @@ def parse_collision(c: Checker, top: dict, parsed: dict) -> CollisionSpec:
     if top.get("collision") is None:
         return CollisionSpec()
     m = c.mapping(top["collision"], "collision", COLLISION_KEYS)
-    mode = check_collision_mode(c, m.get("mode", "check"), "collision.mode")
+    mode = check_collision_mode(c, m.get("mode", "enforce"), "collision.mode")
     margin = _length(c, m.get("margin", DEFAULT_MARGIN), "collision.margin", zero=True)
     self_collision = m.get("self", True)
     if not isinstance(self_collision, bool):
@@ -363,7 +364,7 @@ def parse_collision(c: Checker, top: dict, parsed: dict) -> CollisionSpec:
             raise TaskError(f"obstacle name {show(o.name)} is used twice (expected distinct names)", file=o.file,
                             key=o.key if o.file != c.path else f"{o.key}.name")
         seen[o.name] = o
-    return CollisionSpec(given=True, mode=mode, margin=margin, self_collision=self_collision, srdf=srdf,
+    return CollisionSpec(given=True, mode=mode, mode_given="mode" in m, margin=margin, self_collision=self_collision, srdf=srdf,
                          disabled=disabled, ignore=tuple(ignore), robot=MappingProxyType(robot),
                          obstacles=tuple(obstacles), scene=scene, frames=MappingProxyType(frames))
 

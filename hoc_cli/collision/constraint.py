@@ -1,0 +1,122 @@
+"""The collision constraint d ≥ bound at points of the mesh, as augmented-Lagrangian (PHR) terms.
+
+Symbols: N elements, m coefficients per node, n joints; P points (``PointSet``: element e, local
+s); Q pairs of the scene; M imposed rows, each a (point, pair) with signed distance d_r (m).
+
+The constraint of row r is c_r = bound − d_r ≤ 0 (bound = margin + inflation, m). With the
+multiplier λ_r ≥ 0 and the penalty per row ρ_r = ρ·w_r (w_r the time the point stands for, s;
+ρ in cost units per m² per s), the Powell-Hestenes-Rockafellar term is
+
+    Φ = Σ_r (max(0, λ_r + ρ_r c_r)² − λ_r²) / (2 ρ_r),     μ_r = max(0, λ_r + ρ_r c_r),
+
+with ∂Φ/∂d_r = −μ_r and the multiplier update λ ← μ (Nocedal & Wright §17.4). The gradient in
+the coefficients is Σ_r −μ_r (∂d_r/∂q)ᵀ mapped through the Hermite values at the point
+(``PointSet.transpose``); ∂d/∂q is exact through the frame Jacobians (``evaluate.pair_gradient``).
+The Gauss-Newton curvature Σ_r ρ_r ∇d_r ∇d_rᵀ over the rows with λ_r + ρ_r c_r > 0 lies in the
+element of the point, so the Newton matrix stays block-banded (``PointSet.sample_blocks``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hoc_cli.collision.evaluate import pair_contacts, pair_gradient, world_capsules
+from hoc_cli.collision.scene import CollisionScene
+from hoc_cli.constraints.points import PointSet
+from hoc_cli.model.tree import RobotModel
+
+
+def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:
+    """The configurations q (P, n) at the points for coefficients C (N+1, m, n)."""
+    loc = points.mesh.local_coefficients(points.mesh.check_coefficients(C))[points.e]  # (P, 2m, n)
+    return np.einsum("pa,pan->pn", points.B[0], loc)
+
+
+def point_distances(model: RobotModel, scene: CollisionScene, q: np.ndarray, rows: np.ndarray,
+                    pairs: np.ndarray) -> np.ndarray:
+    """Signed distances (M,) m of pair ``pairs[r]`` at configuration ``q[rows[r]]`` (q (K, n))."""
+    used, inverse = np.unique(rows, return_inverse=True)
+    a, b = world_capsules(model, scene, q[used])
+    return pair_contacts(scene, a, b, inverse, pairs).distance
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionTerms:
+    """Φ for one inner minimisation (fixed rows, λ and ρ): see the module docstring.
+
+    model, scene : the robot and the pairs; points : where the rows sit; rows, pairs : (M,) the
+    point and the pair of each row; lam : (M,) ≥ 0; rho : cost units / (m²·s); bound : m.
+    """
+
+    model: RobotModel
+    scene: CollisionScene
+    points: PointSet
+    rows: np.ndarray
+    pairs: np.ndarray
+    lam: np.ndarray
+    rho: float
+    bound: float
+    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
+
+    def _gradient(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(d (M,), ∂d/∂q (M, n)) of the rows at C; the Newton matrix at the point just evaluated reuses them."""
+        if self._last and np.array_equal(self._last[0], C):
+            return self._last[1], self._last[2]
+        q = point_configurations(self.points, C)
+        used, inverse = np.unique(self.rows, return_inverse=True)
+        d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        self._last[:] = [np.array(C), d, dd]
+        return d, dd
+
+    @property
+    def rho_rows(self) -> np.ndarray:
+        """ρ_r = ρ·w_r (M,), cost units / m²."""
+        return self.rho * self.points.weight[self.rows]
+
+    def multipliers(self, d: np.ndarray) -> np.ndarray:
+        """μ (M,) for distances d (M,) of the rows."""
+        return np.maximum(0.0, self.lam + self.rho_rows * (self.bound - d))
+
+    def distances(self, C: np.ndarray) -> np.ndarray:
+        """Distances d (M,) m of the rows at coefficients C."""
+        if self.rows.size == 0:
+            return np.zeros(0)
+        return point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
+        n = C.shape[-1]
+        if self.rows.size == 0:
+            return 0.0, (np.zeros_like(C) if grad else None)
+        if grad:
+            d, dd = self._gradient(C)
+        else:
+            d = point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+        rr = self.rho_rows
+        mu = self.multipliers(d)
+        value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
+        if not grad:
+            return value, None
+        G = np.zeros((3, self.points.size, n))
+        np.add.at(G[0], self.rows, -mu[:, None] * dd)
+        return value, self.points.transpose(G)
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        """Element blocks (N, 2mn, 2mn) of Φ's Gauss-Newton Hessian at C."""
+        mesh, n = self.points.mesh, C.shape[-1]
+        size = 2 * mesh.m * n
+        if self.rows.size == 0:
+            return np.zeros((mesh.N, size, size))
+        used, inverse = np.unique(self.rows, return_inverse=True)
+        d, dd = self._gradient(C)
+        rr = self.rho_rows
+        on = self.lam + rr * (self.bound - d) > 0
+        if not on.any():
+            return np.zeros((mesh.N, size, size))
+        Hq = np.zeros((used.size, n, n))
+        np.add.at(Hq, inverse[on], rr[on, None, None] * dd[on, :, None] * dd[on, None, :])
+        which = np.flatnonzero(np.abs(Hq).sum(axis=(1, 2)) > 0)
+        Hs = np.zeros((which.size, 3 * n, 3 * n))
+        Hs[:, :n, :n] = Hq[which]
+        return self.points.sample_blocks(Hs, used[which])

@@ -1,0 +1,279 @@
+"""Collision avoidance enforced: the augmented-Lagrangian outer loop, with the certificate as its stopping test.
+
+Imposed: d ≥ bound at ``POINTS_PER_ELEMENT`` points of every element (t = 0 and T excluded: x0 and
+x1 are data, checked before the solve), at every point for every pair that comes closer than
+bound + ``INFLUENCE`` at some point or has a positive multiplier, re-selected each outer iteration
+(a pair is imposed along the whole trajectory: an inner solve may move its contact in time). bound = margin + inflation, the
+inflation ``INFLATION`` (lowered for a pair whose x0 or x1 distance leaves less room). The terms
+are ``constraint.CollisionTerms`` (PHR), added to the control problem through its ``terms`` hook.
+
+The loop (one level of the planner's continuation):
+
+1. Select the rows; solve min I + Φ from the current x (``inner``: the plain solve, or the joint
+   limits' ``enforce``, which then runs with Φ in its objective).
+2. λ ← μ on the rows. The worst violation at the points, max(0, bound − d), decides ρ: × 10 when it
+   did not fall to a quarter of the previous one and is still above the inflation (closer to the
+   obstacle than the margin itself); within the inflation the multiplier updates finish the job.
+3. When it is below ``VIOLATION_TOL`` the continuous trajectory is certified (``certify``, at the
+   margin itself). Certified and the inner solve converged: done. Not certified (the clearance
+   dips between points): ``REFINE_POINTS`` points are added inside each interval the certificate
+   could not prove, and the loop goes on; at most ``MAX_REFINEMENTS`` times.
+4. Infeasible when ρ has grown ``RHO_RANGE``-fold and the violation, still above the inflation
+   (the distance below the margin itself), no longer falls by a tenth; else the loop goes on (ρ at
+   most ``RHO_MAX``·ρ0) until ``MAX_OUTER`` outer iterations, and the certificate decides: a plan
+   that comes closer than the margin is infeasible, one that does not but is not proven clear is
+   not converged.
+
+Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
+
+A start in collision (``solve``): when the loop from the level's start ends infeasible, it runs
+again from the minimum-jerk guess (when the start was a coarser level's plan) and from ``via_guess``
+through each of the ``VIA_TRIES`` vias of ``guess.via_candidates`` whose straight path
+q0 → q_v → q1 is clear at its samples, and keeps the lowest-cost converged plan; infeasible if none
+converges. Each level starts at its own ρ0, with the coarser level's multipliers.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from hoc_cli.collision.certify import Certificate, certify
+from hoc_cli.collision.constraint import CollisionTerms, point_configurations
+from hoc_cli.collision.evaluate import distances
+from hoc_cli.collision.guess import via_candidates, via_guess
+from hoc_cli.collision.scene import CollisionScene
+from hoc_cli.constraints.points import PointSet
+from hoc_cli.model.tree import RobotModel
+
+_log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
+POINTS_PER_ELEMENT = 8
+MIN_POINTS = 64       # points per level at least (a coarse level's path must not slip between its points)
+INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at a point are imposed there
+INFLATION = 1e-3      # m imposed above the margin at the points
+VIOLATION_TOL = 5e-4  # m: the points' worst violation at which the certificate is asked (half the inflation:
+                      # the points are then 0.5 mm clear of the margin; the certificate decides)
+RHO_START = 1.0       # ρ0 = RHO_START·max(|J|, 1e-6)/(T·c0²): the start's worst violation c0 (at least
+MIN_VIOLATION = 0.01  # MIN_VIOLATION m) costs about J; cost units per m² per s
+RHO_GROWTH = 10.0
+RHO_RANGE = 1e4       # infeasible once ρ has grown this much and the violation no longer falls
+STALL_RATIO = 0.9
+RHO_MAX = 1e7         # ρ stays below RHO_MAX·ρ0 (the inner problems' conditioning)
+MAX_OUTER = 30
+COARSE_MAX_OUTER = 8
+REFINE_POINTS = 4
+MAX_REFINEMENTS = 6
+VIA_TRIES = 3
+VIA_MAX_OUTER = 10
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionWarm:
+    """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ (reported only: each
+    level starts at its own ρ0).
+    """
+
+    t: np.ndarray
+    w: np.ndarray
+    lam: np.ndarray
+    rho: float
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionOutcome:
+    """The outer loop's result on one level.
+
+    status : "converged" | "infeasible" | "not_converged"; message; certificate : the plan's (None on
+    coarse levels); outer_iterations; rho; rows : rows imposed last; points : points used;
+    start : "start" (the level's start: the guess or the coarser level's plan), "guess" (the minimum-jerk
+    guess, after the coarser plan failed) or "via" (a via guess); warm : multipliers for the next level.
+    """
+
+    status: str
+    message: str
+    certificate: Certificate | None
+    outer_iterations: int
+    rho: float
+    rows: int
+    points: int
+    start: str
+    warm: CollisionWarm | None
+
+    def summary(self) -> dict:
+        """``collision_enforce`` for the JSON summary."""
+        return {"status": self.status, "outer_iterations": self.outer_iterations, "points": self.points,
+                "rows": self.rows, "start": self.start}
+
+
+def _per_element(mesh) -> int:
+    """Points per element: ``POINTS_PER_ELEMENT``, more on coarse meshes (``MIN_POINTS`` in all)."""
+    return max(POINTS_PER_ELEMENT, -(-MIN_POINTS // mesh.N))
+
+
+def base_points(mesh) -> PointSet:
+    """``_per_element`` points per element at s = (j + ½)/S (neither t = 0 nor t = T)."""
+    S = _per_element(mesh)
+    e = np.repeat(np.arange(mesh.N), S)
+    s = np.tile((np.arange(S) + 0.5) / S, mesh.N)
+    return PointSet.build(mesh, e, s, mesh.hs[e] / S)
+
+
+def _add_points(points: PointSet, intervals) -> PointSet:
+    """``points`` plus ``REFINE_POINTS`` points inside each interval [t0, t1] (weights h_e/S)."""
+    mesh = points.mesh
+    if not intervals:
+        return points
+    frac = (np.arange(REFINE_POINTS) + 1) / (REFINE_POINTS + 1)
+    t = np.concatenate([t0 + frac * (t1 - t0) for t0, t1 in intervals])
+    e, s = mesh.element_of(t)
+    e = np.concatenate([points.e, e])
+    s = np.concatenate([points.s, s])
+    return PointSet.build(mesh, e, s, mesh.hs[e] / _per_element(mesh))
+
+
+def _transfer(warm: CollisionWarm, points: PointSet) -> np.ndarray:
+    """λ (P, Q) on ``points`` from a warm start: the nearest old point's multiplier per unit time × the new weight."""
+    order = np.argsort(warm.t)
+    t_old = warm.t[order]
+    t = points.t
+    i = np.clip(np.searchsorted(t_old, t), 1, t_old.size - 1) if t_old.size > 1 else np.zeros(t.size, int)
+    if t_old.size > 1:
+        i = np.where(np.abs(t_old[i - 1] - t) <= np.abs(t_old[i] - t), i - 1, i)
+    k = order[i]
+    return warm.lam[k] / warm.w[k, None] * points.weight[:, None]
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionConstraint:
+    """d ≥ margin on the whole trajectory for every pair of ``scene`` (module docstring): what
+    ``OptimalControlProblem.constraint`` holds and ``planner.plan`` calls level by level.
+    """
+
+    model: RobotModel
+    scene: CollisionScene
+
+    def solve(self, problem, x0: np.ndarray, tol: float, inner: Callable, *, warm: CollisionWarm | None = None,
+              full: bool = True):
+        """(inner result with the plan's x, J without Φ, the inner's limits outcome, ``CollisionOutcome``).
+
+        ``inner(problem, x, tol) -> (result, J, limits outcome)`` minimises ``problem`` (with its ``terms``).
+        Without ``warm`` (the plan's first level) a start the loop cannot free tries via guesses.
+        """
+        got = self._loop(problem, x0, tol, inner, warm, full, MAX_OUTER if full else COARSE_MAX_OUTER, "start")
+        if got[3].status != "infeasible":
+            return got
+        mesh = problem.mesh
+        q0, dq0, q1, dq1 = problem.boundary
+        starts = [] if warm is None else [("guess", problem.initial_guess())]  # a coarser level's plan failed here
+        for qv, clearance in via_candidates(self.model, self.scene, q0, q1, count=VIA_TRIES):
+            if clearance >= 0:  # a via whose straight path collides too is no way round
+                starts.append(("via", problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))))
+        best = None
+        for label, x in starts:
+            tried = self._loop(problem, x, tol, inner, None, full, VIA_MAX_OUTER, label)
+            if tried[3].status == "converged" and (best is None or tried[1] < best[1]):
+                best = tried
+        if best is None:
+            o = got[3]
+            vias = sum(label == "via" for label, _ in starts)
+            message = f"{o.message} (from the start and {vias} via guesses)"
+            return got[:3] + (dataclasses.replace(o, message=message),)
+        return best
+
+    def _bounds(self, problem) -> np.ndarray:
+        """The bound (Q,) m per pair: margin + INFLATION, or less where x0 or x1 is nearer (half its room)."""
+        q0, _, q1, _ = problem.boundary
+        margin = self.scene.margin
+        ends = distances(self.model, self.scene, np.stack([q0, q1])).min(axis=0)
+        return margin + np.clip(0.5 * (ends - margin), 0.0, INFLATION)
+
+    def _loop(self, problem, x: np.ndarray, tol: float, inner: Callable, warm: CollisionWarm | None, full: bool,
+              max_outer: int, start: str):
+        model, scene, mesh = self.model, self.scene, problem.mesh
+        bound = self._bounds(problem)                                   # (Q,)
+        points = base_points(mesh)
+        J0 = problem.bare_cost(x)
+        D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+        c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
+        rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
+        lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
+        prev = math.inf
+        refinements = 0
+        status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
+        outer = 0
+        try:
+            for outer in range(1, max_outer + 1):
+                D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
+                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed at every point
+                p, k = np.nonzero(np.broadcast_to(near, D.shape))
+                rows = p.size
+                problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
+                res, _, er = inner(problem, x, tol)
+                x = res.x
+                D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+                terms = problem.terms[0]
+                lam = np.zeros_like(D)
+                lam[p, k] = terms.multipliers(D[p, k])
+                excess = float(np.max(bound - D, initial=0.0))
+                if _log.isEnabledFor(logging.DEBUG):
+                    _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
+                               f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
+                               f"min d {float(D.min()):.4f}")
+                if excess <= VIOLATION_TOL:
+                    if not full:
+                        status, message = "converged", f"clear at the points (outer iterations: {outer})"
+                        break
+                    cert = certify(model, scene, mesh, problem.coefficients(x))
+                    if cert.certified:
+                        if res.converged:
+                            status = "converged"
+                            message = (f"clearance certified >= {scene.margin:g} m on the whole trajectory "
+                                       f"(outer iterations: {outer})")
+                        else:
+                            message = f"clearance certified, but the inner solve stopped: {res.message}"
+                        break
+                    if refinements < MAX_REFINEMENTS:
+                        refinements += 1
+                        old = points.size
+                        points = _add_points(points, [c["interval"] for c in cert.collisions])
+                        lam = np.concatenate([lam, np.zeros((points.size - old, scene.size))])
+                        continue
+                    message = "clear at the points, but the clearance between them could not be certified"
+                    break
+                cert = None
+                if excess > 0.25 * prev and excess > INFLATION:  # within the inflation the multipliers finish
+                    if rho >= rho0 * RHO_RANGE and excess > STALL_RATIO * prev and excess > INFLATION:
+                        status = "infeasible"  # still in collision (beyond the margin) and no longer improving
+                        break
+                    rho = min(rho * RHO_GROWTH, rho0 * RHO_MAX)
+                prev = min(prev, excess) if math.isfinite(prev) else excess
+            else:
+                message = f"not clear after {max_outer} outer iterations"
+        finally:
+            problem.terms = ()
+        C = problem.coefficients(x)
+        if cert is None and full:
+            cert = certify(model, scene, mesh, C)
+        if status != "converged":
+            if cert is not None:
+                closest, pair, t = cert.distance, cert.pair, cert.t
+            else:
+                D = distances(model, scene, point_configurations(points, C))
+                i, j = np.unravel_index(int(np.argmin(D)), D.shape)
+                closest, pair, t = float(D[i, j]), scene.names[j], float(points.t[i])
+            if status == "infeasible" or closest < scene.margin:
+                status = "infeasible"
+                a, b = pair
+                how = f"overlap by {-closest:.4g} m" if closest < 0 else f"come within {closest:.4g} m"
+                message = (f"no collision-free trajectory was found: {a} and {b} {how} at t = {t:.4g} s "
+                           f"(margin {scene.margin:g} m)")
+        J = problem.bare_cost(x)
+        warm_next = CollisionWarm(points.t, points.weight, lam, rho)
+        outcome = CollisionOutcome(status=status, message=message, certificate=cert if full else None,
+                                   outer_iterations=outer, rho=rho, rows=rows, points=points.size, start=start,
+                                   warm=warm_next)
+        return dataclasses.replace(res, x=x), J, er, outcome

@@ -1,0 +1,230 @@
+"""Collision avoidance enforced: the penalty's gradient and curvature, plans certified clear (coal at 1 kHz),
+J against the margin, an infeasible task, and goal tasks refused."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from hoc_cli.cli import app
+from hoc_cli.collision.constraint import CollisionTerms, point_configurations
+from hoc_cli.collision.enforce import base_points
+from hoc_cli.collision.evaluate import distances
+from hoc_cli.collision.geometry import Shape
+from hoc_cli.collision.robot import robot_geometry
+from hoc_cli.collision.scene import Obstacle, collision_scene
+from hoc_cli.collision.shapes import Box, sphere
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.model import load_robot
+from hoc_cli.problem import minimum_jerk_guess
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM = {"upper_arm": [{"capsule": {"a": [0, 0, 0], "b": [1, 0, 0], "radius": 0.05}}],
+       "forearm": [{"capsule": {"a": [0, 0, 0], "b": [1, 0, 0], "radius": 0.05}}]}
+BALL = {"name": "ball", "sphere": {"radius": 0.1}, "position": [1.75, 0, 0.55]}  # on the free plan's path
+
+
+def two_link(obstacles: list, margin: float = 0.01, N: int = 8) -> dict:
+    return {"robot": "../robots/two_link.urdf", "x0": {"q": [0.0, 0.0]}, "x1": {"q": [1.2, -0.6]}, "T": 1.5,
+            "N": N, "output": {"rate": 1000.0},
+            "collision": {"margin": margin, "robot": ARM, "obstacles": obstacles}}
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "robots").mkdir()
+    for urdf in ("two_link.urdf", "lbr7.urdf"):
+        shutil.copy(ROOT / "robots" / urdf, tmp_path / "robots" / urdf)
+    monkeypatch.chdir(tmp_path / "configs")
+    return tmp_path / "configs"
+
+
+def plan(d: Path, doc: dict, *extra: str):
+    (d / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    r = CliRunner().invoke(app, ["plan", "task.yaml", "--json", "-o", "out.csv", *extra])
+    return r, (json.loads(r.stdout) if r.stdout.strip().startswith("{") else None)
+
+
+def _coal_two_link(csv_path: Path, obstacle: dict) -> float:
+    """The smallest signed distance, forearm and upper arm against the obstacle, at every CSV sample, by coal and
+    Pinocchio (independent of hoc's collision code)."""
+    coal = pytest.importorskip("coal")
+    pin = pytest.importorskip("pinocchio")
+    model = pin.buildModelFromUrdf(str(ROOT / "robots" / "two_link.urdf"))
+    data = model.createData()
+    rows = list(csv.DictReader(csv_path.open()))
+    qs = np.array([[float(r["q.shoulder"]), float(r["q.elbow"])] for r in rows])
+    along_x = pin.SE3(np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]), np.array([0.5, 0, 0]))  # coal's z to x
+    capsule = coal.Capsule(0.05, 1.0)
+    if "sphere" in obstacle:
+        shape = coal.Sphere(obstacle["sphere"]["radius"])
+    else:
+        shape = coal.Box(*obstacle["box"]["size"])
+    place = coal.Transform3s(np.eye(3), np.array(obstacle["position"], float))
+    req = coal.DistanceRequest()
+    req.enable_signed_distance = True
+    worst = np.inf
+    for q in qs:
+        pin.framesForwardKinematics(model, data, q)
+        for link in ("upper_arm", "forearm"):
+            M = data.oMf[model.getFrameId(link)] * along_x
+            res = coal.DistanceResult()
+            coal.distance(capsule, coal.Transform3s(M.rotation, M.translation), shape, place, req, res)
+            worst = min(worst, res.min_distance)
+    return worst
+
+
+def test_the_arm_goes_round_a_ball_certified_and_coal_agrees_at_1_khz_and_J_grows_with_the_margin(workdir):
+    r, free = plan(workdir, two_link([BALL]), "--collision", "check")
+    assert r.exit_code == 0 and free["min_clearance"]["distance"] < -0.1  # the free optimum goes through it
+    costs = []
+    for margin in (0.01, 0.03, 0.06):
+        r, s = plan(workdir, two_link([BALL], margin))
+        assert r.exit_code == 0, r.stderr
+        c = s["min_clearance"]
+        assert s["collision_mode"] == "enforce" and s["converged"] and s["collisions"] == []
+        assert c["certified"] and c["lower_bound"] >= margin - 1e-9
+        assert _coal_two_link(workdir / "out.csv", BALL) >= margin - 1e-9
+        assert c["distance"] < margin + 0.005  # the constraint binds
+        costs.append(s["cost"])
+    assert free["cost"] < costs[0] <= costs[1] <= costs[2]
+
+
+def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workdir):
+    wall = {"name": "wall", "box": {"size": [0.1, 0.1, 0.1]}, "position": [0.33, 0, 0.226]}  # across the upper arm's sweep
+    r, s = plan(workdir, two_link([wall], N=4))
+    assert r.exit_code == 1 and s["status"] == "infeasible" and not s["converged"]
+    assert "no collision-free trajectory was found:" in s["message"] and "and wall overlap by" in s["message"]
+    assert "hoc: infeasible: no collision-free trajectory" in r.stderr
+    assert (workdir / "out.csv").exists()  # the closest attempt is written, as for infeasible limits
+
+
+def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_check(workdir):
+    doc = two_link([BALL], N=4)
+    doc["x1"] = {"link": "tool", "position": [1.2, 0.0, 1.4]}
+    r, _ = plan(workdir, doc, "--collision", "enforce")
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1
+    assert "task.yaml: collision.mode: collision enforcement plans joint goals" in r.stderr and "--collision check" in r.stderr
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["collision_mode"] == "check" and "min_clearance" in s
+
+
+@pytest.fixture(scope="module")
+def lbr7_scene():
+    model = load_robot(ROOT / "robots" / "lbr7.urdf")
+    shapes = {f"lbr_link_{i}": [Shape("capsule", radius=0.06, a=np.array([0, 0, 0.03]), b=np.array([0, 0, 0.15]))]
+              for i in range(1, 8)}
+    robot = robot_geometry(model, {}, shapes)
+    obstacles = [Obstacle("ball", sphere([0.35, 0.0, 0.55], 0.12)),
+                 Obstacle("box", Box(np.array([0.2, -0.3, 0.5]), np.eye(3), np.array([0.1, 0.05, 0.2])))]
+    return model, collision_scene(model, robot, obstacles, margin=0.02)
+
+
+def _terms(model, scene, mesh, C, rho=50.0):
+    points = base_points(mesh)
+    D = distances(model, scene, point_configurations(points, C))
+    p, k = np.nonzero(D < 0.1)
+    lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % 2)  # half of them with λ > 0
+    return CollisionTerms(model, scene, points, p, k, lam, rho, np.full(p.size, 0.03)), D
+
+
+def test_the_penalty_gradient_matches_central_differences(lbr7_scene):
+    model, scene = lbr7_scene
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    terms, D = _terms(model, scene, mesh, C)
+    assert terms.rows.size > 20 and (D < 0.03).any()  # rows in contact, penetrating and near
+    value, G = terms.evaluate(C)
+    assert value > 0 and terms.evaluate(C, grad=False)[0] == pytest.approx(value, rel=1e-12)
+    rng = np.random.default_rng(0)
+    errors = []
+    for _ in range(40):
+        idx = tuple(rng.integers(0, s) for s in C.shape)
+        h = 1e-6
+        Cp, Cm = C.copy(), C.copy()
+        Cp[idx] += h
+        Cm[idx] -= h
+        fd = (terms.evaluate(Cp, grad=False)[0] - terms.evaluate(Cm, grad=False)[0]) / (2 * h)
+        errors.append(abs(fd - G[idx]) / max(abs(G).max(), 1e-12))
+    assert np.median(errors) < 1e-7 and np.mean(np.array(errors) < 1e-6) >= 0.95  # a kink may sit in a step
+
+
+def test_the_curvature_blocks_are_the_gauss_newton_matrix_of_the_active_rows(lbr7_scene):
+    model, scene = lbr7_scene
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    terms, _ = _terms(model, scene, mesh, C)
+    blocks = terms.newton_blocks(C)                                   # (N, 2mn, 2mn)
+    assert np.allclose(blocks, np.swapaxes(blocks, 1, 2))
+    delta = np.random.default_rng(2).normal(size=C.shape)
+    loc = mesh.local_coefficients(delta).reshape(mesh.N, -1)          # element order a·n + j
+    quad = float(np.einsum("ea,eab,eb->", loc, blocks, loc))
+    h = 1e-6  # Σ_active ρ_r (∇d_r · δ)², the directional derivatives by central differences
+    dd = (terms.distances(C + h * delta) - terms.distances(C - h * delta)) / (2 * h)
+    d = terms.distances(C)
+    active = terms.lam + terms.rho_rows * (terms.bound - d) > 0
+    assert active.sum() >= 5
+    ref = float(np.sum(terms.rho_rows[active] * dd[active] ** 2))
+    assert quad == pytest.approx(ref, rel=1e-5)
+
+
+def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):
+    pytest.importorskip("pyarrow")
+    pytest.importorskip("distributed")
+    from hoc_cli.batch import execute_batch
+    from hoc_cli.batch.engine import connect
+
+    r, single = plan(workdir, two_link([BALL]))
+    assert r.exit_code == 0 and single["collision_mode"] == "enforce"
+    with connect(workers=1) as client:
+        run = execute_batch([str(workdir / "task.yaml")], client, out_dir=workdir / "out")
+    (row,) = run.table.to_pylist()
+    assert row["status"] == "converged" and abs(row["cost"] - single["cost"]) <= 1e-12 * single["cost"]
+    assert row["min_clearance"] == single["min_clearance"]["distance"] >= 0.01
+
+
+def test_via_candidates_are_clear_shortest_first_where_the_straight_path_is_not():
+    from hoc_cli.collision.guess import FINE_SAMPLES, via_candidates, via_guess
+
+    model = load_robot(ROOT / "robots" / "two_link.urdf")
+    shapes = {k: [Shape("capsule", radius=0.05, a=np.zeros(3), b=np.array([1.0, 0, 0]))] for k in ARM}
+    robot = robot_geometry(model, {}, shapes)
+    scene = collision_scene(model, robot, [Obstacle("ball", sphere(BALL["position"], 0.1))], margin=0.01)
+    q0, q1 = np.zeros(2), np.array([1.2, -0.6])
+    s = np.linspace(0, 1, 201)[1:-1, None]
+    assert distances(model, scene, q0 + s * (q1 - q0)).min() < 0  # the straight path hits the ball
+    vias = via_candidates(model, scene, q0, q1, count=3)
+    clear = [c >= 0.01 for _, c in vias]
+    assert clear[0] and clear == sorted(clear, reverse=True)  # the clear ones first
+    fine = np.linspace(0, 1, 8 * FINE_SAMPLES + 1)[1:, None]
+    lengths = []
+    for qv, _ in vias[:sum(clear)]:
+        path = np.concatenate([q0 + fine * (qv - q0), qv + fine * (q1 - qv)])
+        assert distances(model, scene, path).min() > 0  # clear between its samples too
+        lengths.append(np.linalg.norm(qv - q0) + np.linalg.norm(q1 - qv))
+    assert lengths == sorted(lengths)
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    C = via_guess(mesh, q0, np.zeros(2), vias[0][0], q1, np.zeros(2))
+    assert np.allclose(mesh.evaluate(C, np.array([0.75]))[0], vias[0][0])
+    assert np.allclose(C[0, 0], q0) and np.allclose(C[-1, 0], q1) and not C[0, 1].any() and not C[-1, 1].any()
+
+
+def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatch):
+    import hoc_cli.collision.enforce as enforce
+
+    monkeypatch.setattr(enforce, "MAX_OUTER", 1)  # the start gets one outer iteration: it stays in collision
+    monkeypatch.setattr(enforce, "COARSE_MAX_OUTER", 1)
+    r, s = plan(workdir, two_link([BALL], N=4))
+    assert r.exit_code == 0, r.stderr
+    assert s["collision_enforce"]["start"] in ("guess", "via") and s["min_clearance"]["certified"]
+    assert _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
