@@ -13,6 +13,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOTS = ROOT / "robots"
+
+
+def task_configs() -> list[Path]:
+    """The shipped task files, configs/*.yaml, without the ``hoc catch`` scenarios (a top-level ``throw:``)."""
+    return sorted(p for p in (ROOT / "configs").glob("*.yaml")
+                  if not any(line.startswith("throw:") for line in p.read_text(encoding="utf-8").splitlines()))
 SHIPPED = ["pendulum.urdf", "two_link.urdf", "lbr7.urdf", "dual_arm.urdf"]
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 

@@ -312,12 +312,12 @@ def test_item13_quiet_silences_the_mimic_warning(d):
 
 
 def test_item13_limit_violations_and_not_converged_reach_stderr_when_it_is_not_a_terminal(d):
-    urdf_with(d, 'effort="50"', 'effort="0.5"')
-    r = invoke("plan", "t.yaml", "-o", "out.csv", "--max-iter", "1")
+    urdf_with(d, 'effort="50"', 'effort="0.5"')  # below the elbow's gravity torque: enforced, infeasible at once
+    r = invoke("plan", "t.yaml", "-o", "out.csv", "--max-iter", "1", "--limits", "report")
     assert r.exit_code == 1
     assert "hoc: warning: joint 'elbow' exceeds its effort limit 0.5: worst " in r.stderr
     assert "hoc: not converged" in r.stderr
-    assert invoke("plan", "t.yaml", "-o", "out.csv", "--max-iter", "1", "-q").stderr == ""
+    assert invoke("plan", "t.yaml", "-o", "out.csv", "--max-iter", "1", "--limits", "report", "-q").stderr == ""
     (d / "s.yaml").write_text(TASK + "torque: [0.0, 2.0]\n")
     r = invoke("simulate", "s.yaml", "-N", "32", "-o", "sim.csv")
     assert r.exit_code == 0 and "hoc: warning: joint 'elbow' exceeds its effort limit" in r.stderr

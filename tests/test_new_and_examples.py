@@ -15,6 +15,7 @@ from hoc_cli.cli import app
 from hoc_cli.errors import HocWarning
 from hoc_cli.io.task import load_yaml
 from hoc_cli.model import load_robot, urdf_joint_table
+from tests._robots import task_configs
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT_FILES = {**{name: ROBOTS / name for name in SHIPPED},
@@ -110,7 +111,7 @@ def test_hoc_examples_lists_every_shipped_task_with_its_robot():
     r = hoc("examples")
     assert r.exit_code == 0
     names = [line.split()[0] for line in r.stdout.splitlines()]
-    assert names == sorted(p.stem for p in (ROOT / "configs").glob("*.yaml"))
+    assert names == [p.stem for p in task_configs()]  # the hoc catch scenario is not a task
     robots = {line.split()[0]: line.split()[1] for line in r.stdout.splitlines()}
     assert robots["lbr7_reach"] == "lbr7.urdf" and robots["dual_arm"] == "dual_arm.urdf"
 
@@ -157,7 +158,7 @@ def test_the_examples_are_package_data_read_through_importlib_resources():
 
     folder = resources.files("hoc_cli.examples")
     shipped = examples()
-    assert {e.name for e in shipped} == {p.stem for p in (ROOT / "configs").glob("*.yaml")}
+    assert {e.name for e in shipped} == {p.stem for p in task_configs()}
     for e in shipped:
         assert (folder / "robots" / e.robot).is_file()
         assert (folder / "configs" / f"{e.name}.yaml").read_text() == (ROOT / "configs" / f"{e.name}.yaml").read_text()

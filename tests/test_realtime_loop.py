@@ -56,7 +56,7 @@ def test_without_noise_the_final_plan_is_the_cold_plan_of_its_problem(catch):
     problem, plan = catch
     throw = Throw(P0 + [0.01, -0.01, 0.005], V0 + [0.05, 0.05, -0.05])
     run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
-                    Cycle(rate=100.0, budget=10.0, steps=1, commit=0.06))  # the cold reference is slow on shorter ones
+                    Cycle(rate=100.0, budget=10.0, steps=2, commit=0.06))  # 2 steps a cycle, as configs/catch_throw.yaml
     assert run.caught and run.position_error < 1e-4 and run.relative_speed < 1e-3
     final = run.final
     t, q, dq = run.start

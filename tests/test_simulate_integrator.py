@@ -20,9 +20,10 @@ from hoc_cli.model import load_robot
 from hoc_cli.simulate import MAX_SPLIT_DEPTH, simulate_hermite
 from hoc_cli.system import RobotSystem
 from hoc_cli.torque import PlannedTorque
+from tests._robots import task_configs
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+CONFIGS = task_configs()  # the hoc catch scenario is not a task
 
 
 def hoc(*args):
