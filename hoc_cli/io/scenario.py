@@ -22,9 +22,8 @@ import yaml
 
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task import Task, load_task
-from hoc_cli.io.task.document import parse_task, yaml_error_detail
+from hoc_cli.io.task.document import parse_task, read_yaml_file
 from hoc_cli.io.task.goals import LinkGoal
-from hoc_cli.io.task.yaml12 import load_yaml
 from hoc_cli.realtime.loop import Cycle, Observer, Throw
 
 TOP = ("task", "throw", "observe", "cycle")
@@ -85,18 +84,7 @@ class _Keys:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (module docstring); ``TaskError`` (exit 2) naming the file and key."""
     path = Path(path)
-    if not path.exists():
-        raise TaskError("file not found (expected a catch scenario YAML file)", file=path)
-    if path.is_dir():
-        raise TaskError("is a directory (expected a catch scenario YAML file)", file=path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TaskError(f"cannot be read as UTF-8 text ({exc.__class__.__name__})", file=path) from None
-    try:
-        doc = load_yaml(text)
-    except yaml.YAMLError as exc:
-        raise TaskError(f"invalid YAML{yaml_error_detail(exc)}", file=path) from None
+    text, doc = read_yaml_file(path, "a catch scenario YAML file")
     c = _Keys(path)
     if doc is None:
         raise TaskError("empty file (expected a mapping with task, throw, observe, cycle)", file=path)

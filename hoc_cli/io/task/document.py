@@ -103,24 +103,32 @@ class Task:
     rate = property(lambda self: self.output.rate, doc="The output sample rate (Hz).")
 
 
-def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
-    """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
+def read_yaml_file(path: str | Path, what: str = "a task YAML file") -> tuple[str, object]:
+    """(text, document) of a YAML file; ``TaskError`` naming the file when it is missing or not a regular
+    file (checked before it is opened: a FIFO or /dev/zero would block or never end), over
+    ``MAX_TASK_BYTES``, not UTF-8 or not YAML. ``what`` completes "expected …" in the messages.
+    """
     path = Path(path)
-    problem = file_problem(path)  # before opening it: a FIFO or /dev/zero would block or never end
+    problem = file_problem(path)
     if problem is not None:
-        raise TaskError(f"{problem} (expected a task YAML file)", file=path)
+        raise TaskError(f"{problem} (expected {what})", file=path)
     size = path.stat().st_size
     if size > MAX_TASK_BYTES:
-        raise TaskError(f"is {size / 2**20:.0f} MiB (expected a task YAML file of at most {MAX_TASK_BYTES >> 20} MiB)",
-                        file=path)
+        raise TaskError(f"is {size / 2**20:.0f} MiB (expected {what} of at most {MAX_TASK_BYTES >> 20} MiB)", file=path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise TaskError(f"cannot be read as UTF-8 text ({exc.__class__.__name__})", file=path) from None
     try:
-        doc = load_yaml(text)
+        return text, load_yaml(text)
     except yaml.YAMLError as exc:
         raise TaskError(f"invalid YAML{yaml_error_detail(exc)}", file=path) from None
+
+
+def load_task(path: str | Path, *, purpose: str = "plan") -> Task:
+    """Read and validate a task YAML. ``purpose`` is "plan" (x1 required) or "simulate"."""
+    path = Path(path)
+    text, doc = read_yaml_file(path)
     return parse_task(doc, path=path, text=text, purpose=purpose)
 
 
