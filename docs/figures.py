@@ -5,8 +5,8 @@ Run from the repository root, in the environment where hoc is installed:
     python docs/figures.py                 # the fast sections (about a minute): quickstart, verify, examples, timing
     python docs/figures.py verify examples # only these sections
     python docs/figures.py --bench         # also the benchmark scripts (several minutes; needs '.[bench]')
-    python docs/figures.py batch readme-batch   # a hoc batch sweep: docs/batch.md's table, the README's, the plot
-    python docs/figures.py starts          # multi-start over 10 seeds on a Panda move (README; needs example-robot-data)
+    python docs/figures.py batch           # a hoc batch sweep: docs/batch.md's table and the plot
+    python docs/figures.py starts          # multi-start over 10 seeds on a Panda move (docs/batch.md; needs example-robot-data)
     python docs/figures.py --print quickstart   # print a section instead of writing it
     python docs/figures.py --list          # the sections and the file each one writes into
 
@@ -239,7 +239,7 @@ sweep:
 BATCH_PLOT = ROOT / "docs" / "batch_cost_vs_T.png"
 
 
-_BATCH_RUN: list = []  # the sweep runs once per invocation, for docs/batch.md and the README
+_BATCH_RUN: list = []  # the sweep runs once per invocation
 
 
 def _batch_sweep() -> tuple[dict, dict, list[float], float]:
@@ -318,21 +318,6 @@ def batch() -> str:
     return "\n".join(lines)
 
 
-def readme_batch() -> str:
-    """The README's short version of the sweep: spec, command, J against T in both modes, the plot."""
-    summary, by, Ts, wall = _batch_sweep()
-    lines = [f"`hoc batch sweep.yaml -o sweep --workers 2` ({summary['plans']} plans, {wall:.0f} s; the spec is in "
-             "docs/batch.md):", "",
-             "| T [s] | " + " | ".join(f"{T:g}" for T in Ts) + " |",
-             "| --- | " + " | ".join("---" for _ in Ts) + " |",
-             "| J, enforced | " + " | ".join(f"{by[T, 'enforce']['cost']:.2f}" for T in Ts) + " |",
-             "| J, reported | " + " | ".join(f"{by[T, 'report']['cost']:.2f}" for T in Ts) + " |",
-             "| limits broken when reported | " + " | ".join(
-                 _broken(by[T, "report"]).replace("velocity: ", "v: ") for T in Ts) + " |",
-             "", f"![cost against T, limits enforced and reported](docs/{BATCH_PLOT.name})"]
-    return "\n".join(lines)
-
-
 def starts() -> str:
     """Multi-start on issue 15's Panda move: the kept J over seeds 0-9 (benchmarks/bench_batch.py --panda-seeds 10)."""
     out = run([sys.executable, str(ROOT / "benchmarks" / "bench_batch.py"), "--panda-seeds", "10", "--json"], ROOT)
@@ -392,7 +377,7 @@ def catch_loop() -> str:
     _plot_catch_loop()
     return (f"    $ hoc catch configs/catch_throw.yaml\n{table}\n\n"
             f"![the ball, its estimates and the flange; the estimate's error and each update's CPU time]"
-            f"(docs/{CATCH_LOOP_PLOT.name})")
+            f"({CATCH_LOOP_PLOT.name})")
 
 
 def _plot_catch_loop() -> None:
@@ -509,7 +494,7 @@ def collision() -> str:
         f"(certified: {f['certified']}), {free['wall_time_s']:.2f} s. No row binds here; the enforced solve (Newton "
         "steps, the joint limits by their augmented Lagrangian: docs/collision.md) lands in a cheaper local minimum.",
         "",
-        f"![clearance to the table, the post, the floor and between the links against t](docs/{TABLE_PLOT.name})"])
+        f"![clearance to the table, the post, the floor and between the links against t]({TABLE_PLOT.name})"])
 
 
 def _plot_table(mcap_path: Path, task_path: Path, clearance: dict) -> None:
@@ -577,13 +562,12 @@ SECTIONS: dict[str, Section] = {
     "bench-simulate": Section("docs/benchmarks.md", bench("bench_simulate.py"),
                               "python benchmarks/bench_simulate.py", True),
     "batch": Section("docs/batch.md", batch, "python docs/figures.py batch", True),
-    "readme-batch": Section("README.md", readme_batch, "python docs/figures.py batch readme-batch", True),
-    "starts": Section("README.md", starts, "python docs/figures.py starts", True),
+    "starts": Section("docs/batch.md", starts, "python docs/figures.py starts", True),
     "goals": Section("README.md", goals, "python docs/figures.py goals", True),
-    "collision": Section("README.md", collision, "python docs/figures.py collision"),
+    "collision": Section("docs/collision.md", collision, "python docs/figures.py collision"),
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
-    "catch-loop": Section("README.md", catch_loop, "python docs/figures.py catch-loop", True),
+    "catch-loop": Section("docs/realtime.md", catch_loop, "python docs/figures.py catch-loop", True),
 }
 
 

@@ -27,6 +27,18 @@ class HocError(Exception):
         super().__init__(f"{prefix}: {message}" if prefix else message)
 
 
+def naming_file(fn, file: str | Path):
+    """``fn()``, with ``file`` named in a ``HocError`` that names a key but no file (the maths, e.g.
+    ``hoc_cli.solve``, knows the task key at fault, not the file it came from); others pass unchanged.
+    """
+    try:
+        return fn()
+    except HocError as exc:
+        if exc.file is not None or exc.key is None:
+            raise
+        raise type(exc)(exc.detail, file=file, key=exc.key) from None
+
+
 class TaskError(HocError):
     """The task YAML (or a CLI override of one of its keys) is invalid."""
 

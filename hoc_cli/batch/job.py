@@ -12,7 +12,7 @@ from pathlib import Path
 
 from hoc_cli.batch.results import column_name
 from hoc_cli.batch.spec import Job
-from hoc_cli.errors import TaskError
+from hoc_cli.errors import TaskError, naming_file
 
 PLANS_DIR = "plans"
 
@@ -65,7 +65,6 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
     from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, refuse_infeasible
     from hoc_cli.commands.starts import check_starts, starts_summary
-    from hoc_cli.errors import HocError
     from hoc_cli.io.task import load_task, parse_task, resolve
     from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
     from hoc_cli.strategy import SolveOptions, solve
@@ -98,12 +97,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         refuse_infeasible(task, RobotSystem(model), limits, states)
     options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
                            estimate_error=False)  # as ``hoc plan``, without its error estimate
-    try:
-        planned = solve(problem, options)
-    except HocError as exc:
-        if exc.file is not None or exc.key is None:
-            raise
-        raise type(exc)(exc.detail, file=task.path, key=exc.key) from None
+    planned = naming_file(lambda: solve(problem, options), task.path)
     result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
     if task.time.free is not None:
         result = cold(result)  # its last solve says "warm replan": a batch plan has no --init

@@ -42,7 +42,7 @@ from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
 from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside, refuse_infeasible
 from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
-from hoc_cli.errors import HocError, Infeasible, InputFileError, OutputError, TaskError
+from hoc_cli.errors import Infeasible, InputFileError, OutputError, TaskError, naming_file
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
@@ -202,12 +202,7 @@ def _with_file(task: Task, fn):
     """``fn()``, with the task file named in a ``HocError`` that names a task key but no file (the maths
     names the key only); a numerical failure, which names neither, is left as it is.
     """
-    try:
-        return fn()
-    except HocError as exc:
-        if exc.file is not None or exc.key is None:
-            raise
-        raise type(exc)(exc.detail, file=task.path, key=exc.key) from None
+    return naming_file(fn, task.path)
 
 
 def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
