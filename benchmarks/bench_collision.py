@@ -64,8 +64,8 @@ def problems(count: int, N: int, seed: int = 0) -> list[dict]:
     """``count`` task documents whose start and goal are ``START_CLEARANCE`` clear (hoc's distances)."""
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
+    from hoc_cli.report.collision import task_collision
 
     rng = np.random.default_rng(seed)
     out = []
@@ -96,8 +96,8 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
         return None
     from hoc_cli.collision.scene import KIND_SELF
     from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
+    from hoc_cli.report.collision import task_collision
 
     path = csv_path.with_name("task.yaml")
     task = load_task(path, purpose="plan")
@@ -151,10 +151,10 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
 def run(doc: dict, workdir: Path) -> dict:
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.task import load_task
     from hoc_cli.problem import minimum_jerk_guess
+    from hoc_cli.report.collision import task_collision
 
     path = workdir / "task.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -181,8 +181,8 @@ def drake_row(doc: dict, workdir: Path) -> dict:
 
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.commands.common import load_model
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
+    from hoc_cli.report.collision import task_collision
 
     path = workdir / "task.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))

@@ -1,4 +1,4 @@
-"""Calibrate ``hoc_cli.commands.workload``: wall time and peak memory of ``hoc plan`` against the estimate.
+"""Calibrate ``hoc_cli.report.workload``: wall time and peak memory of ``hoc plan`` against the estimate.
 
 Run:  python benchmarks/bench_workload.py                 (about 2-4 minutes on 2 cores)
       python benchmarks/bench_workload.py --cases two_link:4000 chain:40:8
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import yaml
 
-from hoc_cli.commands.workload import estimate_workload
+from hoc_cli.report.workload import estimate_workload
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = ["two_link:1000", "two_link:4000", "two_link:16000", "chain:10:8", "chain:20:8", "chain:40:8",

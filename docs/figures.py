@@ -506,10 +506,10 @@ def _plot_table(mcap_path: Path, task_path: Path, clearance: dict) -> None:
     import matplotlib.pyplot as plt
 
     from hoc_cli.collision.evaluate import distances
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.mcap import read_plan
     from hoc_cli.io.task import load_task
     from hoc_cli.model import load_robot
+    from hoc_cli.report.collision import task_collision
 
     task = load_task(task_path)
     model = load_robot(task.robot)

@@ -304,7 +304,7 @@ def test_resume_refuses_a_parquet_hoc_did_not_write(tmp_path, no_cluster):
 # --- one run per folder -------------------------------------------------------------------------
 
 def test_a_second_batch_into_a_folder_in_use_is_refused_and_a_dead_holder_s_lock_is_not_a_lock(tmp_path, no_cluster):
-    from hoc_cli.commands.locks import LOCK_NAME, FolderLock
+    from hoc_cli.report.locks import LOCK_NAME, FolderLock
 
     out = tmp_path / "out"
     out.mkdir()
@@ -319,7 +319,7 @@ def test_a_second_batch_into_a_folder_in_use_is_refused_and_a_dead_holder_s_lock
 
 
 def test_two_batch_processes_into_one_folder_one_is_refused_the_other_keeps_every_row(tmp_path):
-    from hoc_cli.commands.locks import LOCK_NAME
+    from hoc_cli.report.locks import LOCK_NAME
 
     write_base(tmp_path, N=20)
     spec = tmp_path / "long.yaml"
@@ -341,7 +341,7 @@ def test_two_batch_processes_into_one_folder_one_is_refused_the_other_keeps_ever
 
 
 def test_two_plans_writing_the_same_files_leave_one_run_s_whole_set(tmp_path):
-    from hoc_cli.commands.locks import directories_locked
+    from hoc_cli.report.locks import directories_locked
 
     write_base(tmp_path)
     outs = ["-o", tmp_path / "same.csv", "-o", tmp_path / "same.mcap"]
@@ -442,12 +442,12 @@ def test_a_long_batch_is_announced_before_its_cluster_starts_and_a_short_one_is_
 
 def test_a_batch_that_outlasts_an_estimate_under_the_threshold_says_so_while_it_runs(tmp_path, monkeypatch):
     from hoc_cli.batch import execute_batch
-    from hoc_cli.commands.workload import BatchWorkload
     from hoc_cli.errors import HocWarning
+    from hoc_cli.report.workload import BatchWorkload
 
-    monkeypatch.setattr("hoc_cli.commands.workload.WARN_SECONDS", 0.5)  # the cluster's start alone is longer
-    monkeypatch.setattr("hoc_cli.commands.workload.plan_workloads", lambda jobs: BatchWorkload(len(jobs), 0.0, 0.0))
-    monkeypatch.setattr("hoc_cli.commands.workload.CLUSTER_START_S", (0.0, 0.0))  # an estimate of nothing
+    monkeypatch.setattr("hoc_cli.report.workload.WARN_SECONDS", 0.5)  # the cluster's start alone is longer
+    monkeypatch.setattr("hoc_cli.report.workload.plan_workloads", lambda jobs: BatchWorkload(len(jobs), 0.0, 0.0))
+    monkeypatch.setattr("hoc_cli.report.workload.CLUSTER_START_S", (0.0, 0.0))  # an estimate of nothing
     with pytest.warns(HocWarning) as caught:
         result = execute_batch(write_spec(tmp_path), out_dir=tmp_path / "out", workers=1, estimate=True)
     said = [str(w.message) for w in caught]

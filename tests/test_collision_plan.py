@@ -236,9 +236,9 @@ world:
 def test_a_motionbenchmaker_scene_is_read_as_is_with_its_frame_named(workdir):
     """MotionBenchMaker's box scene writes frame_id base_link and a quaternion of norm 1.0002 (rounded): accepted,
     normalised, and placed on the fixed link that collision.frames names."""
-    from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
     from hoc_cli.model import load_robot
+    from hoc_cli.report.collision import task_collision
 
     urdf = (workdir.parent / "robots" / "lbr7.urdf")
     text = urdf.read_text().replace("</robot>", '<link name="mount"/><joint name="m" type="fixed"><parent link="lbr_link_0"/>'

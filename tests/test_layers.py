@@ -1,8 +1,10 @@
 """The package's layers, read from the source (docs/design.md, "Layers").
 
 Maths modules (elements, dynamics, problem, constraints, solvers, drivers, goals, simulator) never
-import the CLI, the terminal or file formats (``commands/``, ``io/``, ``batch/``, ``cli``,
-``plotting``), not even inside a function; no module imports another module's private name (the
+import the CLI, the terminal or file formats (``commands/``, ``io/``, ``batch/``, ``report/``, ``cli``,
+``plotting``), not even inside a function; ``report/`` (what ``hoc plan`` and ``hoc batch`` both
+report and write) imports neither front end (``commands/``, ``batch/``, ``cli``), and ``batch/``
+imports nothing from ``commands/``; no module imports another module's private name (the
 private modules of a package, such as ``dynamics/_passes``, share theirs within it); maths
 modules do not print and build no ``SimpleNamespace`` stand-ins; and a plain ``hoc plan`` loads
 nothing it does not use (scipy.optimize, Dask, pyarrow, matplotlib).
@@ -17,7 +19,13 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "hoc_cli"
-OUTER = ("hoc_cli.commands", "hoc_cli.io", "hoc_cli.batch", "hoc_cli.cli", "hoc_cli.plotting", "hoc_cli.examples")
+OUTER = ("hoc_cli.commands", "hoc_cli.io", "hoc_cli.batch", "hoc_cli.report", "hoc_cli.cli", "hoc_cli.plotting",
+         "hoc_cli.examples")
+#: what a package of the front ends may not import (not even inside a function): the layer above it or beside it
+FORBIDDEN = {
+    "hoc_cli.report": ("hoc_cli.commands", "hoc_cli.batch", "hoc_cli.cli"),
+    "hoc_cli.batch": ("hoc_cli.commands", "hoc_cli.cli"),
+}
 
 
 def module_name(path: Path) -> str:
@@ -25,8 +33,12 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def within(name: str, packages) -> bool:
+    return any(name == o or name.startswith(o + ".") for o in packages)
+
+
 def is_outer(name: str) -> bool:
-    return any(name == o or name.startswith(o + ".") for o in OUTER)
+    return within(name, OUTER)
 
 
 MODULES = {module_name(p): ast.parse(p.read_text(encoding="utf-8")) for p in sorted(PACKAGE.rglob("*.py"))}
@@ -58,6 +70,28 @@ def test_the_layer_checks_see_the_modules_they_are_about():
 def test_a_maths_module_imports_nothing_from_the_cli_or_file_layers(module):
     bad = [mod for mod, _ in imports(MODULES[module], module) if is_outer(mod)]
     assert bad == [], f"{module} imports {bad}"
+
+
+def reaching_across(module: str, tree: ast.AST) -> list[str]:
+    """The imports of ``module`` that ``FORBIDDEN`` refuses (e.g. ``batch/`` taking a name from ``commands/``)."""
+    refused = [bad for package, bad in FORBIDDEN.items() if within(module, (package,))]
+    return [mod for mod, _ in imports(tree, module) for bad in refused if within(mod, bad)]
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if within(m, FORBIDDEN)))
+def test_batch_imports_nothing_from_commands_and_report_neither_front_end(module):
+    assert reaching_across(module, MODULES[module]) == []
+
+
+def test_the_layer_test_catches_batch_importing_from_commands():
+    assert {"hoc_cli.batch.job", "hoc_cli.report.summary"} <= set(MODULES)
+    tree = ast.parse("def solve():\n    from hoc_cli.commands.plan import summarise\n")
+    assert reaching_across("hoc_cli.batch.job", tree) == ["hoc_cli.commands.plan"]
+    tree = ast.parse("from ..commands import common\n")
+    assert reaching_across("hoc_cli.batch.spec", tree) == ["hoc_cli.commands"]
+    tree = ast.parse("import hoc_cli.batch.engine\n")
+    assert reaching_across("hoc_cli.report.files", tree) == ["hoc_cli.batch.engine"]
+    assert reaching_across("hoc_cli.commands.plan", ast.parse("import hoc_cli.batch\n")) == []
 
 
 def package_internal(importer: str, source: str) -> bool:

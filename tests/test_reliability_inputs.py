@@ -426,7 +426,7 @@ class _Result:
      {"message": "goal missed by 0.02 (x1); the maximum number of iterations was reached", "converged": False}),
 ])
 def test_a_missed_goal_is_reported_as_missed_not_as_a_stopping_test(violation, summary, expected):
-    from hoc_cli.commands.plan_goals import goal_miss
+    from hoc_cli.report.goals import goal_miss
 
     assert goal_miss(_Result(violation), summary) == expected
 

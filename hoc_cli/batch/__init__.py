@@ -95,9 +95,9 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
     can be checked is checked before a cluster starts or a plan is solved, with nothing written:
     the spec (every swept task's keys), the worker count, the scheduler address (it must answer as
     a Dask scheduler within ``connect_timeout`` seconds), the results folder (writable; not in use by
-    another batch: it is locked for the run, ``hoc_cli.commands.locks.FolderLock``) and, with
+    another batch: it is locked for the run, ``hoc_cli.report.locks.FolderLock``) and, with
     ``resume``, that its results come from this spec. ``estimate`` warns (``hoc: warning:``) when
-    the batch is expected to take long (``hoc_cli.commands.workload.check_batch_workload``), or
+    the batch is expected to take long (``hoc_cli.report.workload.check_batch_workload``), or
     when it was not and still runs after ``WARN_SECONDS``.
     """
     from contextlib import ExitStack, nullcontext
@@ -107,8 +107,9 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
     from hoc_cli.batch.folder import check_folder
     from hoc_cli.batch.job import error_row, solve_jobs
     from hoc_cli.batch.spec import load_spec
-    from hoc_cli.commands.locks import FolderLock
     from hoc_cli.errors import OutputError
+    from hoc_cli.report.locks import FolderLock
+    from hoc_cli.report.status import Status
 
     start = time.perf_counter()
     batch = load_spec(spec)
@@ -134,7 +135,7 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
         work = None
         warned = False
         if todo and estimate:
-            from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_batch_workload, plan_workloads
+            from hoc_cli.report.workload import WARN_SECONDS, Heartbeat, check_batch_workload, plan_workloads
 
             work = plan_workloads(todo)
             if client is None and not scheduler:
@@ -198,8 +199,8 @@ def execute_batch(spec: Any, client: Any = None, *, out_dir: str | Path | None =
     rows = kept + new
     return BatchRun(
         table=results.table(rows, _sweep_columns(batch)), total=len(batch.jobs), solved=len(new), skipped=len(kept),
-        failed=sum(r.get("status") == "error" for r in rows),
-        not_converged=sum(r.get("status") != "error" and not r.get("converged") for r in rows),
+        failed=sum(r.get("status") == Status.ERROR.value for r in rows),
+        not_converged=sum(r.get("status") != Status.ERROR.value and not r.get("converged") for r in rows),
         interrupted=interrupted, wall_time_s=time.perf_counter() - start, paths=paths,
         duplicates=batch.duplicates)
 

@@ -11,8 +11,8 @@ import uuid
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence
 
-from hoc_cli.commands.files import TERMINATING
 from hoc_cli.errors import HocError, TaskError
+from hoc_cli.report.files import TERMINATING
 
 CONNECT_TIMEOUT_S = 10.0  # default of --connect-timeout [s]
 WORKERS_PER_CORE = 4  # --workers at most this many worker processes per available core
@@ -280,7 +280,7 @@ def execute(client: Any, fn: Callable, items: Sequence, *, key: Callable[[Any], 
     """
     from distributed import as_completed
 
-    from hoc_cli.commands.common import Terminated
+    from hoc_cli.report.files import Terminated
 
     run_id = uuid.uuid4().hex[:8]
     futures = client.map(fn, list(items), *[[a] * len(items) for a in args],

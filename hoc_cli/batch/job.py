@@ -2,17 +2,21 @@
 
 ``solve_job`` never raises for a bad plan (invalid task, missing URDF, numerical failure): it
 returns a row with status "error" and the one-line message ``hoc plan`` would print. Per-plan
-files are written atomically (``hoc_cli.commands.outputs``) as ``DIR/plans/<id>.<kind>``.
+files are written atomically (``hoc_cli.report.outputs``) as ``DIR/plans/<id>.<kind>``.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hoc_cli.batch.results import column_name
 from hoc_cli.batch.spec import Job
 from hoc_cli.errors import TaskError, naming_file
+from hoc_cli.report.status import Status
+
+if TYPE_CHECKING:
+    from hoc_cli.report.summary import PlanReport
 
 PLANS_DIR = "plans"
 
@@ -25,7 +29,7 @@ def solve_job(job: Job, out_dir: str | None = None, kinds: tuple[str, ...] = ())
     try:
         row = _solve(job, out_dir, kinds)
     except Infeasible as exc:  # proven before the solve: the row says so, as ``hoc plan`` does (exit 1)
-        row = error_row(job, _message(exc)) | {"status": "infeasible"}
+        row = error_row(job, _message(exc)) | {"status": Status.INFEASIBLE.value}
     except Exception as exc:  # noqa: BLE001 - every failure of one plan becomes its row
         row = error_row(job, _message(exc))
     row["solve_time_s"] = time.perf_counter() - start
@@ -39,7 +43,7 @@ def solve_jobs(jobs: list[Job], out_dir: str | None = None, kinds: tuple[str, ..
 
 def error_row(job: Job, message: str) -> dict:
     """The row of a plan that produced no result."""
-    return {"id": job.id, "task": job.source, **swept_columns(job), "status": "error", "converged": False,
+    return {"id": job.id, "task": job.source, **swept_columns(job), "status": Status.ERROR.value, "converged": False,
             "error": message, "outputs": []}
 
 
@@ -58,15 +62,14 @@ def _message(exc: Exception) -> str:
 
 
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
-    from hoc_cli.commands.common import OutputTarget, check_columns, check_sample_times, json_ready, load_model, output_transaction, read_urdf_text
-    from hoc_cli.commands.outputs import write_outputs
-    from hoc_cli.commands.plan import reproducible_summary, sample_plan, summarise
-    from hoc_cli.commands.plan_collision import collision_summary, prepare_collision
-    from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
-    from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, refuse_infeasible
-    from hoc_cli.commands.starts import check_starts, starts_summary
     from hoc_cli.io.task import load_task, parse_task, resolve
     from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
+    from hoc_cli.report.collision import prepare_collision
+    from hoc_cli.report.files import OutputTarget, output_transaction
+    from hoc_cli.report.inputs import check_columns, check_sample_times, check_starts, load_model, read_urdf_text
+    from hoc_cli.report.limits import check_boundary_states, refuse_infeasible
+    from hoc_cli.report.outputs import sample_plan, write_outputs
+    from hoc_cli.report.summary import plan_report, reproducible_summary
     from hoc_cli.strategy import SolveOptions, solve
     from hoc_cli.system import RobotSystem
 
@@ -87,7 +90,7 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
         check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
-    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts", scheduler=False)
+    check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts")
     problem = problem_from_task(task, model, states, limits if task.limits.mode == "enforce" else None)
     collision, problem, collision_mode = prepare_collision(task, model, states, problem, starts=starts)
     if problem.has_goals and starts > 1:
@@ -98,35 +101,27 @@ def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
     options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
                            estimate_error=False)  # as ``hoc plan``, without its error estimate
     planned = naming_file(lambda: solve(problem, options), task.path)
-    result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
-    if task.time.free is not None:
-        result = cold(result)  # its last solve says "warm replan": a batch plan has no --init
-    extra, multi, goals = dict(planned.details), planned.multi, planned.goals
-    summary = summarise(task, model, result, states)
-    summary.update(limits_summary(task.limits.mode, limits, RobotSystem(model), result, states))
-    summary.update(collision_summary(model, collision, collision_mode, result))
-    summary.update(starts_summary(multi, seed))
-    summary.update(extra | goal_summary(model, result, goals))
-    summary.update(goal_miss(result, summary))  # "goal missed by X (key)", not "the stopping test held"
-    summary = json_ready(summary)
+    reported = plan_report(task, model, planned, states, limits=limits, collision=collision,
+                           collision_mode=collision_mode, seed=seed)  # a batch plan has no --init
     if targets:
         (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
         urdf_text = read_urdf_text(task.robot) if "mcap" in kinds else ""
-        traj = sample_plan(RobotSystem(model), result, model.joint_names, task.rate)
+        traj = sample_plan(RobotSystem(model), reported.result, model.joint_names, task.rate)
         with output_transaction():
             write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                          summary=reproducible_summary(summary), goals=goals)
-    return row_of(job, summary, names)
+                          summary=reproducible_summary(reported.summary), goals=planned.goals)
+    return row_of(job, reported, names)
 
 
-def row_of(job: Job, summary: dict, outputs: list[str]) -> dict:
-    """The results row of a solved plan from its ``hoc plan`` summary."""
+def row_of(job: Job, reported: PlanReport, outputs: list[str]) -> dict:
+    """The results row of a solved plan from its report (the summary ``hoc plan --json`` prints)."""
     import json
 
+    summary = reported.summary
     viol = summary["limit_violations"]
     row = {
         "id": job.id, "task": job.source, **swept_columns(job),
-        "status": summary["status"], "converged": bool(summary["converged"]), "cost": float(summary["cost"]),
+        "status": reported.status.value, "converged": reported.converged, "cost": float(summary["cost"]),
         "iterations": int(summary["iterations"]), "evaluations": int(summary["evaluations"]),
         "boundary_error": float(summary["boundary_error"]),
         "limits": "violated" if viol else "ok",

@@ -85,7 +85,7 @@ def write(out_dir: Path, tab, identity: str | None = None) -> list[Path]:
     """
     import pyarrow.parquet as pq
 
-    from hoc_cli.commands.common import atomic_output, output_transaction
+    from hoc_cli.report.files import atomic_output, output_transaction
 
     if identity is not None:
         tab = tab.replace_schema_metadata({**(tab.schema.metadata or {}), IDENTITY_KEY: identity.encode("ascii")})

@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hoc_cli.commands.starts import MAX_STARTS
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task import load_task, load_yaml
+from hoc_cli.report.inputs import MAX_STARTS
 
 SPEC_KEYS = ("base", "sweep", "tasks", "outputs", "starts", "seed")
 OUTPUT_KINDS = ("csv", "mcap")
@@ -214,7 +214,7 @@ def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, la
         parts = _key_path(key, where_key, label)
         if isinstance(spec, dict) and "random" in spec:
             if model is None and _wants_limits(spec["random"]):
-                from hoc_cli.commands.common import load_model
+                from hoc_cli.report.inputs import load_model
 
                 model = load_model(task)
             values = _random(spec, parts, base_doc, model, where_key, fail)
@@ -233,7 +233,7 @@ def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, la
     if total > MAX_JOBS:
         raise TaskError(f"the sweep has {total} plans (expected at most {MAX_JOBS})", file=label, key="sweep")
     if total > EXPAND_WARN_PLANS:
-        from hoc_cli.commands.common import warn
+        from hoc_cli.report.console import warn
 
         warn(f"the sweep has {total} plans: checking and expanding them takes about {total * EXPAND_S:.0f} s "
              "before the batch starts")
@@ -278,7 +278,7 @@ def _refuse_unknown_keys(doc: dict, base_path: Path, keys: list[str], label, mod
         if models is not None:
             spec = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
             if spec not in models:
-                from hoc_cli.commands.common import load_model
+                from hoc_cli.report.inputs import load_model
 
                 try:
                     models[spec] = load_model(task)

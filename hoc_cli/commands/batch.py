@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNMET, Terminated, print_json, report_error, stderr_console
+from hoc_cli.report.status import MESSAGES, Status
 
 
 def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None = None, scheduler: str | None = None,
@@ -43,7 +44,8 @@ def run(specs: list[Path], *, out_dir: Path | None = None, workers: int | None =
         print_json(summary)
     if not quiet:
         console.print(f"hoc batch: {result.total} plans: {result.solved} solved, {result.skipped} resumed, "
-                      f"{result.failed} errors, {result.not_converged} not converged; results in {out} "
+                      f"{result.failed} {MESSAGES[Status.ERROR].counted}, {result.not_converged} "
+                      f"{MESSAGES[Status.NOT_CONVERGED].counted}; results in {out} "
                       f"({result.wall_time_s:.1f} s)", highlight=False, markup=False, soft_wrap=True)
     if result.interrupted is not None:
         term = isinstance(result.interrupted, Terminated)
@@ -79,7 +81,7 @@ class _Reporter:
 
     def row(self, row: dict) -> None:
         self.done += 1
-        self.failed += row.get("status") == "error"
+        self.failed += row.get("status") == Status.ERROR.value
         self.progress.update(self.task, advance=1, failed=self.failed,
                              running=min(self.total - self.done, self.threads))
 

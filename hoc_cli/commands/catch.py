@@ -24,11 +24,11 @@ from hoc_cli.errors import OutputError
 
 def run(scenario_path: Path, *, as_json: bool = False, seed: int | None = None, noise: float | None = None,
         output: Path | None = None, quiet: bool = False) -> int:
-    from hoc_cli.commands.files import atomic_output, refuse_inputs
     from hoc_cli.io.scenario import load_scenario
     from hoc_cli.io.task import resolve
     from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
     from hoc_cli.realtime.loop import run_catch
+    from hoc_cli.report.files import atomic_output, refuse_inputs
     from hoc_cli.strategy import solve
 
     sc = load_scenario(scenario_path)
@@ -45,7 +45,7 @@ def run(scenario_path: Path, *, as_json: bool = False, seed: int | None = None, 
             raise OutputError("expected an .mcap file", key="--output")
         if not output.parent.is_dir():
             raise OutputError(f"the directory {str(output.parent)!r} does not exist", key="--output")
-        from hoc_cli.commands.files import OutputTarget
+        from hoc_cli.report.files import OutputTarget
 
         refuse_inputs([OutputTarget(path=output, kind="mcap")],
                       {"the scenario": sc.path, "the task": sc.task.path, "the URDF": sc.task.robot})

@@ -1,6 +1,7 @@
-"""Shared plumbing for commands: error reporting, exit codes, signals, checks made before any work.
+"""Shared plumbing for commands: exit codes, signals and the run guard, input files refused before any work.
 
-Output files (targets, atomic writes) live in :mod:`hoc_cli.commands.files`, re-exported here.
+What ``hoc plan`` and ``hoc batch`` both report and write (lines on standard error, JSON, output files,
+the checks before a solve) lives in :mod:`hoc_cli.report`; the names the commands use are re-exported here.
 
 Exit codes (README, Exit codes): 0 success, 1 ran but did not meet what was asked (or an output could not
 be written: disk full, I/O error), 2 invalid input (or an output that would replace an input),
@@ -9,69 +10,37 @@ by SIGTERM. A failed or interrupted run changes no output and leaves no temporar
 """
 from __future__ import annotations
 
-import json
-import math
 import signal
-import sys
 import warnings
 from pathlib import Path
 from typing import Any, Callable
 
-from rich.console import Console
-
-from hoc_cli.commands import files as _files
-from hoc_cli.commands.files import (  # noqa: F401  (re-exported: the commands import them from here)
+from hoc_cli.errors import HocError, HocWarning, InputFileError
+from hoc_cli.io.inputs import file_problem
+from hoc_cli.report.console import (  # noqa: F401  (re-exported: the commands import them from here)
+    report_error,
+    show_warning,
+    stderr_console,
+    warn,
+    warn_limit_violations,
+)
+from hoc_cli.report.files import (  # noqa: F401  (re-exported)
     OUTPUT_KINDS,
     TERMINATING,
     OutputTarget,
+    Terminated,
     atomic_output,
     output_transaction,
     parse_outputs,
     refuse_inputs,
+    start_run,
     what_changed,
 )
-from hoc_cli.errors import HocError, HocWarning, InputFileError, JointSelectionError, OutputError, TaskError
-from hoc_cli.io.inputs import file_problem
+from hoc_cli.report.inputs import check_columns, check_sample_times, load_model, read_urdf_text  # noqa: F401
+from hoc_cli.report.jsonio import json_ready, print_json, validate_json  # noqa: F401  (re-exported)
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
 _SIGNAL_WORDS = {getattr(signal, "SIGHUP", -1): "hung up (SIGHUP)", signal.SIGTERM: "terminated"}
-
-
-class Terminated(BaseException):
-    """Raised from the SIGTERM/SIGHUP handler so that ``finally`` blocks clean up temporary files."""
-
-    def __init__(self, signum: int = signal.SIGTERM) -> None:
-        super().__init__(signum)
-        self.signum = signum
-
-
-def stderr_console(quiet: bool = False, progress: bool = False) -> Console:
-    """Rich console on standard error; silent with ``quiet``; decorated only on a terminal unless ``progress``."""
-    return Console(stderr=True, quiet=quiet, force_terminal=True if progress else None, highlight=False)
-
-
-def _say(line: str) -> None:
-    """One line on standard error; a closed terminal (SIGHUP, EIO) or pipe is not a second failure."""
-    try:
-        sys.stderr.write(line + "\n")
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
-
-
-def report_error(message: str) -> None:
-    """One plain line on standard error (no rich markup: paths may contain brackets)."""
-    _say(f"hoc: error: {message}")
-
-
-def warn(message: str) -> None:
-    """A ``hoc: warning:`` line on standard error, terminal or not (silenced by ``-q``: see run_guarded)."""
-    warnings.warn(HocWarning(message), stacklevel=2)
-
-
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings as one line on standard error (HocWarning only; others are silenced without --debug)."""
-    _say(f"hoc: warning: {message}")
 
 
 def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = False) -> int:
@@ -101,12 +70,12 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
             previous[sig] = signal.signal(sig, _on_signal)
     except ValueError:  # not in the main thread (e.g. some test runners)
         pass
-    _files._committed.clear()
+    start_run()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always" if debug else "ignore")
             warnings.simplefilter("ignore" if quiet else "always", HocWarning)
-            warnings.showwarning = _show_warning if not debug else warnings.showwarning
+            warnings.showwarning = show_warning if not debug else warnings.showwarning
             return body()
     except HocError as exc:
         if debug:
@@ -128,125 +97,6 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-
-
-def load_model(task, *, urdf_label: str | None = None, task_label: str | None = None):
-    """``load_robot`` for a task; a ``joints``/``locked``/``gravity`` misfit blames the task key.
-
-    ``urdf_label`` and ``task_label`` are what messages call the URDF and the task file (default:
-    their paths), e.g. ``plan.mcap: attachment robot.urdf`` for a plan's attached files.
-    """
-    from hoc_cli.model import load_robot
-
-    try:
-        return load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                          gravity=task.gravity, label=urdf_label)
-    except JointSelectionError as exc:
-        named = exc.key == exc.task_key or exc.task_key.startswith("locked.")  # the key names the joint
-        raise TaskError(exc.detail if named else f"{exc.key}: {exc.detail}",
-                        file=task_label or task.path, key=exc.task_key) from None
-
-
-def check_columns(targets: list[OutputTarget], joints) -> None:
-    """Before any work: every joint name can be a CSV column when a CSV output is asked for."""
-    from hoc_cli.io.csv import column_problem
-
-    csv = [t for t in targets if t.kind == "csv"]
-    if not csv:
-        return
-    for name in joints:
-        problem = column_problem(name)
-        if problem:
-            raise OutputError(f"joint name {name!r} cannot be a CSV column ({problem}); write only an .mcap "
-                              "output, or rename the joint", file=csv[0].label, key="--output")
-
-
-def check_sample_times(targets: list[OutputTarget], T: float, rate: float, *, file, key: str = "output.rate") -> None:
-    """Before any work: MCAP outputs stamp samples in whole nanoseconds, so no two may share one."""
-    import numpy as np
-
-    from hoc_cli.io.mcap import time_ns
-    from hoc_cli.trajectory import sample_times
-
-    if not any(t.kind == "mcap" for t in targets):
-        return
-    ns = time_ns(sample_times(T, rate))
-    if ns.size > 1 and not np.all(np.diff(ns) > 0):
-        if rate > 1e9:
-            why = f"{rate:g} Hz puts samples less than 1 ns apart"
-        else:
-            why = f"T = {float(T)!r} s leaves the last sample within 1 ns of the one before it"
-        raise TaskError(f"{why}, and MCAP time stamps are whole nanoseconds (expected a rate <= 1e9 Hz and "
-                        "T not within 1 ns of a multiple of 1/rate)", file=file, key=key)
-
-
-def read_urdf_text(path: Path, label: str | None = None) -> str:
-    """The URDF document as text (stored in MCAP outputs), read before any work is done."""
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise InputFileError("is not UTF-8 text (hoc stores the URDF in its MCAP outputs as UTF-8)",
-                             file=label or path) from None
-    except OSError as exc:
-        raise InputFileError(f"cannot be read ({exc.strerror or type(exc).__name__})", file=label or path) from None
-
-
-def warn_limit_violations(violations: list[dict]) -> None:
-    """One warning line per limit broken (standard error, terminal or not; silenced by ``-q``)."""
-    def show(x) -> str:
-        return "none" if x is None else f"{x:.4g}"
-
-    for v in violations:
-        limit = v.get("limit", ())
-        if isinstance(limit, list):
-            limit = f"[{', '.join(show(x) for x in limit)}]"
-        elif limit != ():
-            limit = show(limit)
-        where = f" at t = {v['t']:.4g} s" if "t" in v else ""
-        said = f" {limit}" if limit != () else ""
-        warn(f"joint {v['joint']!r} exceeds its {v['kind']} limit{said}: worst {v['worst']:.4g}{where}")
-
-
-def json_ready(obj: Any) -> Any:
-    """``obj`` with every non-finite float (an absent limit is ±inf) as None, ready for strict JSON."""
-    if isinstance(obj, dict):
-        return {k: json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_ready(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    try:
-        import numpy as np
-    except ImportError:  # pragma: no cover
-        return obj
-    if isinstance(obj, np.ndarray):
-        return json_ready(obj.tolist())
-    if isinstance(obj, np.floating) and not np.isfinite(obj):
-        return None
-    return obj
-
-
-def validate_json(obj: Any) -> str:
-    """Strict JSON text of ``obj`` (raises before any output is written if it cannot be serialised)."""
-    return json.dumps(obj, indent=2, allow_nan=False, default=_jsonable)
-
-
-def print_json(obj: Any) -> None:
-    """One JSON object on standard output."""
-    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=_jsonable) + "\n")
-    sys.stdout.flush()
-
-
-def _jsonable(x: Any) -> Any:
-    import numpy as np
-
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return x.item()
-    if isinstance(x, Path):
-        return str(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 def refuse_irregular(inputs: list[tuple[Path | str | None, str | None, str]], *, missing_ok: bool = False) -> None:

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from hoc_cli.commands.common import EXIT_OK, atomic_output, refuse_inputs, stderr_console
-from hoc_cli.commands.files import OutputTarget
 from hoc_cli.errors import HocWarning, OutputError
+from hoc_cli.report.files import OutputTarget
 
 MARGIN = 0.1  # of each position range, kept free at either end for x0 and x1
 STEP_RAD, STEP_M = 0.3, 0.05  # largest move per joint from x0 to x1

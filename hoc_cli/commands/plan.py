@@ -1,23 +1,18 @@
 """``hoc plan``: load the task and robot, solve, sample, check limits, write outputs, summarise."""
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
 
 import numpy as np
-from rich.table import Table
-from rich.text import Text
 
-from hoc_cli import __version__
-from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START, ErrorEstimate
+from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START
 from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
     check_columns,
     check_sample_times,
-    json_ready,
     load_model,
     output_transaction,
     parse_outputs,
@@ -29,30 +24,28 @@ from hoc_cli.commands.common import (
     validate_json,
     warn_limit_violations,
 )
-from hoc_cli.commands.outputs import write_outputs
-from hoc_cli.commands.plan_collision import (
-    check_boundary_clearance,
-    collision_markers,
-    collision_summary,
-    enforced_problem,
-    task_collision,
-    warn_collisions,
-)
-from hoc_cli.commands.plan_goals import cold, goal_miss, goal_summary
-from hoc_cli.commands.plan_limits import check_boundary_states, limits_summary, locked_outside, refuse_infeasible
-from hoc_cli.commands.workload import WARN_SECONDS, Heartbeat, check_workload
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import Infeasible, InputFileError, OutputError, TaskError, naming_file
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
 from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
-from hoc_cli.limits import dense_times, limit_violations
 from hoc_cli.optimize import check_gradient
-from hoc_cli.planner import PlanResult
 from hoc_cli.problem import ControlProblem
+from hoc_cli.report.collision import (
+    check_boundary_clearance,
+    collision_markers,
+    enforced_problem,
+    task_collision,
+    warn_collisions,
+)
+from hoc_cli.report.jsonio import json_ready
+from hoc_cli.report.limits import check_boundary_states, locked_outside, refuse_infeasible
+from hoc_cli.report.outputs import sample_plan, write_outputs
+from hoc_cli.report.status import unmet_line
+from hoc_cli.report.summary import plan_report, reproducible_summary
+from hoc_cli.report.workload import WARN_SECONDS, Heartbeat, check_workload
 from hoc_cli.strategy import Plan, SolveOptions, WarmStart, node_fractions, solve
 from hoc_cli.system import RobotSystem
-from hoc_cli.trajectory import Trajectory, sample_times
 
 GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
 GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked (2 cost evaluations each)
@@ -61,14 +54,14 @@ GRADIENT_MAX_COORDINATES = 1000  # beyond this a fixed random subset is checked 
 def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = False, quiet: bool = False,
         progress: bool = False, overrides: dict | None = None, init: Path | None = None,
         gradient_check: bool = False, starts: int | None = None, seed: int | None = None) -> int:
-    from hoc_cli.commands.starts import check_starts, starts_pool, starts_summary
+    from hoc_cli.commands.starts import check_plan_starts, starts_pool
 
     refuse_urdf_task(task_path)
     task = apply_overrides(load_task(task_path, purpose="plan"), **(overrides or {}))
     starts_key = "--starts" if starts is not None else "solver.starts"  # the option wins over the task's key
     starts = task.solver.starts if starts is None else starts
     seed = task.solver.seed if seed is None else seed
-    check_starts(starts, seed, init, key=starts_key)
+    check_plan_starts(starts, seed, init, key=starts_key)
     if gradient_check and outputs:
         raise OutputError("--check-gradient only checks the gradient and writes no outputs", key="--output")
     targets = parse_outputs(outputs, task.stem)
@@ -125,7 +118,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             if as_json:
                 print_json(json_ready(exc.summary))
             raise
-    work = check_workload(task, model.n, targets, N=mesh.N, starts=starts)  # warns before a long run
+    cores = 1
+    if starts > 1:
+        from hoc_cli.batch.engine import available_cores
+
+        cores = available_cores()
+    work = check_workload(task, model.n, targets, N=mesh.N, starts=starts, cores=cores)  # warns before a long run
 
     start = time.perf_counter()
     # a progress line at least every 3 s with --progress; a warning at 10 s if the estimate promised less
@@ -150,49 +148,34 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
                            client=starts_pool if starts > 1 else None)
     with beat:
         planned: Plan = _with_file(task, lambda: solve(problem, options, warm))
-    # wall_time_s: the whole solve (every start, mesh and T tried; the error estimate apart)
-    result = dataclasses.replace(planned.result, wall_time_s=planned.wall_time_s)
-    if task.time.free is not None and warm is None:
-        result = cold(result)  # its last solve says "warm replan": there was no --init
-    extra, error, multi, found = dict(planned.details), planned.error, planned.multi, planned.auto
-    goals = planned.goals
+    found = planned.auto
     with beat.phase("sampling the plan and checking its limits"):
+        reported = plan_report(task, model, planned, states, limits=limits, collision=collision,
+                               collision_mode=collision_mode, seed=seed, warm=warm is not None)
+        result, summary = reported.result, reported.summary
         traj = sample_plan(system, result, model.joint_names, task.rate)
-        summary = summarise(task, model, result, states)
-        if error is not None:  # goals: no estimate yet (docs/goals.md)
-            summary.update(accuracy_summary(error, task.accuracy, found.steps if auto else None))
-        summary.update(limits_summary(mode, limits, RobotSystem(model), result, states))
-        summary.update(collision_summary(model, collision, collision_mode, result))
-        summary.update(starts_summary(multi, seed))
-        if auto or multi is not None:  # wall_time_s is the whole solve; the solve that gave the plan (the last
-            # mesh, the best start) is under its own key
-            summary.update(plan_solve_wall_time_s=planned.result.wall_time_s)
-        summary.update(extra | goal_summary(model, result, goals))
-        summary.update(goal_miss(result, summary))  # "goal missed by X (key)", not "the stopping test held"
-        summary = json_ready(summary)  # an absent limit (inf) is null
         validate_json(summary)  # before any output is written
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=reproducible_summary(summary), goals=goals,
+                                           summary=reproducible_summary(summary), goals=planned.goals,
                                            scene=collision_markers(collision, model, targets))
     warn_limit_violations(summary["limit_violations"])
     warn_collisions(summary.get("collisions") or [])
     if as_json:
         print_json(summary)
     if show:
+        from hoc_cli.report.table import summary_table
+
         console.print(summary_table(summary))
     written = "was written" if targets else "was not written (-o none)"
     if auto and result.converged and not found.reached:
-        console.print(f"hoc: accuracy not reached: estimated relative error of J {error.relative:.2g} > "
+        console.print(f"hoc: accuracy not reached: estimated relative error of J {planned.error.relative:.2g} > "
                       f"{task.accuracy:g} at N = {result.mesh.N} (N: auto stops at {AUTO_MAX_ELEMENTS} elements); "
                       f"the plan {written}", highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
-    if not summary["converged"]:  # a missed goal too (goal_miss)
-        why = summary["message"]
-        head = "infeasible" if summary["status"] == "infeasible" else "not converged"
-        tail = f"; the {'least-violating plan' if head == 'infeasible' else 'best iterate'} {written}"
-        console.print(f"hoc: {head}: {why}{tail}",
+    if not reported.converged:  # a missed goal too (goal_miss)
+        console.print(unmet_line(reported.status, summary["message"], written),
                       highlight=False, markup=False, soft_wrap=True)
         return EXIT_UNMET
     return EXIT_OK
@@ -243,118 +226,6 @@ def _check_goal_gradient(task: Task, model, states, problem, console, as_json: b
                                   states.dq0, goals, cost=task.cost, free_time=task.time.free is not None,
                                   max_coordinates=GRADIENT_MAX_COORDINATES)
     return report(checks, GRADIENT_RTOL, console, as_json, cost=task.cost, order=task.order, N=task.N)
-
-
-def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
-    """The plan at the output rate: q, q̇, q̈ from the Hermite coefficients, u by inverse dynamics."""
-    t = sample_times(result.mesh.T, rate)
-    q, dq, ddq = result.mesh.evaluate_all(result.coeffs, t)
-    u = system.inverse_dynamics(q, dq, ddq)
-    return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u, mesh=result.mesh, coeffs=result.coeffs)
-
-
-def summarise(task: Task, model, result: PlanResult, states) -> dict:
-    """The JSON summary (README, Outputs), plus solver details."""
-    mesh, C = result.mesh, result.coeffs
-    td = dense_times(mesh.T, mesh.N)
-    q, dq, ddq = mesh.evaluate_all(C, td)
-    u = RobotSystem(model).inverse_dynamics(q, dq, ddq)
-    end = [np.abs(q[0] - states.q0), np.abs(dq[0] - states.dq0)]
-    if states.q1 is not None:  # a link goal is reported by goal_summary
-        end += [np.abs(q[-1] - states.q1), np.abs(dq[-1] - states.dq1)]
-    end = np.concatenate(end)
-    o = result.optimizer
-    return {
-        "cost": result.J,
-        "cost_type": task.cost,
-        "converged": result.converged,
-        "status": o.status.value,
-        "message": o.message,
-        "iterations": o.iterations,
-        "evaluations": o.n_evals,
-        "hessians": o.n_precond,
-        "grad_norm": o.grad_norm,
-        "decrement": o.decrement,
-        "wall_time_s": result.wall_time_s,
-        "method": task.method,
-        "tol": task.tol,
-        "joints": list(model.joint_names),
-        "N": mesh.N,
-        **mesh_summary(mesh),
-        "order": mesh.order,
-        "T": mesh.T,
-        "gauss_points": result.G,
-        "quadrature_change": result.quadrature_change,
-        "boundary_error": float(end.max()),
-        "max_abs_u": [float(v) for v in np.abs(u).max(axis=0)],
-        "limit_violations": limit_violations(model.joint_names, model.lower, model.upper, model.velocity_limit,
-                                             model.effort_limit, td, q, dq, u),
-    }
-
-
-def mesh_summary(mesh: HermiteMesh) -> dict:
-    """``mesh``: "uniform" (N equal elements) or "nonuniform" (``N: auto`` split some), with ``nodes`` [s] then."""
-    if mesh.uniform:
-        return {"mesh": "uniform"}
-    return {"mesh": "nonuniform", "nodes": [float(v) for v in mesh.nodes]}
-
-
-def accuracy_summary(error: ErrorEstimate, accuracy: float | None, steps) -> dict:
-    """``J_error_estimate`` (relative), ``J_error_basis`` (what it rests on), ``J_error_elements`` (per element)
-    and the estimate's own cost; for N: auto also ``accuracy`` and ``N_auto`` (each mesh tried).
-    """
-    out = {"J_error_estimate": error.relative,
-           "J_error_basis": error.basis,
-           "J_error_elements": None if error.indicators is None else [float(v) for v in error.indicators],
-           "J_error_wall_time_s": error.wall_time_s}
-    if steps is not None:
-        out |= {"accuracy": accuracy, "N_auto": list(steps)}
-    return out
-
-
-def reproducible_summary(summary: dict) -> dict:
-    """The summary as stored in the MCAP: without wall-clock timings, so that equal inputs give equal bytes."""
-    timings = ("wall_time_s", "plan_solve_wall_time_s", "J_error_wall_time_s", "outputs")
-    return {k: v for k, v in summary.items() if k not in timings} | {"hoc_version": __version__}
-
-
-def summary_table(summary: dict) -> Table:
-    table = Table(title="hoc plan", show_header=False)
-    table.add_column("key")
-    table.add_column("value")
-    for key in ("cost", "cost_type", "converged", "iterations", "evaluations", "grad_norm", "wall_time_s",
-                "N", "mesh", "order", "T", "dJ_dT", "T_bound", "boundary_error", "J_error_estimate"):
-        if key not in summary or (key == "mesh" and summary[key] == "uniform"):
-            continue  # goals have no error estimate, joint goals no dJ_dT; the mesh shown when non-uniform only
-        v = summary[key]
-        table.add_row(key, f"{v:.12g}" if isinstance(v, float) else str(v))
-    # user text (joint names, paths) is shown literally: Text is never parsed as rich markup
-    table.add_row("max |u|", Text(", ".join(f"{j} {v:.4g}" for j, v in zip(summary["joints"], summary["max_abs_u"]))))
-    table.add_row("status", Text(str(summary["status"])))
-    reached = summary.get("reached")
-    if reached:
-        errors = ", ".join(f"{k.removesuffix('_error')} to {reached[k]:.2g}" for k in
-                           ("position_error", "orientation_error", "velocity_error") if reached.get(k) is not None)
-        table.add_row("reached", Text(f"{reached['link']}: {errors}"))
-    table.add_row("limits", Text(str(summary.get("limits_mode", "report"))))
-    active = summary.get("active_limits") or []
-    table.add_row("active limits", Text("none" if not active else "; ".join(
-        f"{a['joint']} {a['kind']} " + ", ".join(f"[{t0:.3g}, {t1:.3g}] s" for t0, t1 in a["intervals"]) for a in active)))
-    viol = summary["limit_violations"]
-    table.add_row("limit violations", Text("none" if not viol else "; ".join(
-        f"{v['joint']} {v['kind']} {v['worst']:.4g}" for v in viol)))
-    clearance = summary.get("min_clearance")
-    if clearance:
-        table.add_row("min clearance", Text(f"{clearance['distance']:.4g} m ({' – '.join(clearance['pair'])} at t = "
-                                            f"{clearance['t']:.4g} s; proven >= {clearance['lower_bound']:.4g} m)"))
-        table.add_row("collisions", Text("none" if not summary["collisions"] else "; ".join(
-            f"{' – '.join(c['pair'])} [{c['interval'][0]:.3g}, {c['interval'][1]:.3g}] s" for c in summary["collisions"])))
-    if "starts" in summary:
-        table.add_row("starts", "; ".join(
-            f"{o['start']}{'*' if o['start'] == summary['best_start'] else ''} "
-            f"{'-' if o['cost'] is None else format(o['cost'], '.6g')} {o['status']}" for o in summary["starts"]))
-    table.add_row("outputs", Text(", ".join(summary["outputs"])))
-    return table
 
 
 def _refuse_nonfinite_cost(task: Task, model, states, mesh: HermiteMesh, C_init) -> None:

@@ -20,7 +20,7 @@ lengths), ``cylinder: {radius, length}`` (axis z) and, for obstacles, ``half_spa
 (the solid is the side of the plane through ``position`` opposite the normal), placed by
 ``position`` (m) and ``orientation`` (a unit quaternion w, x, y, z). Paths are relative to the task
 file. The SRDF and the scene file are read here; link names are checked against the robot when the
-task is resolved (``hoc_cli.commands.plan_collision``). Every error names the file and the key.
+task is resolved (``hoc_cli.report.collision``). Every error names the file and the key.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The goal keys beyond a joint state: ``x1: {link: ...}``, ``via:`` and ``T: {free: true, ...}``.
 
-Link names are checked against the robot when the task is resolved (``hoc_cli.commands.plan_goals``);
+Link names are checked against the robot when the task is resolved (``hoc_cli.report.goals``);
 everything else is checked here, like every other key (README, Goals; docs/goals.md).
 """
 from __future__ import annotations

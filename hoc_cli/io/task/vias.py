@@ -9,7 +9,7 @@ The plan's mesh has a node at each via time and merges times closer than ``NODE_
   instant; a joint via there that differs from x0 (or from a joint goal x1) is named as the contradiction.
 
 What needs the robot's kinematics (a joint via and a link via at the same instant) is checked where
-the model is known (``hoc_cli.commands.plan_goals``).
+the model is known (``hoc_cli.report.goals``).
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ Every output is written to a temporary file beside its target (``.<name>.<random
 renamed into place only when complete; inside ``output_transaction`` the renames wait until every
 output is complete and run with SIGINT, SIGTERM and SIGHUP blocked. On any failure every temporary
 file is removed and every existing target is left as it was. The renames of one transaction hold a
-lock on the folders they go to (``hoc_cli.commands.locks``), so two runs writing the same files
+lock on the folders they go to (``hoc_cli.report.locks``), so two runs writing the same files
 leave one run's whole set, never a mix of both.
 """
 from __future__ import annotations
@@ -25,6 +25,14 @@ OUTPUT_KINDS = {".csv": "csv", ".mcap": "mcap"}
 NO_OUTPUT = "none"
 #: signals that end a run like SIGTERM: the exception unwinds, temporary files are removed
 TERMINATING = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class Terminated(BaseException):
+    """Raised from the SIGTERM/SIGHUP handler so that ``finally`` blocks clean up temporary files."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
 @dataclass(frozen=True)
@@ -178,7 +186,7 @@ def output_transaction() -> Iterator[None]:
         raise
     finally:
         _pending = outer
-    from hoc_cli.commands.locks import directories_locked
+    from hoc_cli.report.locks import directories_locked
 
     lock = directories_locked(path for _, path in mine)  # another run's renames into these folders: before or after
     try:
@@ -283,6 +291,11 @@ def atomic_output(path: Path) -> Iterator[Any]:
     except BaseException:
         _unlink(tmp)
         raise
+
+
+def start_run() -> None:
+    """A run begins: no output replaced yet (for ``what_changed``)."""
+    _committed.clear()
 
 
 def what_changed() -> str:

@@ -1,12 +1,12 @@
-"""Writing a trajectory to the requested outputs (CSV, MCAP, CSV on stdout), each atomically."""
+"""A plan at the output rate, written to the requested outputs (CSV, MCAP, CSV on stdout), each atomically."""
 from __future__ import annotations
 
 import io
 import json
 import sys
 
-from hoc_cli.commands.common import OutputTarget, atomic_output
-from hoc_cli.trajectory import Trajectory
+from hoc_cli.report.files import OutputTarget, atomic_output
+from hoc_cli.trajectory import Trajectory, sample_times
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
@@ -52,3 +52,11 @@ def _markers(goals, urdf_text: str, traj: Trajectory) -> list:
     parents = urdf_tf_parents(urdf_text)
     roots = sorted(set(parents.values()) - set(parents))
     return goal_tracks(goals, roots[0] if roots else "", traj.t)
+
+
+def sample_plan(system, result, joints, rate: float) -> Trajectory:
+    """The plan at the output rate: q, q̇, q̈ from the Hermite coefficients, u by inverse dynamics."""
+    t = sample_times(result.mesh.T, rate)
+    q, dq, ddq = result.mesh.evaluate_all(result.coeffs, t)
+    u = system.inverse_dynamics(q, dq, ddq)
+    return Trajectory(joints=tuple(joints), t=t, q=q, dq=dq, ddq=ddq, u=u, mesh=result.mesh, coeffs=result.coeffs)

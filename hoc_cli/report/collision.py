@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hoc_cli.commands.common import warn
 from hoc_cli.errors import TaskError
 from hoc_cli.io.task.checks import join
+from hoc_cli.report.console import warn
 
 if TYPE_CHECKING:
     from hoc_cli.collision.scene import CollisionScene

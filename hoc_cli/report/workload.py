@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from hoc_cli.commands.common import warn
+from hoc_cli.report.console import warn
 
 WARN_SECONDS = 10.0  # warn when a run is expected to take longer [s]
 WARN_BYTES = 2 * 2**30  # or to need more memory [B]
@@ -36,6 +36,9 @@ BASE_BYTES = 100e6  # resident memory of a small run [B]
 ELEMENT_BYTES = (18e3, 5.6e3)  # peak per element of the error estimate's 2N-element solve: a·n + b·n² [B]
 SAMPLE_S = {"csv": (6e-6, 6e-6), "mcap": (140e-6, 10e-6)}  # per output sample: a + b·n [s]
 SAMPLE_BYTES = {"csv": 120.0, "mcap": 370.0}  # per output sample and value (1 + 4n values) [B]
+#: multi-start in ``hoc plan``: the remaining starts go to a local Dask cluster only when they would
+#: take longer than this serially (the cluster costs about 2-3 s to start) and there is more than one core
+PARALLEL_STARTS_MIN_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -116,8 +119,6 @@ def starts_seconds(one: float, starts: int, cores: int) -> float:
     cluster of min(cores, starts − 1) workers (plus its start-up) when they would take longer than
     ``PARALLEL_STARTS_MIN_S`` serially, as ``hoc plan`` decides.
     """
-    from hoc_cli.commands.starts import PARALLEL_STARTS_MIN_S
-
     rest = max(starts, 1) - 1
     serial = rest * one
     if cores < 2 or rest < 2 or serial < PARALLEL_STARTS_MIN_S:
@@ -126,18 +127,14 @@ def starts_seconds(one: float, starts: int, cores: int) -> float:
     return CLUSTER_START_S[0] + CLUSTER_START_S[1] * workers + serial / workers
 
 
-def check_workload(task, n: int, targets, *, N: int, starts: int = 1) -> Workload:
+def check_workload(task, n: int, targets, *, N: int, starts: int = 1, cores: int = 1) -> Workload:
     """Estimate a task's run before the solve; warn (``hoc: warning:``, silenced by ``-q``) when it is heavy.
 
     ``task`` a loaded Task, ``n`` its joints, ``targets`` the OutputTargets, ``N`` the elements (for
-    ``N: auto`` the first mesh, so the estimate is a lower bound).
+    ``N: auto`` the first mesh, so the estimate is a lower bound), ``cores`` those available to the
+    starts after the first.
     """
     kinds = [t.kind for t in targets]
-    cores = 1
-    if starts > 1:
-        from hoc_cli.batch.engine import available_cores
-
-        cores = available_cores()
     work = estimate_workload(n=n, N=N, order=task.order, T=task.T, rate=task.rate, csv=kinds.count("csv"),
                              mcap=kinds.count("mcap"), max_iter=task.max_iter, starts=starts, cores=cores)
     if work.heavy:
@@ -289,7 +286,7 @@ def plan_workloads(jobs, sample: int = 2000) -> BatchWorkload:
             task = parse_task(job.doc, path=Path(job.source), text="", purpose="plan")
             key = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
             if key not in joints:
-                from hoc_cli.commands.common import load_model
+                from hoc_cli.report.inputs import load_model
 
                 joints[key] = load_model(task).n
         except (HocError, TypeError, ValueError, AttributeError):

@@ -7,7 +7,7 @@ killed run leaves no stale lock behind):
   ``DIR/.hoc-batch.lock`` (which records the holder's process id); a second run into the same
   folder is refused at once (exit 2) instead of overwriting the first one's rows.
 - ``directories_locked``: the moment a run renames its finished outputs into place (all of them,
-  or none: ``hoc_cli.commands.files.output_transaction``) it holds a lock on each folder they go
+  or none: ``hoc_cli.report.files.output_transaction``) it holds a lock on each folder they go
   to, so that two runs writing the same files (``hoc plan`` twice with the same ``-o``) replace
   them one whole set after the other: the MCAP and the CSV always come from the same run.
 """
