@@ -52,7 +52,6 @@ from hoc_cli.errors import (  # noqa: E402
 )
 from hoc_cli.planner import PlanResult, plan  # noqa: E402
 from hoc_cli.problem import ControlProblem  # noqa: E402
-from hoc_cli.simulate import simulate_hermite, simulate_reference  # noqa: E402
 from hoc_cli.system import LinearOscillator, RobotSystem, System  # noqa: E402
 
 __version__ = "0.1.0"
@@ -71,6 +70,8 @@ _LAZY = {  # imported on first use: ``import hoc_cli`` stays light
     "joint_via": "hoc_cli.ocp",
     "link_via": "hoc_cli.ocp",
     "JointLimits": "hoc_cli.constraints",
+    "simulate_hermite": "hoc_cli.simulate",
+    "simulate_reference": "hoc_cli.simulate",
 }
 
 

@@ -2,9 +2,10 @@
 
 Standard output carries only CSV (``-o -``) or JSON (``--json``); progress, tables and
 errors go to standard error. Exit codes: see ``hoc_cli.commands.common``.
-"""
-from __future__ import annotations
 
+The annotations here are evaluated when the module loads (no ``from __future__ import annotations``):
+typer reads them at every run, and strings would be evaluated one by one (start-up time).
+"""
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -12,7 +13,10 @@ import typer
 
 from hoc_cli import __version__
 from hoc_cli.commands.common import refuse_irregular, run_guarded
+from hoc_cli.commands.option_values import install as install_option_values
 from hoc_cli.commands.usage import OneLineGroup
+
+install_option_values()  # plain option values converted without pydantic (start-up time)
 
 app = typer.Typer(
     name="hoc",

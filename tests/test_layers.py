@@ -6,8 +6,9 @@ import the CLI, the terminal or file formats (``commands/``, ``io/``, ``batch/``
 report and write) imports neither front end (``commands/``, ``batch/``, ``cli``), and ``batch/``
 imports nothing from ``commands/``; no module imports another module's private name (the
 private modules of a package, such as ``dynamics/_passes``, share theirs within it); maths
-modules do not print and build no ``SimpleNamespace`` stand-ins; and a plain ``hoc plan`` loads
-nothing it does not use (scipy.optimize, Dask, pyarrow, matplotlib).
+modules do not print and build no ``SimpleNamespace`` stand-ins; and a plain ``hoc plan -o none -q`` loads
+nothing it does not use (scipy.optimize, Dask, pyarrow, matplotlib, pydantic through typer, rich, the
+file writers, the simulator).
 """
 from __future__ import annotations
 
@@ -139,7 +140,8 @@ def test_a_fixed_time_plan_loads_no_module_it_does_not_use(tmp_path):
         f"    app(['plan', {str(root / 'configs' / 'lbr7_reach.yaml')!r}, '-o', 'none', '-q'])\n"
         "except SystemExit as e:\n"
         "    assert e.code == 0, e.code\n"
-        "heavy = ('scipy.optimize', 'dask', 'distributed', 'pyarrow', 'matplotlib', 'yourdfpy', 'pinocchio')\n"
+        "heavy = ('scipy.optimize', 'dask', 'distributed', 'pyarrow', 'matplotlib', 'yourdfpy', 'pinocchio',\n"
+        "         'pydantic', 'rich', 'hoc_cli.io.mcap', 'hoc_cli.io.csv', 'hoc_cli.simulate')\n"
         "print(sorted(m for m in heavy if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)

@@ -30,14 +30,14 @@ def task_collision(task, model) -> CollisionScene | None:
     another frame than the URDF root, or an ``ignore`` name that is neither a link nor an obstacle;
     ModelError (naming the URDF and link) for URDF collision geometry that cannot be read.
     """
+    spec = task.collision
+    if spec.mode == "off":
+        return None
     from hoc_cli.collision.geometry import obstacle_primitive
     from hoc_cli.collision.robot import robot_geometry
     from hoc_cli.collision.scene import Obstacle, collision_scene
     from hoc_cli.io.collision_geometry import read_collision_shapes
 
-    spec = task.collision
-    if spec.mode == "off":
-        return None
     for link in spec.robot:
         if link not in model.link_names:
             raise TaskError(f"no link {link!r} in the URDF (links: {', '.join(model.link_names)})", file=task.path,

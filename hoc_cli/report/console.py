@@ -37,8 +37,24 @@ def show_warning(message, category, filename, lineno, file=None, line=None) -> N
     say(f"hoc: warning: {message}")
 
 
+class SilentConsole:
+    """The console of a ``-q`` run: prints nothing, is no terminal (what a quiet rich ``Console`` does, without
+    importing rich).
+    """
+
+    quiet = True
+    is_terminal = False
+
+    def print(self, *objects, **kwargs) -> None:
+        return None
+
+
 def stderr_console(quiet: bool = False, progress: bool = False):
-    """Rich console on standard error; silent with ``quiet``; decorated only on a terminal unless ``progress``."""
+    """Rich console on standard error; decorated only on a terminal unless ``progress``. With ``quiet`` and
+    without ``progress``, a ``SilentConsole`` (nothing would be shown).
+    """
+    if quiet and not progress:
+        return SilentConsole()
     from rich.console import Console
 
     return Console(stderr=True, quiet=quiet, force_terminal=True if progress else None, highlight=False)

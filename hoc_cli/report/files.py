@@ -186,6 +186,8 @@ def output_transaction() -> Iterator[None]:
         raise
     finally:
         _pending = outer
+    if not mine:  # nothing to rename (e.g. -o none)
+        return
     from hoc_cli.report.locks import directories_locked
 
     lock = directories_locked(path for _, path in mine)  # another run's renames into these folders: before or after

@@ -18,12 +18,10 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
     Each file goes to a temporary file beside its target and is renamed into place only when
     complete, so an interrupted or failed run leaves existing files as they were.
     """
-    from hoc_cli import dynamics
-    from hoc_cli.io.csv import write_csv
-    from hoc_cli.io.mcap import write_mcap
-
     written = []
-    for target in targets:
+    for target in targets:  # each format's writer imported when a file of it is written
+        from hoc_cli.io.csv import write_csv
+
         if target.path is None:
             buf = io.StringIO()
             write_csv(buf, traj)
@@ -33,6 +31,9 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
             with atomic_output(target.path) as fh:
                 write_csv(fh, traj)
         else:
+            from hoc_cli import dynamics
+            from hoc_cli.io.mcap import write_mcap
+
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
                            metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
