@@ -4,9 +4,14 @@ from __future__ import annotations
 import io
 import json
 import sys
+from typing import TYPE_CHECKING
 
 from hoc_cli.report.files import OutputTarget, atomic_output
 from hoc_cli.trajectory import Trajectory, sample_times
+
+if TYPE_CHECKING:
+    from hoc_cli.planner import PlanResult
+    from hoc_cli.system import RobotSystem
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
@@ -55,8 +60,8 @@ def _markers(goals, urdf_text: str, traj: Trajectory) -> list:
     return goal_tracks(goals, roots[0] if roots else "", traj.t)
 
 
-def sample_plan(system, result, joints, rate: float) -> Trajectory:
-    """The plan at the output rate: q, q̇, q̈ from the Hermite coefficients, u by inverse dynamics."""
+def sample_plan(system: RobotSystem, result: PlanResult, joints, rate: float) -> Trajectory:
+    """The plan at the output rate [Hz]: q, q̇, q̈ (K, n) from the Hermite coefficients, u (K, n) by inverse dynamics."""
     t = sample_times(result.mesh.T, rate)
     q, dq, ddq = result.mesh.evaluate_all(result.coeffs, t)
     u = system.inverse_dynamics(q, dq, ddq)
