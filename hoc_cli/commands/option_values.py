@@ -11,6 +11,7 @@ either way: ``tests/test_option_values.py`` checks each plain spelling against t
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -66,6 +67,9 @@ def install() -> None:
     full_build = getattr(core, "build_runtime_param", None)
     if full_build is None or getattr(full_build, "hoc_plain", False):
         return
+    fields = tuple(f.name for f in dataclasses.fields(RuntimeParam)) if dataclasses.is_dataclass(RuntimeParam) else ()
+    if fields != ("parameter_info", "annotation") or not hasattr(RuntimeParam, "_coerce_value"):
+        return  # another typer than the one this was written against: its own conversion throughout
 
     class PlainRuntimeParam(RuntimeParam):
         """typer's ``RuntimeParam`` (its handling of missing values kept) converting plain values itself."""
