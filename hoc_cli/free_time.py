@@ -143,6 +143,26 @@ class _Done(Exception):
         self.point = point
 
 
+class _Exhausted(Exception):
+    """Raised by the search's solve when it has made ``max_solves`` solves."""
+
+
+def exhausted(result, message: str):
+    """The plan ``result`` (``PlanResult`` or ``GoalResult``) marked as not converged with ``message``: its optimizer's
+    status ``max_iter`` and its limits' outcome (when enforced) ``not_converged``, so that the summary says so.
+    """
+    import dataclasses
+
+    from hoc_cli.optimize import Status
+
+    changes = {}
+    if getattr(result, "optimizer", None) is not None:
+        changes["optimizer"] = dataclasses.replace(result.optimizer, status=Status.MAX_ITER, message=message)
+    if getattr(result, "limits", None) is not None:
+        changes["limits"] = dataclasses.replace(result.limits, status="not_converged", message=message)
+    return dataclasses.replace(result, **changes)
+
+
 def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min: float, T_max: float,
                   guess: float | None = None, weight: float = 0.0, rtol: float = 1e-7,
                   max_solves: int = 40) -> FreeTimeResult:
@@ -153,7 +173,9 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
     T grows or shrinks (by 1.25, then 1.56, … up to 2 a step; halfway back after a failed solve)
     until F' changes sign or a bound is reached (an active bound: F' < 0 at
     T_max or F' > 0 at T_min); Brent's method then finds the zero of F' in the bracket, stopping
-    when |F'| <= rtol·(|J*|/T + |weight|) or the bracket is narrower than rtol·T.
+    when |F'| <= rtol·(|J*|/T + |weight|) or the bracket is narrower than rtol·T. After ``max_solves`` solves
+    without that, the search ends at the converged solve with the smallest |F'|, not converged, its plan's status
+    ``max_iter`` (``exhausted``).
     """
     if not (0 < T_min <= T_max):
         raise ValueError(f"need 0 < T_min <= T_max, got {T_min}, {T_max}")
@@ -165,7 +187,7 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
             if p.T == T:
                 return p
         if len(history) >= max_solves:
-            raise RuntimeError(f"free final time: no optimum within {max_solves} solves")
+            raise _Exhausted()
         nearest = min(history, key=lambda p: abs(math.log(p.T / T)), default=None)
         p = solve(T, nearest)
         history.append(p)
@@ -186,6 +208,19 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
                               bound=bound, point=p, history=history, converged=ok)
 
     T0 = math.sqrt(T_min * T_max) if guess is None else min(max(guess, T_min), T_max)
+    try:
+        return _search(at, T0, T_min, T_max, rtol, max_solves, slope, small, converged, finish)
+    except _Exhausted:
+        best = min((q for q in history if converged(q)), key=lambda q: abs(slope(q)), default=history[-1])
+        message = f"free final time: no optimum within {max_solves} solves"
+        point = TimePoint(T=best.T, J=best.J, dJ_dT=best.dJ_dT, result=exhausted(best.result, message))
+        return FreeTimeResult(T=best.T, J=best.J, dJ_dT=best.dJ_dT, objective=best.J + weight * best.T, weight=weight,
+                              bound=None, point=point, history=history, converged=False)
+
+
+def _search(at, T0: float, T_min: float, T_max: float, rtol: float, max_solves: int, slope, small, converged,
+            finish) -> FreeTimeResult:
+    """``minimize_time``'s bracket and Brent's method on F' (its docstring), with its closures."""
     p = at(T0)
     if small(p):
         return finish(p, None)
@@ -217,7 +252,7 @@ def minimize_time(solve: Callable[[float, "TimePoint | None"], TimePoint], T_min
     try:
         from scipy.optimize import brentq  # scipy.optimize costs 0.25 s to import: only when Brent runs
 
-        root = brentq(f, lo.T, hi.T, xtol=rtol * lo.T, rtol=4 * np.finfo(float).eps, maxiter=max_solves)
+        root = brentq(f, lo.T, hi.T, xtol=rtol * lo.T, rtol=4 * np.finfo(float).eps, maxiter=max_solves, disp=False)
         best = at(root)
     except _Done as done:
         best = done.point

@@ -412,15 +412,11 @@ class ControlProblem:
         try:
             return self.banded(H, shift)
         except NumericalError:
+            from hoc_cli.optimize.modify import gauss_newton_shift
+
             GN = psd()
-            tr_gn = np.trace(GN.sum(axis=0))
-            mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr_gn) / tr_gn
-            for _ in range(12):
-                try:
-                    return self.banded(H + abs(mu) * GN, shift)
-                except NumericalError:
-                    mu *= 10
-            return self.banded(GN, shift)
+            _, factored = gauss_newton_shift(H, GN, lambda M: self.banded(M, shift))
+            return factored if factored is not None else self.banded(GN, shift)
 
     def banded(self, blocks: np.ndarray, shift: float = BANDED_SHIFT) -> BandedSPD:
         """Element blocks (N, 2mn, 2mn) summed, restricted to the free coefficients and factored

@@ -138,3 +138,20 @@ def test_rescale_keeps_the_s_domain_trajectory():
         assert np.allclose(HermiteMesh("quintic", 2.5, 3).evaluate(C2, 2.5 * t, r) * 2.5**r, mesh.evaluate(C, t, r))
     with pytest.raises(ValueError):
         minimize_time(lambda T, p: None, 2.0, 1.0)
+
+
+def test_a_search_out_of_solves_ends_not_converged_with_its_best_plan():
+    """The rest-to-rest move of the closed-form test above with the search allowed 3 solves (it needs about 8):
+    it ends at the solve with the smallest |F'|, not converged, its plan's status max_iter and its limits'
+    outcome not converged; it raised RuntimeError (an internal error of ``hoc plan``) before."""
+    D, weight = 1.0, 2.0
+    limits = JointLimits.from_arrays(["x"], velocity=[10.0])  # far from binding: an outcome to mark
+    solve = joint_goal_solver(LinearOscillator(1, omega=0.0), "quintic", 4, [0.0], [0.0], [D], [0.0], limits=limits)
+    full = minimize_time(solve, 0.3, 5.0, guess=0.5, weight=weight, rtol=1e-10)
+    assert full.converged and len(full.history) > 3
+    r = minimize_time(solve, 0.3, 5.0, guess=0.5, weight=weight, rtol=1e-10, max_solves=3)
+    assert not r.converged and len(r.history) == 3
+    assert abs(r.dJ_dT + weight) == min(abs(p.dJ_dT + weight) for p in r.history)
+    assert not r.result.converged and r.result.optimizer.status.value == "max_iter"
+    assert r.result.limits.status == "not_converged" and "3 solves" in r.result.optimizer.message
+    assert all(p.result.converged for p in r.history)  # the search's own solves are left as they were

@@ -233,7 +233,7 @@ def test_steps_from_the_initial_trajectory_need_the_merit_test(tmp_path):
     """The plan at a free T's guess by Newton steps from the initial trajectory (``minimize_time_sqp``'s first
     phase): on a two-link link goal with gravity and URDF limits, the steps whose length is chosen by the ℓ1
     merit function converge in a few steps to ``plan_goals``' optimum (J to 1e-10); steps damped by the goal
-    rows' violation alone run J up to 10⁴ and back and take over 20."""
+    rows' violation alone run J up to 10⁴ and back and take over 20 (or do not converge within ``COLD_STEPS``)."""
     import shutil
 
     shutil.copy(ROBOTS / "two_link.urdf", tmp_path / "arm.urdf")
@@ -242,14 +242,13 @@ def test_steps_from_the_initial_trajectory_need_the_merit_test(tmp_path):
                                           "T: 1.0\nN: 8\norder: quintic\n")
     mesh = HermiteMesh("quintic", 1.0, 8)
     cold = plan_goals(system, mesh, states.q0, states.dq0, goals, limits=limits)
-    steps = {}
-    for merit in (True, False):
-        r = _from_initial(system, goals, limits, states, mesh, merit)
-        assert r.converged
-        assert r.plan.J == pytest.approx(cold.J, rel=1e-10)
-        assert check_limits(system, limits, r.plan.mesh, r.plan.coeffs).feasible
-        steps[merit] = r.steps
-    assert steps[True] <= 8 < 20 < steps[False]
+    r = _from_initial(system, goals, limits, states, mesh, True)
+    assert r.converged
+    assert r.plan.J == pytest.approx(cold.J, rel=1e-10)
+    assert check_limits(system, limits, r.plan.mesh, r.plan.coeffs).feasible
+    assert r.steps <= 8
+    r = _from_initial(system, goals, limits, states, mesh, False)
+    assert not r.converged or r.steps > 20
 
 
 def test_steps_from_the_initial_trajectory_on_the_lbr7_converge_with_the_levenberg_marquardt_shift(tmp_path):

@@ -35,6 +35,7 @@ from hoc_cli.banded import BandedSPD, element_blocks
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, PenaltyValue, effective_bounds
 from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve, residuals
 from hoc_cli.errors import NumericalError
+from hoc_cli.optimize.modify import gauss_newton_shift
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
@@ -169,21 +170,14 @@ class QPModel:
         self._last = None  # (active rows, penalties, factored Newton matrix) of the last ``newton``
 
     def modify(self) -> None:
-        """H + μ·GN with μ growing until H is positive definite (as ``ControlProblem.positive_definite``).
+        """H + μ·GN with μ growing until it is positive definite (``hoc_cli.optimize.modify``, as every Newton matrix).
 
         The exact H is kept while the QP's matrices H + Σ ρ a aᵀ are positive definite: at a limited
         optimum H itself may be indefinite in directions the active rows block (a position limit
         holds an arm back from folding further), and only the curvature on their null space matters.
         """
         H, GN = self.H, element_blocks(self.base.op_h, self._GNs)
-        tr = np.trace(GN.sum(axis=0))
-        mu = 1e-3 * max(abs(np.trace(H.sum(axis=0))), tr) / tr
-        for _ in range(12):
-            try:
-                self.base.banded(H + mu * GN)
-                break
-            except NumericalError:
-                mu *= 10
+        mu, _ = gauss_newton_shift(H, GN, self.base.banded)
         if _log.isEnabledFor(logging.DEBUG):
             _log.debug(f"    model: indefinite, mu {mu:.2e}")
         self.H, self.modified, self.mu, self._ab, self._last = H + mu * GN, True, mu, None, None

@@ -45,8 +45,10 @@ from hoc_cli.goals.restoration import restore
 from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL
 
-MAX_STEPS = 60  # Newton steps in x and T from the plan at the guess before the search takes over
-COLD_STEPS = 80  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over
+MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the search takes over (the lbr7 catch
+# under the torque cost takes 55, zigzagging in T; the search after them costs minutes there)
+COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
+# catch under the torque cost takes 183, 9 s, where ``plan_goals`` takes 50 s)
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 

@@ -24,6 +24,8 @@ from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
 
 from hoc_cli.errors import NumericalError
 
+NNLS_ITER = 50  # Lawson-Hanson iterations per row of the least-distance programme before it is given up
+
 
 @dataclass(frozen=True, eq=False)
 class QPStep:
@@ -72,7 +74,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     Raises
     ------
     NumericalError
-        The rows admit no step.
+        The rows admit no step, or the least-distance programme did not converge in ``NNLS_ITER`` iterations per
+        row (the callers end their steps there with a status, as after any failed step).
     """
     P = g.size
     y0 = -solve_triangular(U, g, trans="T", check_finite=False)
@@ -100,7 +103,11 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         f[-1] = 1.0
         from scipy.optimize import nnls  # imported on first use (0.25 s)
 
-        w, _ = nnls(M, f, maxiter=50 * M.shape[1])
+        cap = max(1, NNLS_ITER * M.shape[1])
+        try:
+            w, _ = nnls(M, f, maxiter=cap)
+        except RuntimeError:  # its iteration cap (scipy raises): the callers' failed step, not a crash
+            raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
         r = M @ w - f
         if abs(r[-1]) < 1e-12:
             raise NumericalError("the replan's limit rows admit no step")

@@ -53,7 +53,7 @@ LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit te
 LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal raised a thousandfold: steps far shorter than
 # Newton's, whose programme would otherwise be solved in units of 1e17 and more)
 MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this × the step's largest (not rounding)
-LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
+LAG_RTOL = 1e-10  # after a step whose model decrease was within ±this·|J|, the next QP keeps the step's Newton matrix
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
@@ -135,7 +135,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
         if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
             U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x
-        elif U_last is not None and decrement <= LAG_RTOL * max(abs(pt.J), 1.0):
+        elif U_last is not None and keeps_factor(decrement, pt.J):
             U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
         else:
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
@@ -281,6 +281,16 @@ class MeritTest:
             return phi <= phi0 + self.ARMIJO * alpha * slope
 
         return accept
+
+
+def keeps_factor(decrement: float, J: float) -> bool:
+    """Whether the next step may reuse the last step's Newton matrix: only when that step's programme predicted
+    a decrease within ±``LAG_RTOL``·|J| (the point barely moved). A negative decrease (the goal or limit rows forced
+    a step that raises the model, far from the optimum) is not a small step: the matrix of a point that far back,
+    with another working set, leaves the programme's T row inconsistent (‖U⁻ᵀb‖² ≫ h, T frozen) and its x step
+    too long.
+    """
+    return abs(decrement) <= LAG_RTOL * max(abs(J), 1.0)
 
 
 def _fits(U: np.ndarray | None, P: int) -> bool:
