@@ -110,6 +110,38 @@ def test_the_guard_projects_a_plan_beyond_its_velocity_limits_back_inside(catch)
     assert np.abs(E @ d).max() <= 1e-9 * np.abs(E).sum(axis=1).max() * np.abs(d).max()
 
 
+def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_check_is_the_exact_one(catch):
+    """``row_values`` gives ``all_rows``' kinematic numbers (uniform and shifted, non-uniform meshes); the update's
+    check (``within_limits``: Bernstein rows, torques) agrees with ``check_limits`` on a plan within its limits, one
+    beyond its velocity limits, one whose start velocity (rows fixed by the start, not rows of the guard) is beyond
+    them, and one beyond its torque limits.
+    """
+    import dataclasses
+
+    from hoc_cli.goals.active_limits import all_rows
+    from hoc_cli.goals.replan_point import row_values
+    from hoc_cli.realtime.limits_guard import effort_only, within_limits
+
+    problem, plan = catch
+    system, limits = problem.system, problem.limits
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    for mesh, C in ((plan.mesh, plan.coeffs), (s.mesh, s.coeffs)):
+        rows = LimitRows.build(mesh, Layout.build(mesh, 7, True, True).free, 7)
+        ref, got = all_rows(system, limits, rows, C), row_values(limits, rows, C)
+        for a, b in zip(ref.g_lo[:4] + ref.g_hi[:4], got.g_lo + got.g_hi):
+            np.testing.assert_array_equal(a, b)
+    mesh = plan.mesh
+    rows = LimitRows.build(mesh, Layout.build(mesh, 7, True, True).free, 7)
+    fast = np.array(plan.coeffs)
+    fast[1:, 1] *= 1.6
+    start = np.array(plan.coeffs)
+    start[0, 1] = 1.01 * limits.velocity  # the start state beyond the velocity limit: rows of data alone
+    weak = dataclasses.replace(limits, effort=0.2 * limits.effort)
+    for lim, C, ok in ((limits, plan.coeffs, True), (limits, fast, False), (limits, start, False), (weak, plan.coeffs, False)):
+        assert check_limits(system, lim, mesh, C).feasible is ok
+        assert within_limits(system, lim, rows, C, effort_only(lim)) is ok
+
+
 def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch):
     problem, plan = catch
     rp = Replanner(problem, plan, max_steps=1)

@@ -10,12 +10,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import cho_solve_banded
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
-from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.constraints.penalty import LimitRows, LimitTerms, effective_bounds
 from hoc_cli.constraints.prolong import Duals
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
@@ -63,7 +65,11 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         mesh = scaled_mesh(order, T, N, fractions)
         problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
         problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
-        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
+        rows = None
+        if limits is not None:
+            other = next(iter(cache.values()), None)
+            rows = rows_on(other[1], mesh) if other is not None else None
+            rows = LimitRows.build(mesh, problem.layout.free, limits.n) if rows is None else rows
         cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
     problem, rows, where = cache[T]
     mesh = problem.mesh
@@ -108,17 +114,72 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         A, A_full = active.jacobian(rows, limits, problem.layout.free)
         c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
         D = np.vstack([D, A])
-        if slope and active.size:
-            lo, hi = active.scatter(lam[npts], rows, limits.n)
-            dl, Gl = limits_time_derivative(Duals(rows, lo, hi),
-                                            system, limits, C)
-            dT, Gc = dT + dl, Gc + Gl
+        if slope and active.size:  # g = A_full·C + offsets; a row of d^k q/dt^k scales as T^-k at fixed s-domain C
+            mu = np.asarray(lam[npts], float)
+            values = A_full @ C.ravel()
+            dT = dT - float(np.dot(mu * active.kind, values)) / T
+            Gc = Gc + (mu @ A_full).reshape(C.shape)
     g = problem.layout.pack(G_all)
     if D.size:
         g = g + D.T @ np.concatenate(lam)
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
     return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where)
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicRows:
+    """Every kinematic row's g at some C, per kind k < ``KINEMATIC``: ``g_lo``, ``g_hi`` (N, R_k, n) each, −inf where
+    the bound is absent or the row is fixed by x0 alone (as ``active_limits.all_rows``' kinematic kinds).
+    """
+
+    g_lo: tuple[np.ndarray, ...]
+    g_hi: tuple[np.ndarray, ...]
+
+    def worst(self) -> float:
+        """The largest g (−inf when no row is imposed)."""
+        return max(float(np.max(g, initial=-np.inf)) for g in self.g_lo + self.g_hi)
+
+
+def row_values(limits, rows: LimitRows, C: np.ndarray) -> KinematicRows:
+    """The kinematic rows' values at coefficients C (N+1, m, n) on ``rows.mesh`` (``KinematicRows``): the numbers of
+    ``active_limits.all_rows`` without the effort rows and the penalty terms.
+    """
+    lo, hi, sig = _bounds(limits)
+    loc = rows.mesh.local_coefficients(np.asarray(C, float))
+    g_lo, g_hi = [], []
+    for k in range(KINEMATIC):
+        shape = rows.shape(k, limits.n)
+        if not (np.isfinite(lo[k]).any() or np.isfinite(hi[k]).any()):
+            g_lo.append(np.full(shape, -np.inf))
+            g_hi.append(g_lo[-1])
+            continue
+        V = rows.apply(k, loc)
+        off = rows.data[k][:, :, None] if k < 2 else np.zeros((1, 1, 1), bool)  # q, q̇ rows of x0 alone: data
+        g_hi.append(np.where(off | ~np.isfinite(hi[k]), -np.inf, (V - hi[k]) / sig[k]))
+        g_lo.append(np.where(off | ~np.isfinite(lo[k]), -np.inf, (lo[k] - V) / sig[k]))
+    return KinematicRows(tuple(g_lo), tuple(g_hi))
+
+
+@lru_cache(maxsize=16)
+def _bounds(limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``effective_bounds(limits, MARGIN)`` of a ``JointLimits`` (immutable), kept."""
+    return effective_bounds(limits, MARGIN)
+
+
+def rows_on(rows: LimitRows | None, mesh) -> LimitRows | None:
+    """The limit rows of ``mesh`` from those of another mesh with the same node fractions (another T), or None
+    when they cannot be reused: on a non-uniform mesh the rows are those of h = 1 with the elements' scales
+    h_e^(d − r) (``LimitRows.build``), and every h_e scales with T.
+    """
+    if rows is None or rows.scale is None or mesh.uniform or rows.mesh.N != mesh.N or rows.mesh.order != mesh.order:
+        return None
+    ratio = mesh.T / rows.mesh.T
+    if np.max(np.abs(rows.mesh.nodes * ratio - mesh.nodes)) > 1e-15 * mesh.T:
+        return None
+    d = np.tile(np.arange(mesh.m), 2)
+    scale = tuple(sc * ratio ** (d - r).astype(float) for r, sc in enumerate(rows.scale))
+    return LimitRows(mesh, rows.rows, rows.part, rows.data, rows.pieces, scale)
 
 
 def solve_many(W, B: np.ndarray) -> np.ndarray:
