@@ -142,6 +142,37 @@ def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_chec
         assert within_limits(system, lim, rows, C, effort_only(lim)) is ok
 
 
+def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch):
+    """A step evaluates its problem at T, T + δ and the trial T on the same node fractions: ``problem_on`` and
+    ``rows_on`` rescale the first one's quadrature and limit rows instead of building them, to rounding.
+    """
+    from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
+    from hoc_cli.goals.plan import GoalProblem
+    from hoc_cli.goals.replan_point import problem_on, rows_on
+
+    problem, plan = catch
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    q0, dq0 = s.coeffs[0, 0], s.coeffs[0, 1]
+    built = []
+    for T in (s.mesh.T, 1.07 * s.mesh.T):
+        mesh = scaled_mesh(s.mesh.order, T, s.mesh.N, mesh_fractions(s.mesh))
+        p = GoalProblem(problem.system, mesh, q0, dq0, problem.goals(), G=8)
+        p.op_h = p.op
+        built.append((mesh, p, LimitRows.build(mesh, p.layout.free, 7)))
+    (_, p1, r1), (mesh2, p2, r2) = built
+    p3, r3 = problem_on(p1, mesh2), rows_on(r1, mesh2)
+    assert p3.mesh is mesh2 and p3.op_h is p3.op and r3.mesh is mesh2
+    C = s.coeffs
+    for a, b in zip(p2.op.apply(C), p3.op.apply(C)):
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max()
+    x = p2.layout.pack(C)
+    assert abs(p3.value(x) - p2.value(x)) <= 1e-12 * abs(p2.value(x))
+    for k in range(4):
+        a, b = (r.apply(k, mesh2.local_coefficients(C)) for r in (r3, r2))
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    assert problem_on(p1, plan.mesh) is None and rows_on(r1, plan.mesh) is None  # other fractions: built afresh
+
+
 def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch):
     problem, plan = catch
     rp = Replanner(problem, plan, max_steps=1)

@@ -7,6 +7,7 @@ s = t/T domain. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.bounds import KINEMATIC
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms, effective_bounds
 from hoc_cli.constraints.prolong import Duals
+from hoc_cli.elements import QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
@@ -63,11 +65,13 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     """
     if T not in cache:
         mesh = scaled_mesh(order, T, N, fractions)
-        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
-        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
+        other = next(iter(cache.values()), None)  # the same problem at another T: its parts rescaled
+        problem = problem_on(other[0], mesh) if other is not None else None
+        if problem is None:
+            problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+            problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
         rows = None
         if limits is not None:
-            other = next(iter(cache.values()), None)
             rows = rows_on(other[1], mesh) if other is not None else None
             rows = LimitRows.build(mesh, problem.layout.free, limits.n) if rows is None else rows
         cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
@@ -167,16 +171,42 @@ def _bounds(limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return effective_bounds(limits, MARGIN)
 
 
+def _same_fractions(a, b) -> bool:
+    """Whether non-uniform meshes a and b have N elements of the same order at the same node fractions (b.T / a.T
+    times a's nodes, to rounding).
+    """
+    if a.uniform or b.uniform or a.N != b.N or a.order != b.order:
+        return False
+    return bool(np.max(np.abs(a.nodes * (b.T / a.T) - b.nodes)) <= 1e-15 * b.T)
+
+
+def problem_on(problem: GoalProblem, mesh) -> GoalProblem | None:
+    """``problem`` (an ``evaluate_point`` problem: ``op_h`` is ``op``) on ``mesh``, a non-uniform mesh with the same
+    node fractions at another T, or None when the meshes are not so related. A shallow copy whose quadrature is
+    rescaled instead of rebuilt: the operator holds the h = 1 basis with the element scales h_e^(d_a) and h_e^(−r)
+    (``elements.element_scales``), and every h_e, sample time and weight scales with T; the layout and the fixed
+    coefficients (t-domain values) do not depend on T.
+    """
+    op = problem.op
+    if problem.op_h is not op or op.col_scale is None or not _same_fractions(problem.mesh, mesh):
+        return None
+    ratio = mesh.T / problem.mesh.T
+    d = np.tile(np.arange(mesh.m), 2).astype(float)
+    op_new = QuadratureOperator(mesh=mesh, G=op.G, t=op.t * ratio, w=op.w * ratio, B=op.B,
+                                col_scale=op.col_scale * ratio**d, row_scale=op.row_scale * ratio ** -np.arange(3.0)[:, None])
+    out = copy.copy(problem)
+    out.mesh, out.op, out.op_h, out.last = mesh, op_new, op_new, None
+    return out
+
+
 def rows_on(rows: LimitRows | None, mesh) -> LimitRows | None:
     """The limit rows of ``mesh`` from those of another mesh with the same node fractions (another T), or None
     when they cannot be reused: on a non-uniform mesh the rows are those of h = 1 with the elements' scales
     h_e^(d − r) (``LimitRows.build``), and every h_e scales with T.
     """
-    if rows is None or rows.scale is None or mesh.uniform or rows.mesh.N != mesh.N or rows.mesh.order != mesh.order:
+    if rows is None or rows.scale is None or not _same_fractions(rows.mesh, mesh):
         return None
     ratio = mesh.T / rows.mesh.T
-    if np.max(np.abs(rows.mesh.nodes * ratio - mesh.nodes)) > 1e-15 * mesh.T:
-        return None
     d = np.tile(np.arange(mesh.m), 2)
     scale = tuple(sc * ratio ** (d - r).astype(float) for r, sc in enumerate(rows.scale))
     return LimitRows(mesh, rows.rows, rows.part, rows.data, rows.pieces, scale)
