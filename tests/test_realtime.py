@@ -173,6 +173,31 @@ def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch
     assert problem_on(p1, plan.mesh) is None and rows_on(r1, plan.mesh) is None  # other fractions: built afresh
 
 
+def test_a_damped_step_evaluates_only_the_point_it_keeps_when_the_goal_rows_alone_say_no():
+    """``damped_trial`` with ``violation_at`` (the goal rows' violation without the dynamics) returns what it returns
+    without it, and evaluates the point only where the rows pass (or at the last halving).
+    """
+    from types import SimpleNamespace
+
+    from hoc_cli.goals.replan_point import damped_trial
+
+    def rows(alpha):  # the violation of the step scaled by alpha: too large above alpha = 0.25
+        return 4e-3 * alpha
+
+    for limit, kept in ((1e-3, 0.25), (1e-9, 0.5**5)):
+        calls = []
+
+        def trial_at(alpha):
+            calls.append(alpha)
+            return 1.0 + alpha, SimpleNamespace(c=np.array([rows(alpha), 0.0]))
+
+        full = damped_trial(trial_at, 1, limit, floor=limit)
+        assert full[2] == kept and len(calls) == 1 + round(np.log2(1.0 / kept))
+        calls.clear()
+        quick = damped_trial(trial_at, 1, limit, floor=limit, violation_at=rows)
+        assert calls == [kept] and quick[1:] == full[1:] and quick[0].c[0] == full[0].c[0]
+
+
 def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch):
     problem, plan = catch
     rp = Replanner(problem, plan, max_steps=1)

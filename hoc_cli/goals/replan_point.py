@@ -56,12 +56,9 @@ class LagrangianPoint:
     where: object = None
 
 
-def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
-                   cache: dict, active: ActiveRows | None = None, fractions=None) -> LagrangianPoint:
-    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
-    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
-    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
-    mesh's nodes as fractions of T (None: N equal elements).
+def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
+    """(problem, limit rows, the goal points' ``PointSet``) of ``evaluate_point`` at T, kept in ``cache``: built for
+    the first T, rescaled from it for the others (``problem_on``, ``rows_on``).
     """
     if T not in cache:
         mesh = scaled_mesh(order, T, N, fractions)
@@ -75,7 +72,29 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
             rows = rows_on(other[1], mesh) if other is not None else None
             rows = LimitRows.build(mesh, problem.layout.free, limits.n) if rows is None else rows
         cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
-    problem, rows, where = cache[T]
+    return cache[T]
+
+
+def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> float:
+    """The largest |c| over the goal rows at coefficients C on [0, T] (0 without rows): ``evaluate_point``'s goal rows alone,
+    the same numbers (its problem from the same ``cache``), without the dynamics.
+    """
+    problem, _, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
+    if not problem.points:
+        return 0.0
+    C = problem.coefficients(problem.layout.pack(C))
+    lam = [np.zeros(p.residual.size) for p in problem.points]
+    return max(float(np.max(np.abs(r[0]), initial=0.0)) for r in GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C))
+
+
+def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
+                   cache: dict, active: ActiveRows | None = None, fractions=None) -> LagrangianPoint:
+    """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
+    dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
+    ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
+    mesh's nodes as fractions of T (None: N equal elements).
+    """
+    problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     mesh = problem.mesh
     lt = pv = None
     npts = len(problem.points)
@@ -234,14 +253,25 @@ def dense_factor(W) -> np.ndarray:
 def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], goal_rows: int,
                  violation: float, floor: float = VIOLATION_FLOOR,
                  accept: Callable[[float, float, "LagrangianPoint"], bool] | None = None,
+                 violation_at: Callable[[float], float] | None = None,
                  ) -> tuple["LagrangianPoint | None", float, float, float]:
     """A Newton step halved (down to 1/32) while it raises the goal rows' violation above
     max(``violation``, ``floor``) (far steps leave the model) or ``accept(alpha, T, point)`` says no. ``trial_at(alpha)`` gives (T, point)
     of the step scaled by alpha; the first ``goal_rows`` entries of the point's rows are the goal rows'.
+    ``violation_at(alpha)``, when given, is that violation alone (``goal_violation``, the same number): a step it
+    rejects is halved without evaluating its point (the dynamics), except the last (alpha < 0.05), which is returned.
     Returns (point or None when it could not be evaluated, T, alpha, its violation).
     """
     alpha = 1.0
     while True:
+        if violation_at is not None and alpha >= 0.05:
+            try:
+                v_pre = violation_at(alpha)
+            except NumericalError:
+                v_pre = math.inf
+            if not v_pre <= max(violation, floor):
+                alpha *= 0.5
+                continue
         try:
             T_try, trial = trial_at(alpha)
             v_try = float(np.max(np.abs(trial.c[:goal_rows]), initial=0.0))

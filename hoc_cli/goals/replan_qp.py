@@ -41,7 +41,7 @@ from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
-from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, row_values
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
@@ -145,6 +145,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     def at(T_, C_, lam_, active_):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
                               free is not None, cache, active_, fractions=fractions)
+
+    def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
+        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
@@ -251,10 +254,14 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             T_a = T + alpha * dT
             return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
 
+        def violation_at(alpha: float) -> float:
+            T_a = T + alpha * dT
+            return goal_rows_at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a))
+
         accept = None
         if test is not None:
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept)
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept, violation_at)
         if trial is None:
             break
         if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
