@@ -275,10 +275,12 @@ def test_a_step_towards_a_far_target_keeps_the_rows_it_would_break_far_from_thei
     monkeypatch.setattr(replanner, "guard", probe)
     rp = Replanner(problem, plan, max_steps=1, warm_up=False)
     p1, v1 = P0 + [0.02, -0.02, 0.01], V0 + [0.1, -0.1, 0.05]
-    for k in range(3):  # (a plan the probe leaves 1e-9 or more over a row fails the check: held, and stepped again)
+    for k in range(3):
         tk = 0.01 * (k + 1)
         cur = rp.current
-        rp.update(tk, (cur.state(tk)[0], cur.state(tk, 1)[0]), Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G), 10.0)
+        up = rp.update(tk, (cur.state(tk)[0], cur.state(tk, 1)[0]), Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G),
+                       10.0)
+        assert up.steps == 1
     assert len(seen) == 3 and max(seen) < 1e-3
 
 
