@@ -258,32 +258,6 @@ def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_gu
     assert len(seen) == 3 and max(seen) <= 1e-9
 
 
-def test_a_step_towards_a_far_target_keeps_the_rows_it_would_break_far_from_their_bound(catch, monkeypatch):
-    """A 2 cm, 0.1 m/s jump of the target: the step's programme imposes the rows within 5 % of their bound, and the
-    rows the full step would break beyond that join it (``replan_qp.MORE_ROWS``): the plans before the guard break
-    no row by more than 1e-3 (the T step's second order; without them: 0.6, 60 % of a velocity limit).
-    """
-    import hoc_cli.realtime.replanner as replanner
-
-    problem, plan = catch
-    seen = []
-
-    def probe(system, limits, rows, C, free, keep=None):
-        seen.append(worst_row(system, limits, rows, C))
-        return C
-
-    monkeypatch.setattr(replanner, "guard", probe)
-    rp = Replanner(problem, plan, max_steps=1, warm_up=False)
-    p1, v1 = P0 + [0.02, -0.02, 0.01], V0 + [0.1, -0.1, 0.05]
-    for k in range(3):
-        tk = 0.01 * (k + 1)
-        cur = rp.current
-        up = rp.update(tk, (cur.state(tk)[0], cur.state(tk, 1)[0]), Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G),
-                       10.0)
-        assert up.steps == 1
-    assert len(seen) == 3 and max(seen) < 1e-3
-
-
 def test_the_python_example_of_docs_realtime_runs_as_printed(request, capsys):
     import re
 

@@ -41,15 +41,7 @@ from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
-from hoc_cli.goals.replan_point import (
-    VIOLATION_FLOOR,
-    damped_trial,
-    dense_factor,
-    evaluate_point,
-    goal_violation,
-    point_problem,
-    row_values,
-)
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
@@ -61,7 +53,6 @@ LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit te
 LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal raised a thousandfold: steps far shorter than
 # Newton's, whose programme would otherwise be solved in units of 1e17 and more)
 MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this × the step's largest (not rounding)
-MORE_ROWS = 2  # quick: programmes solved again with the rows the step would break (at most this many times)
 LAG_RTOL = 1e-10  # after a step whose model decrease was below this·|J|, the next QP keeps the step's Newton matrix
 
 
@@ -158,9 +149,6 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
         return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
 
-    def rows_at(T_):  # the limit rows of the mesh at T_ (``at``'s)
-        return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
-
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
@@ -195,10 +183,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             U = dense_factor(W)
         U_last = U
         everything = row_values(limits, pt.rows, C)
-        near_lo = [g > -CANDIDATE_GAP for g in everything.g_lo]
-        near_hi = [g > -CANDIDATE_GAP for g in everything.g_hi]
+        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo),
+                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi))
+        A, A_full = cand.jacobian(pt.rows, limits, layout.free)
+        gA = A_full @ C.ravel() + cand.offsets(limits)
         violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
-        grad, rhs_E = g_I, -cg
+        row_violation = float(np.max(gA, initial=0.0))
+        grad, rhs_E, rhs_A = g_I, -cg, -gA
         if free is not None:
             delta = 1e-6 * T
             ph = at(T + delta, rescale(C, T, T + delta), lam, active)
@@ -207,6 +198,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             b = (scale * ph.g - pt.g) / delta
             h = (ph.F - pt.F) / delta
             cT = (ph.c[:r] - cg) / delta
+            A2, A2_full = cand.jacobian(ph.rows, limits, layout.free)
+            aT = (A2_full @ ph.C.ravel() + cand.offsets(limits) - gA) / delta
             act_T = (ph.c[r:] - pt.c[r:]) / delta  # the working set's rows' T column (ρAᵀA's T part)
             b = b + E.T @ (rho_aug * cT) + pt.D[r:].T @ (rho_aug * act_T)
             h = h + rho_aug * float(cT @ cT + act_T @ act_T)
@@ -220,51 +213,16 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             F_I = pt.F - float(cT @ np.concatenate(lam[:npts])) - float(act_T @ lam[-1]) if r else pt.F - float(act_T @ lam[-1])
             grad = np.concatenate([g_I, [F_I]])
             E = np.hstack([E, cT[:, None]])
-
-        def programme_rows(cand: ActiveRows):
-            """(A, rhs, g_A) of the programme's inequality rows: ``cand``'s linearised rows (with their T column
-            and T's bounds when T is free) and their values g_A at the point.
-            """
-            A, A_full = cand.jacobian(pt.rows, limits, layout.free)
-            gA = A_full @ C.ravel() + cand.offsets(limits)
-            if free is None:
-                return A, -gA, gA
-            A2, A2_full = cand.jacobian(ph.rows, limits, layout.free)
-            aT = (A2_full @ ph.C.ravel() + cand.offsets(limits) - gA) / delta
             bounds = np.zeros((2, P + 1))
             bounds[0, -1], bounds[1, -1] = 1.0, -1.0
-            return (np.vstack([np.hstack([A, aT[:, None]]), bounds]),
-                    np.concatenate([-gA, [free.max - T, T - free.min]]), gA)
-
-        step = solved = None
-        for more in range(1 + (MORE_ROWS if quick else 0)):
-            cand = ActiveRows.where(tuple(near_lo), tuple(near_hi))
-            A, rhs_A, gA = programme_rows(cand)
-            try:
-                step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
-            except NumericalError as exc:
-                if _log.isEnabledFor(logging.DEBUG):
-                    _log.debug(f"qp step {steps}: {exc}")
-                if solved is not None:  # the programme with the rows that joined has no solution: the last one's step
-                    step, cand, gA = solved
-                break
-            solved = (step, cand, gA)
-            if more == MORE_ROWS or not quick:
-                break
-            # quick: the rows farther than the gap that the full step would break join the programme, which is
-            # solved again (the real-time steps' large changes of the target, where the guard's projections
-            # would otherwise take several rounds)
-            T_a = T + (float(step.d[P]) if free is not None else 0.0)
-            rows_a = rows_at(T_a)
-            after = row_values(limits, rows_a, rescale(problem.coefficients(pt.x + step.d[:P]), T, T_a))
-            broke = [(g > ROW_ACCEPT) & ~n for g, n in zip(after.g_lo + after.g_hi, near_lo + near_hi)]
-            if not any(bool(x.any()) for x in broke):
-                break
-            near_lo = [n | x for n, x in zip(near_lo, broke[:len(near_lo)])]
-            near_hi = [n | x for n, x in zip(near_hi, broke[len(near_lo):])]
-        if step is None:
+            A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
+            rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+        try:
+            step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
+        except NumericalError as exc:
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"qp step {steps}: {exc}")
             break
-        row_violation = float(np.max(gA, initial=0.0))
         decrement = step.decrease
         if _log.isEnabledFor(logging.DEBUG):
             _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
