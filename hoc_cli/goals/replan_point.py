@@ -243,11 +243,18 @@ def dense_factor(W) -> np.ndarray:
     ab = W.factor
     u = ab.shape[0] - 1
     n = ab.shape[1]
+    rows, cols, band = _band_indices(u, n)
     U = np.zeros((n, n))
-    for d in range(u + 1):  # ab[u - d, j] = U[j - d, j]
-        j = np.arange(d, n)
-        U[j - d, j] = ab[u - d, d:]
+    U[rows, cols] = ab[band, cols]  # ab[u - d, j] = U[j - d, j]
     return U[np.ix_(W.free, W.free)]
+
+
+@lru_cache(maxsize=32)
+def _band_indices(u: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, columns, band rows) of the entries U[j − d, j] = ab[u − d, j] of an upper band of width u (n, n)."""
+    d = np.concatenate([np.full(n - k, k) for k in range(u + 1)])
+    j = np.concatenate([np.arange(k, n) for k in range(u + 1)])
+    return j - d, j, u - d
 
 
 def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], goal_rows: int,

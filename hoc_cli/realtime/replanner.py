@@ -225,7 +225,8 @@ class Replanner:
         J = pt.J
         if guarded:  # the projected plan's own cost and goal rows
             J = float(pt.problem.value(pt.problem.layout.pack(safe)))
-            violation = GoalTerms.start(mesh_new, pt.problem.points).violation(safe)
+            violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
+                                  pt.where).violation(safe)
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
