@@ -108,6 +108,14 @@ def test_the_guard_projects_a_plan_beyond_its_velocity_limits_back_inside(catch)
     assert kept is not None and worst_row(problem.system, problem.limits, rows, kept) <= 1e-9
     d = kept.ravel()[free] - C.ravel()[free]
     assert np.abs(E @ d).max() <= 1e-9 * np.abs(E).sum(axis=1).max() * np.abs(d).max()
+    # a second projection starting from the rows a first one needed (and left in ``near``): within the limits too
+    near: list = []
+    first = guard(problem.system, problem.limits, rows, C, free, keep=E, near=near)
+    assert np.array_equal(first, kept) and len(near) == 2 and sum(int(m.sum()) for m in near[0] + near[1]) > 0
+    again = guard(problem.system, problem.limits, rows, C, free, near=near)
+    assert again is not None and worst_row(problem.system, problem.limits, rows, again) <= 1e-9
+    assert check_limits(problem.system, problem.limits, mesh, again).feasible
+    assert np.array_equal(again.ravel()[~free], C.ravel()[~free])
 
 
 def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_check_is_the_exact_one(catch):
@@ -242,7 +250,7 @@ def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_gu
     problem, plan = catch
     seen = []
 
-    def probe(system, limits, rows, C, free, keep=None):
+    def probe(system, limits, rows, C, free, keep=None, near=None):
         seen.append(worst_row(system, limits, rows, C))
         return C
 

@@ -42,37 +42,50 @@ def worst_row(system, limits, rows, C: np.ndarray) -> float:
     return row_values(limits, rows, C).worst()
 
 
-def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray | None:
+def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None,
+          near: list | None = None) -> np.ndarray | None:
     """C when its kinematic rows hold, else its projection onto them at the same T, or None (module docstring).
 
     rows : the mesh's ``LimitRows``; free : (P_all,) bool, the free entries of C.ravel(); keep : (r, P) rows E whose
     values the projection keeps to first order (E d = 0: the goal rows' Jacobian, so that the plan still meets
-    its goal), or None.
+    its goal), or None; near : an empty list, or the one of an earlier call on the same C: the projection's rows
+    (per kind, lower and upper boolean masks) are those in it plus those within ``GAP`` of their bound, and it
+    is left holding every row the rounds used (a second projection of C, e.g. without ``keep``, then starts from
+    the rows the first one needed instead of finding them again round by round).
     """
-    if worst_row(system, limits, rows, C) <= ROW_TOL:
+    kr = row_values(limits, rows, C)
+    if kr.worst() <= ROW_TOL:
         return C
     flat = np.asarray(C, float).ravel().copy()
-    near = None
+    lo = [g > -GAP for g in kr.g_lo]
+    hi = [g > -GAP for g in kr.g_hi]
+    if near:
+        lo, hi = [a | b for a, b in zip(lo, near[0])], [a | b for a, b in zip(hi, near[1])]
+    E = np.zeros((0, int(np.sum(free)))) if keep is None else np.asarray(keep, float)
+    out = None
     for _ in range(ROUNDS):
-        pv = row_values(limits, rows, flat.reshape(C.shape))
-        now = ActiveRows.where(tuple(g > -GAP for g in pv.g_lo), tuple(g > -GAP for g in pv.g_hi))
-        near = now if near is None else _union(near, now)
-        A, A_full = near.jacobian(rows, limits, free)
-        g = A_full @ flat + near.offsets(limits)
-        E = np.zeros((0, A.shape[1])) if keep is None else np.asarray(keep, float)
+        rows_now = ActiveRows.where(tuple(lo), tuple(hi))
+        A, A_full = rows_now.jacobian(rows, limits, free)
+        g = A_full @ flat + rows_now.offsets(limits)
         # the metric is the identity: d = 0 off the columns the rows touch
         cols = np.flatnonzero(np.any(A != 0.0, axis=0) | np.any(E != 0.0, axis=0))
         P = cols.size
         try:
             step = solve_qp(np.eye(P), np.zeros(P), E[:, cols], np.zeros(E.shape[0]), A[:, cols], -g - PUSH)
         except NumericalError:
-            return None
+            break
         d = np.zeros(A.shape[1])
         d[cols] = step.d
         flat[free] += d
-        if worst_row(system, limits, rows, flat.reshape(C.shape)) <= ROW_TOL:
-            return flat.reshape(C.shape)
-    return None
+        kr = row_values(limits, rows, flat.reshape(C.shape))
+        if kr.worst() <= ROW_TOL:
+            out = flat.reshape(C.shape)
+            break
+        lo = [a | (b > -GAP) for a, b in zip(lo, kr.g_lo)]
+        hi = [a | (b > -GAP) for a, b in zip(hi, kr.g_hi)]
+    if near is not None:
+        near[:] = [lo, hi]
+    return out
 
 
 def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None) -> bool:
@@ -100,13 +113,3 @@ def effort_only(limits: JointLimits) -> JointLimits | None:
     if not np.isfinite(limits.effort).any():
         return None
     return JointLimits.from_arrays(limits.joints, effort=limits.effort)
-
-
-def _union(a: ActiveRows, b: ActiveRows) -> ActiveRows:
-    """The rows of a and of b, each once."""
-    keys = np.unique(np.concatenate([_keys(a), _keys(b)]), axis=0)
-    return ActiveRows(*(np.ascontiguousarray(k) for k in keys.T))
-
-
-def _keys(r: ActiveRows) -> np.ndarray:
-    return np.stack((r.kind, r.elem, r.row, r.joint, r.side), axis=1).reshape(-1, 5)

@@ -211,8 +211,9 @@ class Replanner:
         safe = C_new
         if self.limits is not None:  # the goal rows kept by the projection if it can, else the limits alone
             safe = None
+            near: list = []  # the rows the first projection needed: the second one starts from them
             for keep in (pt.D[:r], None):
-                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep)
+                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep, near=near)
                 if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort):
                     safe = C_try
                     break
