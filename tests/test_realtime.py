@@ -156,7 +156,7 @@ def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch
     """
     from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
     from hoc_cli.goals.plan import GoalProblem
-    from hoc_cli.goals.replan_point import problem_on, rows_on
+    from hoc_cli.goals.replan_point import limit_rows, problem_on, rows_on
 
     problem, plan = catch
     s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
@@ -179,6 +179,9 @@ def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch
         a, b = (r.apply(k, mesh2.local_coefficients(C)) for r in (r3, r2))
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
     assert problem_on(p1, plan.mesh) is None and rows_on(r1, plan.mesh) is None  # other fractions: built afresh
+    kept = limit_rows(mesh2, p2.layout.free, 7)  # another cycle's mesh: the h = 1 rows kept, its own scales
+    for name in ("rows", "part", "data", "scale"):
+        assert all(np.array_equal(a, b) for a, b in zip(getattr(kept, name), getattr(r2, name)))
 
 
 def test_a_damped_step_evaluates_only_the_point_it_keeps_when_the_goal_rows_alone_say_no():

@@ -20,7 +20,7 @@ from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.bounds import KINEMATIC
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms, effective_bounds
 from hoc_cli.constraints.prolong import Duals
-from hoc_cli.elements import QuadratureOperator
+from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
@@ -70,7 +70,7 @@ def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: d
         rows = None
         if limits is not None:
             rows = rows_on(other[1], mesh) if other is not None else None
-            rows = LimitRows.build(mesh, problem.layout.free, limits.n) if rows is None else rows
+            rows = limit_rows(mesh, problem.layout.free, limits.n) if rows is None else rows
         cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
     return cache[T]
 
@@ -216,6 +216,25 @@ def problem_on(problem: GoalProblem, mesh) -> GoalProblem | None:
     out = copy.copy(problem)
     out.mesh, out.op, out.op_h, out.last = mesh, op_new, op_new, None
     return out
+
+
+def limit_rows(mesh, free: np.ndarray, n: int) -> LimitRows:
+    """``LimitRows.build(mesh, free, n)``; on a non-uniform mesh its rows, parts and data (those of h = 1: they
+    depend on the order, N and the free mask only) are kept from an earlier mesh of the same kind, and only the
+    elements' scales are the mesh's own (each real-time update has a new mesh of the same kind).
+    """
+    if mesh.uniform:
+        return LimitRows.build(mesh, free, n)
+    unit = _unit_rows(mesh.order, mesh.N, n, np.asarray(free, bool).tobytes())
+    return LimitRows(mesh, unit.rows, unit.part, unit.data, unit.pieces, tuple(mesh.scales(r) for r in range(len(unit.rows))))
+
+
+@lru_cache(maxsize=16)
+def _unit_rows(order: str, N: int, n: int, free: bytes) -> LimitRows:
+    """The ``LimitRows`` of a non-uniform mesh of N elements of ``order`` (its rows, parts and data; not its scales)."""
+    fractions = np.linspace(0.0, 1.0, N + 1) ** 1.5  # any non-uniform mesh
+    mesh = HermiteMesh.from_nodes(order, fractions)
+    return LimitRows.build(mesh, np.frombuffer(free, bool).copy(), n)
 
 
 def rows_on(rows: LimitRows | None, mesh) -> LimitRows | None:
