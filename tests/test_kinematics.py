@@ -110,6 +110,10 @@ def test_link_velocity_and_its_derivatives_agree_with_pinocchio(case):
     for link in links_to_check(model):
         V, dV_dq, dV_ddq = D.link_velocity_derivatives(model, q, dq, link)
         np.testing.assert_array_equal(D.link_velocity(model, q, dq, link), V)
+        pose, *rest = D.link_motion(model, q, dq, link)  # the same pass, with the link's pose (one chain only)
+        np.testing.assert_allclose(pose, D.link_poses(model, q)[link], rtol=0, atol=1e-14)
+        for a, b in zip(rest, (V, dV_dq, dV_ddq)):
+            np.testing.assert_array_equal(a, b)
         for k in range(len(q)):
             ref_V, ref_dq, ref_dv = pin_velocity_derivatives(oracle, q[k], dq[k], link)
             np.testing.assert_allclose(V[k], ref_V, rtol=0, atol=1e-12)

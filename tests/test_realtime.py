@@ -108,6 +108,105 @@ def test_the_guard_projects_a_plan_beyond_its_velocity_limits_back_inside(catch)
     assert kept is not None and worst_row(problem.system, problem.limits, rows, kept) <= 1e-9
     d = kept.ravel()[free] - C.ravel()[free]
     assert np.abs(E @ d).max() <= 1e-9 * np.abs(E).sum(axis=1).max() * np.abs(d).max()
+    # a second projection starting from the rows a first one needed (and left in ``near``): within the limits too
+    near: list = []
+    first = guard(problem.system, problem.limits, rows, C, free, keep=E, near=near)
+    assert np.array_equal(first, kept) and len(near) == 2 and sum(int(m.sum()) for m in near[0] + near[1]) > 0
+    again = guard(problem.system, problem.limits, rows, C, free, near=near)
+    assert again is not None and worst_row(problem.system, problem.limits, rows, again) <= 1e-9
+    assert check_limits(problem.system, problem.limits, mesh, again).feasible
+    assert np.array_equal(again.ravel()[~free], C.ravel()[~free])
+
+
+def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_check_is_the_exact_one(catch):
+    """``row_values`` gives ``all_rows``' kinematic numbers (uniform and shifted, non-uniform meshes); the update's
+    check (``within_limits``: Bernstein rows, torques) agrees with ``check_limits`` on a plan within its limits, one
+    beyond its velocity limits, one whose start velocity (rows fixed by the start, not rows of the guard) is beyond
+    them, and one beyond its torque limits.
+    """
+    import dataclasses
+
+    from hoc_cli.goals.active_limits import all_rows
+    from hoc_cli.goals.replan_point import row_values
+    from hoc_cli.realtime.limits_guard import effort_only, within_limits
+
+    problem, plan = catch
+    system, limits = problem.system, problem.limits
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    for mesh, C in ((plan.mesh, plan.coeffs), (s.mesh, s.coeffs)):
+        rows = LimitRows.build(mesh, Layout.build(mesh, 7, True, True).free, 7)
+        ref, got = all_rows(system, limits, rows, C), row_values(limits, rows, C)
+        for a, b in zip(ref.g_lo[:4] + ref.g_hi[:4], got.g_lo + got.g_hi):
+            np.testing.assert_array_equal(a, b)
+    mesh = plan.mesh
+    rows = LimitRows.build(mesh, Layout.build(mesh, 7, True, True).free, 7)
+    fast = np.array(plan.coeffs)
+    fast[1:, 1] *= 1.6
+    start = np.array(plan.coeffs)
+    start[0, 1] = 1.01 * limits.velocity  # the start state beyond the velocity limit: rows of data alone
+    weak = dataclasses.replace(limits, effort=0.2 * limits.effort)
+    for lim, C, ok in ((limits, plan.coeffs, True), (limits, fast, False), (limits, start, False), (weak, plan.coeffs, False)):
+        assert check_limits(system, lim, mesh, C).feasible is ok
+        assert within_limits(system, lim, rows, C, effort_only(lim)) is ok
+
+
+def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch):
+    """A step evaluates its problem at T, T + δ and the trial T on the same node fractions: ``problem_on`` and
+    ``rows_on`` rescale the first one's quadrature and limit rows instead of building them, to rounding.
+    """
+    from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
+    from hoc_cli.goals.plan import GoalProblem
+    from hoc_cli.goals.replan_point import limit_rows, problem_on, rows_on
+
+    problem, plan = catch
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    q0, dq0 = s.coeffs[0, 0], s.coeffs[0, 1]
+    built = []
+    for T in (s.mesh.T, 1.07 * s.mesh.T):
+        mesh = scaled_mesh(s.mesh.order, T, s.mesh.N, mesh_fractions(s.mesh))
+        p = GoalProblem(problem.system, mesh, q0, dq0, problem.goals(), G=8)
+        p.op_h = p.op
+        built.append((mesh, p, LimitRows.build(mesh, p.layout.free, 7)))
+    (_, p1, r1), (mesh2, p2, r2) = built
+    p3, r3 = problem_on(p1, mesh2), rows_on(r1, mesh2)
+    assert p3.mesh is mesh2 and p3.op_h is p3.op and r3.mesh is mesh2
+    C = s.coeffs
+    for a, b in zip(p2.op.apply(C), p3.op.apply(C)):
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max()
+    x = p2.layout.pack(C)
+    assert abs(p3.value(x) - p2.value(x)) <= 1e-12 * abs(p2.value(x))
+    for k in range(4):
+        a, b = (r.apply(k, mesh2.local_coefficients(C)) for r in (r3, r2))
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    assert problem_on(p1, plan.mesh) is None and rows_on(r1, plan.mesh) is None  # other fractions: built afresh
+    kept = limit_rows(mesh2, p2.layout.free, 7)  # another cycle's mesh: the h = 1 rows kept, its own scales
+    for name in ("rows", "part", "data", "scale"):
+        assert all(np.array_equal(a, b) for a, b in zip(getattr(kept, name), getattr(r2, name)))
+
+
+def test_a_damped_step_evaluates_only_the_point_it_keeps_when_the_goal_rows_alone_say_no():
+    """``damped_trial`` with ``violation_at`` (the goal rows' violation without the dynamics) returns what it returns
+    without it, and evaluates the point only where the rows pass (or at the last halving).
+    """
+    from types import SimpleNamespace
+
+    from hoc_cli.goals.replan_point import damped_trial
+
+    def rows(alpha):  # the violation of the step scaled by alpha: too large above alpha = 0.25
+        return 4e-3 * alpha
+
+    for limit, kept in ((1e-3, 0.25), (1e-9, 0.5**5)):
+        calls = []
+
+        def trial_at(alpha):
+            calls.append(alpha)
+            return 1.0 + alpha, SimpleNamespace(c=np.array([rows(alpha), 0.0]))
+
+        full = damped_trial(trial_at, 1, limit, floor=limit)
+        assert full[2] == kept and len(calls) == 1 + round(np.log2(1.0 / kept))
+        calls.clear()
+        quick = damped_trial(trial_at, 1, limit, floor=limit, violation_at=rows)
+        assert calls == [kept] and quick[1:] == full[1:] and quick[0].c[0] == full[0].c[0]
 
 
 def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch):
@@ -154,7 +253,7 @@ def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_gu
     problem, plan = catch
     seen = []
 
-    def probe(system, limits, rows, C, free, keep=None):
+    def probe(system, limits, rows, C, free, keep=None, near=None):
         seen.append(worst_row(system, limits, rows, C))
         return C
 

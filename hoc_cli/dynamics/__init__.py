@@ -47,7 +47,7 @@ operation. The only Python loops are the recursions over bodies.
 * ``covariant_gradient_terms``: u and M in one pass (the unit-acceleration columns ride along with
   the Newton-Euler pass), w = M⁻¹u, and the gradient of ½ uᵀM⁻¹u as one reverse sweep at the
   shifted acceleration q̈ − ½ w.
-* ``link_poses``, ``frame_jacobian``, ``link_velocity``, ``link_velocity_derivatives``: forward
+* ``link_poses``, ``frame_jacobian``, ``link_velocity``, ``link_velocity_derivatives``, ``link_motion``: forward
   kinematics of a link, batched over samples (:mod:`.kinematics`; J's rows 0:3 are the linear
   velocity of the link origin, rows 3:6 the angular velocity, both in the root-link frame).
 
@@ -84,6 +84,7 @@ from ._passes import (
 )
 from .kinematics import (
     frame_jacobian,
+    link_motion,
     link_poses,
     link_velocity,
     link_velocity_derivatives,
@@ -92,7 +93,7 @@ from .kinematics import (
 __all__ = [
     "SINGULAR_PIVOT", "bias_forces", "covariant_gradient_terms", "forward_dynamics",
     "frame_jacobian", "gravity_forces", "id_derivatives", "id_vjp", "inverse_dynamics",
-    "link_poses", "link_velocity", "link_velocity_derivatives", "mass_cholesky", "mass_matrix",
+    "link_motion", "link_poses", "link_velocity", "link_velocity_derivatives", "mass_cholesky", "mass_matrix",
     "mass_quadratic_grad",
 ]
 

@@ -32,24 +32,34 @@ def body_poses(model: RobotModel, qT: np.ndarray, bodies) -> dict[int, np.ndarra
     children, every ancestor of a listed body listed too), from positions qT (n, K).
     """
     K = qT.shape[1]
-    c, s = _cos_sin(qT)
+    bodies = list(bodies)
+    idx = np.asarray(bodies, dtype=int)
+    c, s = _cos_sin(qT[idx])
+    joint = np.zeros((idx.size, K, 4, 4))  # each body's joint transform, all at once
+    joint[:, :, 0, 0] = c
+    joint[:, :, 0, 1] = -s
+    joint[:, :, 1, 0] = s
+    joint[:, :, 1, 1] = c
+    joint[:, :, 2, 2] = joint[:, :, 3, 3] = 1.0
+    prismatic = np.array([model.joint_types[i] == "prismatic" for i in bodies], bool)
+    if prismatic.any():
+        joint[prismatic, :, :3, :3] = np.eye(3)
+        joint[prismatic, :, 2, 3] = qT[idx[prismatic]]
     body: dict[int, np.ndarray] = {}
-    for i in bodies:
-        J = np.zeros((K, 4, 4))
-        J[:, 3, 3] = 1.0
-        if model.joint_types[i] == "prismatic":
-            J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = 1.0
-            J[:, 2, 3] = qT[i]
-        else:
-            J[:, 0, 0] = c[i]
-            J[:, 0, 1] = -s[i]
-            J[:, 1, 0] = s[i]
-            J[:, 1, 1] = c[i]
-            J[:, 2, 2] = 1.0
+    for k, i in enumerate(bodies):
         p = model.parent[i]
         base = model.tree_transform[i] if p < 0 else body[p] @ model.tree_transform[i]
-        body[i] = base @ J
+        body[i] = base @ joint[k]
     return body
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The cross product a × b along axis 1 of (K, 3, ...) arrays (np.cross's per-call overhead is tens of µs at these sizes)."""
+    a1, a2, b1, b2 = a[:, _NEXT], a[:, _PREV], b[:, _NEXT], b[:, _PREV]
+    return a1 * b2 - a2 * b1
+
+
+_NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])  # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
 
 
 def link_body(model: RobotModel, link: str) -> tuple[int, np.ndarray]:
@@ -71,23 +81,27 @@ def chain_to_root(model: RobotModel, b: int) -> list[int]:
 
 
 def _chain_jacobian(model: RobotModel, qT: np.ndarray, link: str):
-    """(chain, Jc (K, 6, m)): the root-to-link chain of bodies and the Jacobian's columns for
-    them (the other columns are zero); m = 0 for a link on the fixed base.
+    """(chain, Jc (K, 6, m), pose (K, 4, 4)): the root-to-link chain of bodies, the Jacobian's columns for
+    them (the other columns are zero; m = 0 for a link on the fixed base) and the link's pose.
     """
     b, offset = link_body(model, link)
     K = qT.shape[1]
     if b < 0:
-        return [], np.zeros((K, 6, 0))
+        return [], np.zeros((K, 6, 0)), np.broadcast_to(offset, (K, 4, 4)).copy()
     chain = chain_to_root(model, b)
     poses = body_poses(model, qT, chain)
-    p = (poses[b] @ offset)[:, :3, 3]                              # (K, 3) link origin
-    Z = np.stack([poses[j][:, :3, 2] for j in chain], axis=2)       # (K, 3, m) joint axes
-    O = np.stack([poses[j][:, :3, 3] for j in chain], axis=2)       # (K, 3, m) points on them
+    pose = poses[b] @ offset
+    p = pose[:, :3, 3]                                              # (K, 3) link origin
+    frames = np.stack([poses[j][:, :3, 2:] for j in chain], axis=3)  # (K, 3, 2, m)
+    Z, O = frames[:, :, 0], frames[:, :, 1]                         # (K, 3, m) joint axes, points on them
     rev = np.array([model.joint_types[j] != "prismatic" for j in chain])
     Jc = np.empty((K, 6, len(chain)))
-    Jc[:, 0:3] = np.where(rev, np.cross(Z, p[:, :, None] - O, axis=1), Z)
-    Jc[:, 3:6] = np.where(rev, Z, 0.0)
-    return chain, Jc
+    Jc[:, 0:3] = _cross(Z, p[:, :, None] - O)
+    Jc[:, 3:6] = Z
+    if not rev.all():
+        Jc[:, 0:3, ~rev] = Z[:, :, ~rev]
+        Jc[:, 3:6, ~rev] = 0.0
+    return chain, Jc, pose
 
 
 def link_poses(model: RobotModel, q) -> dict[str, np.ndarray]:
@@ -141,7 +155,7 @@ def frame_jacobian(model: RobotModel, q, link: str) -> np.ndarray:
         If ``q`` has the wrong shape.
     """
     (qT,), K, one_d = _inputs(model, q=q)
-    chain, Jc = _chain_jacobian(model, qT, link)
+    chain, Jc, _ = _chain_jacobian(model, qT, link)
     J = np.zeros((K, 6, model.n))
     J[:, :, chain] = Jc
     return _shape_out(J, one_d)
@@ -157,7 +171,7 @@ def link_velocity(model: RobotModel, q, dq, link: str) -> np.ndarray:
 
 
 def link_velocity_derivatives(model: RobotModel, q, dq, link: str):
-    """A link's spatial velocity V = J(q) q̇ and its partial derivatives.
+    """A link's spatial velocity V = J(q) q̇ and its partial derivatives (see ``link_motion`` for the link's pose too).
 
     Parameters
     ----------
@@ -184,8 +198,16 @@ def link_velocity_derivatives(model: RobotModel, q, dq, link: str):
     ∂V/∂q_k = (ω_k × S_k[0:3] + W_k × J_k[0:3], ω_k × S_k[3:6]), with S_k = Σ_{j ≥ k} J_j q̇_j and
     W_k = Σ_{j < k} ω_j q̇_j (the angular velocity of body k's parent). O(m) per sample.
     """
+    return link_motion(model, q, dq, link)[1:]
+
+
+def link_motion(model: RobotModel, q, dq, link: str):
+    """(pose (K, 4, 4), V (K, 6), ∂V/∂q (K, 6, n), J (K, 6, n)) of a link from one pass along its chain: the
+    pose as :func:`link_poses`' entry for the link (only the chain's bodies are computed), the rest as
+    :func:`link_velocity_derivatives`; 1-D ``q`` and ``dq`` give unbatched arrays.
+    """
     (qT, dqT), K, one_d = _inputs(model, q=q, dq=dq)
-    chain, Jc = _chain_jacobian(model, qT, link)
+    chain, Jc, pose = _chain_jacobian(model, qT, link)
     n = model.n
     V = np.zeros((K, 6))
     dV_dq = np.zeros((K, 6, n))
@@ -198,8 +220,8 @@ def link_velocity_derivatives(model: RobotModel, q, dq, link: str):
         np.cumsum(cols[:, 3:6, :-1], axis=2, out=W[:, :, 1:])
         w = Jc[:, 3:6]
         D = np.empty_like(Jc)
-        D[:, 0:3] = np.cross(w, S[:, 0:3], axis=1) + np.cross(W, Jc[:, 0:3], axis=1)
-        D[:, 3:6] = np.cross(w, S[:, 3:6], axis=1)
+        D[:, 0:3] = _cross(w, S[:, 0:3]) + _cross(W, Jc[:, 0:3])
+        D[:, 3:6] = _cross(w, S[:, 3:6])
         dV_dq[:, :, chain] = D
         J[:, :, chain] = Jc
-    return tuple(_shape_out(x, one_d) for x in (V, dV_dq, J))
+    return tuple(_shape_out(x, one_d) for x in (pose, V, dV_dq, J))

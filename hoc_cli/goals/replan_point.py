@@ -7,16 +7,20 @@ s = t/T domain. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import cho_solve_banded
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
-from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.constraints.penalty import LimitRows, LimitTerms, effective_bounds
 from hoc_cli.constraints.prolong import Duals
+from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
 from hoc_cli.goals.active_limits import ActiveRows
@@ -52,6 +56,37 @@ class LagrangianPoint:
     where: object = None
 
 
+def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
+    """(problem, limit rows, the goal points' ``PointSet``) of ``evaluate_point`` at T, kept in ``cache``: built for
+    the first T, rescaled from it for the others (``problem_on``, ``rows_on``).
+    """
+    if T not in cache:
+        mesh = scaled_mesh(order, T, N, fractions)
+        other = next(iter(cache.values()), None)  # the same problem at another T: its parts rescaled
+        problem = problem_on(other[0], mesh) if other is not None else None
+        if problem is None:
+            problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
+            problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
+        rows = None
+        if limits is not None:
+            rows = rows_on(other[1], mesh) if other is not None else None
+            rows = limit_rows(mesh, problem.layout.free, limits.n) if rows is None else rows
+        cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
+    return cache[T]
+
+
+def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> float:
+    """The largest |c| over the goal rows at coefficients C on [0, T] (0 without rows): ``evaluate_point``'s goal rows alone,
+    the same numbers (its problem from the same ``cache``), without the dynamics.
+    """
+    problem, _, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
+    if not problem.points:
+        return 0.0
+    C = problem.coefficients(problem.layout.pack(C))
+    lam = [np.zeros(p.residual.size) for p in problem.points]
+    return max(float(np.max(np.abs(r[0]), initial=0.0)) for r in GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C))
+
+
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
                    cache: dict, active: ActiveRows | None = None, fractions=None) -> LagrangianPoint:
     """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
@@ -59,13 +94,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
     mesh's nodes as fractions of T (None: N equal elements).
     """
-    if T not in cache:
-        mesh = scaled_mesh(order, T, N, fractions)
-        problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
-        problem.op_h = problem.op  # the Newton matrix on the cost's own quadrature: the exact Hessian
-        rows = LimitRows.build(mesh, problem.layout.free, limits.n) if limits is not None else None
-        cache[T] = (problem, rows, point_set(mesh, problem.points) if problem.points else None)
-    problem, rows, where = cache[T]
+    problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     mesh = problem.mesh
     lt = pv = None
     npts = len(problem.points)
@@ -108,17 +137,117 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         A, A_full = active.jacobian(rows, limits, problem.layout.free)
         c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
         D = np.vstack([D, A])
-        if slope and active.size:
-            lo, hi = active.scatter(lam[npts], rows, limits.n)
-            dl, Gl = limits_time_derivative(Duals(rows, lo, hi),
-                                            system, limits, C)
-            dT, Gc = dT + dl, Gc + Gl
+        if slope and active.size:  # g = A_full·C + offsets; a row of d^k q/dt^k scales as T^-k at fixed s-domain C
+            mu = np.asarray(lam[npts], float)
+            values = A_full @ C.ravel()
+            dT = dT - float(np.dot(mu * active.kind, values)) / T
+            Gc = Gc + (mu @ A_full).reshape(C.shape)
     g = problem.layout.pack(G_all)
     if D.size:
         g = g + D.T @ np.concatenate(lam)
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
     return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where)
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicRows:
+    """Every kinematic row's g at some C, per kind k < ``KINEMATIC``: ``g_lo``, ``g_hi`` (N, R_k, n) each, −inf where
+    the bound is absent or the row is fixed by x0 alone (as ``active_limits.all_rows``' kinematic kinds).
+    """
+
+    g_lo: tuple[np.ndarray, ...]
+    g_hi: tuple[np.ndarray, ...]
+
+    def worst(self) -> float:
+        """The largest g (−inf when no row is imposed)."""
+        return max(float(np.max(g, initial=-np.inf)) for g in self.g_lo + self.g_hi)
+
+
+def row_values(limits, rows: LimitRows, C: np.ndarray) -> KinematicRows:
+    """The kinematic rows' values at coefficients C (N+1, m, n) on ``rows.mesh`` (``KinematicRows``): the numbers of
+    ``active_limits.all_rows`` without the effort rows and the penalty terms.
+    """
+    lo, hi, sig = _bounds(limits)
+    loc = rows.mesh.local_coefficients(np.asarray(C, float))
+    g_lo, g_hi = [], []
+    for k in range(KINEMATIC):
+        shape = rows.shape(k, limits.n)
+        if not (np.isfinite(lo[k]).any() or np.isfinite(hi[k]).any()):
+            g_lo.append(np.full(shape, -np.inf))
+            g_hi.append(g_lo[-1])
+            continue
+        V = rows.apply(k, loc)
+        off = rows.data[k][:, :, None] if k < 2 else np.zeros((1, 1, 1), bool)  # q, q̇ rows of x0 alone: data
+        g_hi.append(np.where(off | ~np.isfinite(hi[k]), -np.inf, (V - hi[k]) / sig[k]))
+        g_lo.append(np.where(off | ~np.isfinite(lo[k]), -np.inf, (lo[k] - V) / sig[k]))
+    return KinematicRows(tuple(g_lo), tuple(g_hi))
+
+
+@lru_cache(maxsize=16)
+def _bounds(limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``effective_bounds(limits, MARGIN)`` of a ``JointLimits`` (immutable), kept."""
+    return effective_bounds(limits, MARGIN)
+
+
+def _same_fractions(a, b) -> bool:
+    """Whether non-uniform meshes a and b have N elements of the same order at the same node fractions (b.T / a.T
+    times a's nodes, to rounding).
+    """
+    if a.uniform or b.uniform or a.N != b.N or a.order != b.order:
+        return False
+    return bool(np.max(np.abs(a.nodes * (b.T / a.T) - b.nodes)) <= 1e-15 * b.T)
+
+
+def problem_on(problem: GoalProblem, mesh) -> GoalProblem | None:
+    """``problem`` (an ``evaluate_point`` problem: ``op_h`` is ``op``) on ``mesh``, a non-uniform mesh with the same
+    node fractions at another T, or None when the meshes are not so related. A shallow copy whose quadrature is
+    rescaled instead of rebuilt: the operator holds the h = 1 basis with the element scales h_e^(d_a) and h_e^(−r)
+    (``elements.element_scales``), and every h_e, sample time and weight scales with T; the layout and the fixed
+    coefficients (t-domain values) do not depend on T.
+    """
+    op = problem.op
+    if problem.op_h is not op or op.col_scale is None or not _same_fractions(problem.mesh, mesh):
+        return None
+    ratio = mesh.T / problem.mesh.T
+    d = np.tile(np.arange(mesh.m), 2).astype(float)
+    op_new = QuadratureOperator(mesh=mesh, G=op.G, t=op.t * ratio, w=op.w * ratio, B=op.B,
+                                col_scale=op.col_scale * ratio**d, row_scale=op.row_scale * ratio ** -np.arange(3.0)[:, None])
+    out = copy.copy(problem)
+    out.mesh, out.op, out.op_h, out.last = mesh, op_new, op_new, None
+    return out
+
+
+def limit_rows(mesh, free: np.ndarray, n: int) -> LimitRows:
+    """``LimitRows.build(mesh, free, n)``; on a non-uniform mesh its rows, parts and data (those of h = 1: they
+    depend on the order, N and the free mask only) are kept from an earlier mesh of the same kind, and only the
+    elements' scales are the mesh's own (each real-time update has a new mesh of the same kind).
+    """
+    if mesh.uniform:
+        return LimitRows.build(mesh, free, n)
+    unit = _unit_rows(mesh.order, mesh.N, n, np.asarray(free, bool).tobytes())
+    return LimitRows(mesh, unit.rows, unit.part, unit.data, unit.pieces, tuple(mesh.scales(r) for r in range(len(unit.rows))))
+
+
+@lru_cache(maxsize=16)
+def _unit_rows(order: str, N: int, n: int, free: bytes) -> LimitRows:
+    """The ``LimitRows`` of a non-uniform mesh of N elements of ``order`` (its rows, parts and data; not its scales)."""
+    fractions = np.linspace(0.0, 1.0, N + 1) ** 1.5  # any non-uniform mesh
+    mesh = HermiteMesh.from_nodes(order, fractions)
+    return LimitRows.build(mesh, np.frombuffer(free, bool).copy(), n)
+
+
+def rows_on(rows: LimitRows | None, mesh) -> LimitRows | None:
+    """The limit rows of ``mesh`` from those of another mesh with the same node fractions (another T), or None
+    when they cannot be reused: on a non-uniform mesh the rows are those of h = 1 with the elements' scales
+    h_e^(d − r) (``LimitRows.build``), and every h_e scales with T.
+    """
+    if rows is None or rows.scale is None or not _same_fractions(rows.mesh, mesh):
+        return None
+    ratio = mesh.T / rows.mesh.T
+    d = np.tile(np.arange(mesh.m), 2)
+    scale = tuple(sc * ratio ** (d - r).astype(float) for r, sc in enumerate(rows.scale))
+    return LimitRows(mesh, rows.rows, rows.part, rows.data, rows.pieces, scale)
 
 
 def solve_many(W, B: np.ndarray) -> np.ndarray:
@@ -133,24 +262,42 @@ def dense_factor(W) -> np.ndarray:
     ab = W.factor
     u = ab.shape[0] - 1
     n = ab.shape[1]
+    rows, cols, band = _band_indices(u, n)
     U = np.zeros((n, n))
-    for d in range(u + 1):  # ab[u - d, j] = U[j - d, j]
-        j = np.arange(d, n)
-        U[j - d, j] = ab[u - d, d:]
+    U[rows, cols] = ab[band, cols]  # ab[u - d, j] = U[j - d, j]
     return U[np.ix_(W.free, W.free)]
+
+
+@lru_cache(maxsize=32)
+def _band_indices(u: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, columns, band rows) of the entries U[j − d, j] = ab[u − d, j] of an upper band of width u (n, n)."""
+    d = np.concatenate([np.full(n - k, k) for k in range(u + 1)])
+    j = np.concatenate([np.arange(k, n) for k in range(u + 1)])
+    return j - d, j, u - d
 
 
 def damped_trial(trial_at: Callable[[float], tuple[float, "LagrangianPoint"]], goal_rows: int,
                  violation: float, floor: float = VIOLATION_FLOOR,
                  accept: Callable[[float, float, "LagrangianPoint"], bool] | None = None,
+                 violation_at: Callable[[float], float] | None = None,
                  ) -> tuple["LagrangianPoint | None", float, float, float]:
     """A Newton step halved (down to 1/32) while it raises the goal rows' violation above
     max(``violation``, ``floor``) (far steps leave the model) or ``accept(alpha, T, point)`` says no. ``trial_at(alpha)`` gives (T, point)
     of the step scaled by alpha; the first ``goal_rows`` entries of the point's rows are the goal rows'.
+    ``violation_at(alpha)``, when given, is that violation alone (``goal_violation``, the same number): a step it
+    rejects is halved without evaluating its point (the dynamics), except the last (alpha < 0.05), which is returned.
     Returns (point or None when it could not be evaluated, T, alpha, its violation).
     """
     alpha = 1.0
     while True:
+        if violation_at is not None and alpha >= 0.05:
+            try:
+                v_pre = violation_at(alpha)
+            except NumericalError:
+                v_pre = math.inf
+            if not v_pre <= max(violation, floor):
+                alpha *= 0.5
+                continue
         try:
             T_try, trial = trial_at(alpha)
             v_try = float(np.max(np.abs(trial.c[:goal_rows]), initial=0.0))

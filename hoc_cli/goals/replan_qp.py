@@ -33,15 +33,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.banded import element_blocks
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import rescale
-from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp
-from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point
+from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 
@@ -54,6 +54,31 @@ LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal r
 # Newton's, whose programme would otherwise be solved in units of 1e17 and more)
 MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this × the step's largest (not rounding)
 LAG_RTOL = 1e-10  # after a step whose model decrease was within ±this·|J|, the next QP keeps the step's Newton matrix
+
+
+def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool):
+    """The Newton matrix (``BandedSPD``) of the cost plus the element blocks ``extra_of(indefinite)`` at ``ev``: with
+    the goal rows' full curvature (``indefinite`` True) made positive definite by ``problem.newton``, else (its
+    ``NumericalError``) without the curvature's negative part. ``quick``: the first is factored once as it is,
+    without ``problem.newton``'s shifts by the cost's positive semi-definite part (up to 13 more factorisations,
+    which do not help where the rows' own negative curvature is the cause), and both share one Hessian sweep.
+    Raises ``NumericalError`` when neither is positive definite.
+    """
+    if not quick or problem.terms:
+        try:
+            return problem.newton(ev, extra=extra_of(True), shift=shift)
+        except NumericalError:
+            return problem.newton(ev, extra=extra_of(False), shift=shift)
+    Hs, GNs = problem.hessian_samples(ev)
+    Hb = element_blocks(problem.op_h, Hs)
+    extra = extra_of(True)
+    try:
+        return problem.banded(Hb if extra is None else Hb + extra, shift)
+    except NumericalError:
+        extra = extra_of(False)
+        if extra is None:
+            raise
+        return problem.positive_definite(Hb + extra, lambda: element_blocks(problem.op_h, GNs) + extra, shift)
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
@@ -90,7 +115,7 @@ class QPReplan:
 
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
-             stop: Callable[[int], bool] | None = None) -> QPReplan:
+             stop: Callable[[int], bool] | None = None, quick: bool = False) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -103,6 +128,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     stop : asked with the number of steps taken after each step (before the next point's Newton matrix); True ends
         the steps there (a time budget: ``hoc_cli.realtime``); the result's decrement is then the last programme's
         (at the point before the step) and it carries no factor.
+    quick : the Newton matrix with the goal rows' full curvature is factored once as it is, and when it is not
+        positive definite the curvature's negative part is dropped at once (``_newton``; without it the cost's
+        positive semi-definite part is first added in growing multiples, up to 13 more factorisations): the
+        real-time replanner's steps, where time counts.
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -116,6 +145,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     def at(T_, C_, lam_, active_):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
                               free is not None, cache, active_, fractions=fractions)
+
+    def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
+        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
@@ -139,22 +171,20 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
         else:
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
+            def extra_of(indefinite: bool, held=held, C=C):  # away from the optimum: without the negative part
+                return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
+
             try:
-                W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, True, pt.where),
-                                   shift=lm)
-            except NumericalError:  # away from the optimum: the goal rows' curvature without its negative part
-                try:
-                    W = problem.newton(pt.ev, extra=_blocks(problem, lam[:npts], rho_aug, C, pt.res, held, False,
-                                                            pt.where), shift=lm)
-                except NumericalError:
-                    if _log.isEnabledFor(logging.DEBUG):
-                        _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
-                    break
+                W = _newton(problem, pt.ev, extra_of, lm, quick)
+            except NumericalError:
+                if _log.isEnabledFor(logging.DEBUG):
+                    _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
+                break
             U = dense_factor(W)
         U_last = U
-        everything = all_rows(system, limits, pt.rows, C)
-        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo[:KINEMATIC]),
-                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi[:KINEMATIC]))
+        everything = row_values(limits, pt.rows, C)
+        cand = ActiveRows.where(tuple(g > -CANDIDATE_GAP for g in everything.g_lo),
+                                tuple(g > -CANDIDATE_GAP for g in everything.g_hi))
         A, A_full = cand.jacobian(pt.rows, limits, layout.free)
         gA = A_full @ C.ravel() + cand.offsets(limits)
         violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
@@ -224,10 +254,14 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             T_a = T + alpha * dT
             return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
 
+        def violation_at(alpha: float) -> float:
+            T_a = T + alpha * dT
+            return goal_rows_at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a))
+
         accept = None
         if test is not None:
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept)
+        trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept, violation_at)
         if trial is None:
             break
         if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
@@ -258,15 +292,17 @@ class MeritTest:
         self.pi = 0.0
 
     def infeasibility(self, pt, everything=None) -> float:
-        """Σ|c| over the goal rows + Σ max(0, g) over every kinematic row at the point."""
+        """Σ|c| over the goal rows + Σ max(0, g) over every kinematic row at the point (``everything``: its
+        ``row_values`` when known).
+        """
         if everything is None:
-            everything = all_rows(self.system, self.limits, pt.rows, pt.C)
-        rows = sum(float(np.sum(np.maximum(g, 0.0))) for g in everything.g_lo[:KINEMATIC] + everything.g_hi[:KINEMATIC])
+            everything = row_values(self.limits, pt.rows, pt.C)
+        rows = sum(float(np.sum(np.maximum(g, 0.0))) for g in everything.g_lo + everything.g_hi)
         return float(np.sum(np.abs(pt.c[:self.r]))) + rows
 
     def prepare(self, pt, T: float, slope_I: float, multipliers: np.ndarray, everything):
         """The acceptance test of the step from ``pt`` (at T): ``slope_I`` the derivative of I + weight·T along it,
-        ``multipliers`` its programme's, ``everything``: ``all_rows`` at ``pt``.
+        ``multipliers`` its programme's, ``everything``: ``row_values`` at ``pt``.
         """
         needed = 1.1 * float(np.max(np.abs(multipliers), initial=0.0))
         self.pi = max(needed, 0.5 * (self.pi + needed))

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.dynamics import frame_jacobian, link_poses, link_velocity_derivatives
+from hoc_cli.dynamics import link_motion, link_poses
 
 
 def quaternion_matrix(wxyz) -> np.ndarray:
@@ -131,11 +131,7 @@ class FrameResidual:
         v0, a = self._motion()
         p_goal, v_goal = self.target(T)
         zero = np.zeros((K, 3, n))
-        if self.match_velocity:
-            V, dV_dq, J = link_velocity_derivatives(self.model, q, dq, self.link)
-        else:
-            J = frame_jacobian(self.model, q, self.link)
-        P = link_poses(self.model, q)[self.link]
+        P, V, dV_dq, J = link_motion(self.model, q, dq, self.link)  # one pass along the link's chain
         c, cq, cv, cT = [P[:, :3, 3] - p_goal], [J[:, :3]], [zero], [-(v0 + a * T)]
         if self.orientation is not None:
             e, de = zip(*(orientation_residual(R, self.orientation) for R in P[:, :3, :3]))

@@ -10,16 +10,26 @@ derivative within its bound on the whole element (the Bernstein hull contains th
 within ``GAP`` of their bound, min ½‖d‖² s.t. A(x + d) + o ≤ 0 and E d = 0 for rows E to keep (the goal rows'
 Jacobian: the plan keeps meeting its goal to first order) (a least-distance programme, solved exactly by
 ``hoc_cli.goals.qp_step.solve_qp``), repeated with every row that the projection broke, up to ``ROUNDS``
-times; None when no such projection is found (the caller keeps its previous plan). Pure maths: no I/O.
+times; None when no such projection is found (the caller keeps its previous plan).
+
+``within_limits`` is the exact check of a plan the guard returned: every kinematic Bernstein row at or below its
+bound, the rows fixed by the start state included (they are not rows of the guard's programme), implies q, q̇, q̈
+and the jerk within their limits on the whole plan (the Bernstein hull), so ``check_limits``' exact extrema are
+needed only when such a row is above its bound; the torques are checked as ``check_limits`` does (32 points per
+element and the nodes). Pure maths: no I/O.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.bounds import KINDS, KINEMATIC, JointLimits
+from hoc_cli.constraints.check import check_limits
+from hoc_cli.constraints.penalty import effective_bounds
 from hoc_cli.errors import NumericalError
-from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.qp_step import solve_qp
+from hoc_cli.goals.replan_point import row_values
 
 ROW_TOL = 1e-9  # a row holds when g ≤ this (the margin is 1e-9: the limit itself is then met to the check's 1e-9)
 GAP = 0.05  # rows within this of their bound enter the projection
@@ -29,48 +39,77 @@ PUSH = 1e-10  # the projection aims this far inside the rows (rounding)
 
 def worst_row(system, limits, rows, C: np.ndarray) -> float:
     """The largest g over every kinematic row of C (−inf when none is imposed)."""
-    pv = all_rows(system, limits, rows, C)
-    return max(float(np.max(g, initial=-np.inf)) for g in pv.g_lo[:KINEMATIC] + pv.g_hi[:KINEMATIC])
+    return row_values(limits, rows, C).worst()
 
 
-def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray | None:
+def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarray | None = None,
+          near: list | None = None) -> np.ndarray | None:
     """C when its kinematic rows hold, else its projection onto them at the same T, or None (module docstring).
 
     rows : the mesh's ``LimitRows``; free : (P_all,) bool, the free entries of C.ravel(); keep : (r, P) rows E whose
     values the projection keeps to first order (E d = 0: the goal rows' Jacobian, so that the plan still meets
-    its goal), or None.
+    its goal), or None; near : an empty list, or the one of an earlier call on the same C: the projection's rows
+    (per kind, lower and upper boolean masks) are those in it plus those within ``GAP`` of their bound, and it
+    is left holding every row the rounds used (a second projection of C, e.g. without ``keep``, then starts from
+    the rows the first one needed instead of finding them again round by round).
     """
-    if worst_row(system, limits, rows, C) <= ROW_TOL:
+    kr = row_values(limits, rows, C)
+    if kr.worst() <= ROW_TOL:
         return C
     flat = np.asarray(C, float).ravel().copy()
-    near = None
+    lo = [g > -GAP for g in kr.g_lo]
+    hi = [g > -GAP for g in kr.g_hi]
+    if near:
+        lo, hi = [a | b for a, b in zip(lo, near[0])], [a | b for a, b in zip(hi, near[1])]
+    E = np.zeros((0, int(np.sum(free)))) if keep is None else np.asarray(keep, float)
+    out = None
     for _ in range(ROUNDS):
-        pv = all_rows(system, limits, rows, flat.reshape(C.shape))
-        now = ActiveRows.where(tuple(g > -GAP for g in pv.g_lo[:KINEMATIC]), tuple(g > -GAP for g in pv.g_hi[:KINEMATIC]))
-        near = now if near is None else _union(near, now)
-        A, A_full = near.jacobian(rows, limits, free)
-        g = A_full @ flat + near.offsets(limits)
-        E = np.zeros((0, A.shape[1])) if keep is None else np.asarray(keep, float)
+        rows_now = ActiveRows.where(tuple(lo), tuple(hi))
+        A, A_full = rows_now.jacobian(rows, limits, free)
+        g = A_full @ flat + rows_now.offsets(limits)
         # the metric is the identity: d = 0 off the columns the rows touch
         cols = np.flatnonzero(np.any(A != 0.0, axis=0) | np.any(E != 0.0, axis=0))
         P = cols.size
         try:
             step = solve_qp(np.eye(P), np.zeros(P), E[:, cols], np.zeros(E.shape[0]), A[:, cols], -g - PUSH)
         except NumericalError:
-            return None
+            break
         d = np.zeros(A.shape[1])
         d[cols] = step.d
         flat[free] += d
-        if worst_row(system, limits, rows, flat.reshape(C.shape)) <= ROW_TOL:
-            return flat.reshape(C.shape)
-    return None
+        kr = row_values(limits, rows, flat.reshape(C.shape))
+        if kr.worst() <= ROW_TOL:
+            out = flat.reshape(C.shape)
+            break
+        lo = [a | (b > -GAP) for a, b in zip(lo, kr.g_lo)]
+        hi = [a | (b > -GAP) for a, b in zip(hi, kr.g_hi)]
+    if near is not None:
+        near[:] = [lo, hi]
+    return out
 
 
-def _union(a: ActiveRows, b: ActiveRows) -> ActiveRows:
-    """The rows of a and of b, each once."""
-    keys = np.unique(np.concatenate([_keys(a), _keys(b)]), axis=0)
-    return ActiveRows(*(np.ascontiguousarray(k) for k in keys.T))
+def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None) -> bool:
+    """Whether the plan C (N+1, m, n) on ``rows.mesh`` passes ``check_limits`` (module docstring): every kinematic
+    Bernstein row of every element g ≤ ``ROW_TOL`` (else ``check_limits`` on the kinematic kinds decides), and
+    ``check_limits`` with ``effort`` (the effort limits alone, or None when there are none).
+    """
+    mesh = rows.mesh
+    loc = mesh.local_coefficients(np.asarray(C, float))
+    lo, hi, sig = effective_bounds(limits, MARGIN)
+    worst = -np.inf
+    for k in range(KINEMATIC):
+        if not limits.has(KINDS[k]).any():
+            continue
+        V = rows.apply(k, loc)  # (N, R_k, n)
+        with np.errstate(invalid="ignore"):
+            worst = max(worst, float(np.max((V - hi[k]) / sig[k])), float(np.max((lo[k] - V) / sig[k])))
+    if not worst <= ROW_TOL and not check_limits(system, limits, mesh, C).feasible:
+        return False
+    return effort is None or check_limits(system, effort, mesh, C).feasible
 
 
-def _keys(r: ActiveRows) -> np.ndarray:
-    return np.stack((r.kind, r.elem, r.row, r.joint, r.side), axis=1).reshape(-1, 5)
+def effort_only(limits: JointLimits) -> JointLimits | None:
+    """The effort limits of ``limits`` alone (None when no joint has one): ``within_limits``' torque check."""
+    if not np.isfinite(limits.effort).any():
+        return None
+    return JointLimits.from_arrays(limits.joints, effort=limits.effort)

@@ -16,10 +16,12 @@ converges. ``Replanner.update(t, x, target, budget_s)``:
    programme's convergence test holds or the budget would be overrun: the first step is always taken (the
    real-time iteration's step; a cycle whose first step alone exceeds the budget is an overrun), a further one
    only when the time spent plus the largest of the last measured step times (and of the wrap-up) fits in it;
-4. returns a plan within every joint limit by ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the
-   torque at 32 points per element): its kinematic Bernstein rows are made to hold (``limits_guard``), and a plan
-   that still fails the check (the torque limits are not rows of the steps) is not returned: the plan in force is
-   kept ("held"), which passed the same check when it was returned.
+4. returns a plan that passes ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the torque at 32 points
+   per element): its kinematic Bernstein rows are made to hold (``limits_guard.guard``), which bounds the
+   kinematic kinds on the whole plan, and ``limits_guard.within_limits`` checks it (the extrema only where a row
+   fixed by the start state is above its bound, the torques always); a plan that fails (the torque limits are
+   not rows of the steps) is not returned: the plan in force is kept ("held"), which passed the same check when
+   it was returned.
 
 What one step guarantees: the step's programme imposes the Bernstein rows within 5 % of their bound as
 linear inequalities, which they are in the coefficients at a fixed T; a full step at a fixed T therefore
@@ -28,8 +30,8 @@ combination), and rows farther than 5 % from their bound hold unless one step cr
 T the rows' dependence on T is linearised, so a step that moves T meets them to first order only. The
 exact guarantee (every returned plan within its limits) comes from the guard and the check: the plan after the
 steps is checked row by row; rows broken are projected back, at the plan's T, onto all the linear rows (a
-least-distance programme, ``limits_guard.guard``), and the result must pass ``check_limits``; else the plan in
-force is kept.
+least-distance programme, ``limits_guard.guard``), and the result must pass the check (``within_limits``, which
+implies ``check_limits``); else the plan in force is kept.
 Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -42,7 +44,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.constraints.check import check_limits
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
@@ -52,7 +53,7 @@ from hoc_cli.goals.replan_point import VIOLATION_FLOOR
 from hoc_cli.goals.replan_qp import qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.ocp.problem import Free, OptimalControlProblem
-from hoc_cli.realtime.limits_guard import guard
+from hoc_cli.realtime.limits_guard import effort_only, guard, within_limits
 from hoc_cli.realtime.shift import shift_plan
 
 MIN_REMAINING = 1e-3  # [s] a plan shorter than this is not replanned (held)
@@ -75,7 +76,7 @@ class CyclePlan:
     Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
     replanner's ``max_steps``) |
     "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "held" (no
-    time left, the start could not be evaluated, or the result failed ``check_limits``: the plan in force kept) | "cold" (the
+    time left, the start could not be evaluated, or the result failed the limits' check: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
     [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
@@ -123,6 +124,7 @@ class Replanner:
         if problem.link_goal is None or not isinstance(problem.time, Free):
             raise ValueError("the replanner needs a problem with a link goal and a free T")
         self.problem, self.system, self.limits = problem, problem.system, problem.limits
+        self.effort = effort_only(problem.limits) if problem.limits is not None else None
         self.free: Free = problem.time
         self.goals: Goals = plan.goals if plan.goals is not None else problem.goals()
         result = plan.result
@@ -199,7 +201,7 @@ class Replanner:
         try:
             out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
                            tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J), 1.0),
-                           floor=VIOLATION_FLOOR, stop=stop)
+                           floor=VIOLATION_FLOOR, stop=stop, quick=True)
         except NumericalError:
             return self._hold(start)
         pt = out.point
@@ -209,9 +211,10 @@ class Replanner:
         safe = C_new
         if self.limits is not None:  # the goal rows kept by the projection if it can, else the limits alone
             safe = None
+            near: list = []  # the rows the first projection needed: the second one starts from them
             for keep in (pt.D[:r], None):
-                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep)
-                if C_try is not None and check_limits(self.system, self.limits, mesh_new, C_try).feasible:
+                C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep, near=near)
+                if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort):
                     safe = C_try
                     break
                 if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
@@ -223,7 +226,8 @@ class Replanner:
         J = pt.J
         if guarded:  # the projected plan's own cost and goal rows
             J = float(pt.problem.value(pt.problem.layout.pack(safe)))
-            violation = GoalTerms.start(mesh_new, pt.problem.points).violation(safe)
+            violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
+                                  pt.where).violation(safe)
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
