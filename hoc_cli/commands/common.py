@@ -36,7 +36,7 @@ from hoc_cli.report.files import (  # noqa: F401  (re-exported)
     start_run,
     what_changed,
 )
-from hoc_cli.report.inputs import check_columns, check_sample_times, load_model, read_urdf_text  # noqa: F401
+from hoc_cli.report.inputs import check_columns, check_sample_times, read_urdf_text  # noqa: F401
 from hoc_cli.report.jsonio import json_ready, print_json, validate_json  # noqa: F401  (re-exported)
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
