@@ -159,15 +159,22 @@ def _with_file(task: Task, fn):
     return naming_file(fn, task.path)
 
 
+def _starting_point(task: Task, model, states, mesh: HermiteMesh, C_init) -> tuple[ControlProblem, np.ndarray]:
+    """The joint-goal problem of ``task`` on ``mesh`` and where its solve starts: the free coefficients of the
+    minimum-jerk guess, or of ``C_init`` (N+1, m, n: --init's plan).
+    """
+    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
+    return problem, problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+
+
 def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
     """``--check-gradient``: the cost gradient at the initial guess against central differences."""
-    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
-    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
-    coordinates = None
-    if x.size > GRADIENT_MAX_COORDINATES:
-        coordinates = np.sort(np.random.default_rng(0).choice(x.size, GRADIENT_MAX_COORDINATES, replace=False))
+    from hoc_cli.commands.gradient_goals import checked_coordinates
+
+    problem, x = _starting_point(task, model, states, mesh, C_init)
     with np.errstate(all="ignore"):
-        check = check_gradient(problem.value, x, problem.evaluate(x).grad, coordinates=coordinates)
+        check = check_gradient(problem.value, x, problem.evaluate(x).grad,
+                               coordinates=checked_coordinates(x.size, GRADIENT_MAX_COORDINATES))
     passed = check.passed(GRADIENT_RTOL)
     worst, where = None, "no free coefficients (every coefficient is fixed by x0 and x1)"
     if check.coordinates.size:
@@ -203,8 +210,7 @@ def _refuse_nonfinite_cost(task: Task, model, states, mesh: HermiteMesh, C_init)
     """TaskError (exit 2) when the cost is not finite where the solve starts (the minimum-jerk guess, or
     --init's plan): values of the task (or its URDF) far beyond physical size; one cost evaluation.
     """
-    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
-    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+    problem, x = _starting_point(task, model, states, mesh, C_init)
     with np.errstate(all="ignore"):  # the torques and ½ Σ w uᵀu: a singular M is the solve's to report (exit 1)
         q, dq, ddq = problem.op.apply(problem.coefficients(x))
         u = problem.system.inverse_dynamics(q, dq, ddq)

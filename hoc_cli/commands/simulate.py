@@ -362,18 +362,12 @@ def _check_span(file: Path, t: np.ndarray, T: float) -> None:
 
 def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
     """A ``--torque`` CSV or MCAP as a torque source and a one-word description."""
-    from hoc_cli import torque as torque_sources
-
     suffix = file.suffix.lower()
     if suffix == ".csv":
         from hoc_cli.io.csv import read_csv
 
         traj = read_csv(file)
-        cols = _columns(file, tuple(traj.joints), joints)
-        if traj.K < 2:
-            raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
-        _check_span(file, traj.t, T)
-        return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "csv"
+        return _sampled_torque(traj, file, _columns(file, tuple(traj.joints), joints), T), "csv"
     if suffix == ".mcap":
         from hoc_cli.io.mcap import read_plan
 
@@ -391,10 +385,17 @@ def _torque_from_plan(plan, file: Path, system, joints: tuple[str, ...], T: floa
         if traj.mesh.T < T * (1 - 1e-12):
             raise InputFileError(f"the plan lasts {traj.mesh.T:g} s; the simulation needs {T:g} s", file=file)
         return torque_sources.PlannedTorque(system, traj.mesh, np.asarray(traj.coeffs)[:, :, cols]), "plan (exact Hermite)"
+    return _sampled_torque(traj, file, cols, T), "plan (sampled)"
+
+
+def _sampled_torque(traj, file: Path, cols, T: float):
+    """The torques u of a sampled trajectory's columns ``cols``, interpolated; at least 2 samples spanning [0, T]."""
+    from hoc_cli import torque as torque_sources
+
     if traj.K < 2:
         raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
     _check_span(file, traj.t, T)
-    return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "plan (sampled)"
+    return torque_sources.SampledTorque(traj.t, traj.u[:, cols])
 
 
 # --------------------------------------------------------------------------- outputs
