@@ -189,10 +189,10 @@ def test_item7_a_one_sided_limit_is_null_in_the_json_summary_and_in_the_mcap(d):
 
 
 def test_item7_the_summary_is_validated_before_any_output_is_written(d, monkeypatch):
-    from hoc_cli.report import summary as report_summary  # hoc plan's summary is report/summary.plan_report's
+    from hoc_cli.commands import plan as plan_cmd
 
-    real = report_summary.summarise
-    monkeypatch.setattr(report_summary, "summarise", lambda *a, **k: real(*a, **k) | {"bad": object()})
+    real = plan_cmd.summarise
+    monkeypatch.setattr(plan_cmd, "summarise", lambda *a, **k: real(*a, **k) | {"bad": object()})
     (d / "out.csv").write_bytes(b"KEEP\n")
     before = snapshot(d)
     r = invoke("plan", "t.yaml", "-o", "out.csv", "-o", "out.mcap")
