@@ -68,8 +68,8 @@ def panda_multistart(seeds: int, starts: int, as_json: bool) -> int:
     """Multi-start on the Panda move for seeds 0 … seeds−1; prints every start's J and the kept J."""
     import sysconfig
 
-    from hoc_cli.commands.common import load_model
     from hoc_cli.elements import HermiteMesh
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import parse_task, resolve
     from hoc_cli.multistart import solve_starts
     from hoc_cli.system import RobotSystem

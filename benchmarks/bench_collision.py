@@ -63,7 +63,7 @@ def _scene(rng) -> list[dict]:
 def problems(count: int, N: int, seed: int = 0) -> list[dict]:
     """``count`` task documents whose start and goal are ``START_CLEARANCE`` clear (hoc's distances)."""
     from hoc_cli.collision.evaluate import distances
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
     from hoc_cli.report.collision import task_collision
 
@@ -95,7 +95,7 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
     except ImportError:
         return None
     from hoc_cli.collision.scene import KIND_SELF
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
     from hoc_cli.report.collision import task_collision
 
@@ -150,8 +150,8 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
 
 def run(doc: dict, workdir: Path) -> dict:
     from hoc_cli.collision.evaluate import distances
-    from hoc_cli.commands.common import load_model
     from hoc_cli.elements import HermiteMesh
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
     from hoc_cli.problem import minimum_jerk_guess
     from hoc_cli.report.collision import task_collision
@@ -180,7 +180,7 @@ def drake_row(doc: dict, workdir: Path) -> dict:
     from _drake_collision import drake_plan
 
     from hoc_cli.collision.evaluate import distances
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
     from hoc_cli.report.collision import task_collision
 

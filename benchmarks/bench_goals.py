@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hoc_cli.commands.common import load_model
 from hoc_cli.dynamics import link_poses
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.free_time import joint_goal_solver, minimize_time
 from hoc_cli.goals import plan_goals
+from hoc_cli.io.robot import load_model
 from hoc_cli.io.task import load_task, load_yaml, parse_task, resolve
 from hoc_cli.io.task.problem import task_goals, task_limits
 from hoc_cli.system import RobotSystem

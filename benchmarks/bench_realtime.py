@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hoc_cli.commands.common import load_model
+from hoc_cli.io.robot import load_model
 from hoc_cli.io.scenario import load_scenario
 from hoc_cli.io.task import apply_overrides, resolve
 from hoc_cli.io.task.problem import problem_from_task, task_limits

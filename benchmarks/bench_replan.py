@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hoc_cli.commands.common import load_model
 from hoc_cli.goals.free_time_sqp import minimize_time_sqp
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.time_solver import goal_solver
+from hoc_cli.io.robot import load_model
 from hoc_cli.io.task import load_task, resolve
 from hoc_cli.io.task.problem import task_goals, task_limits
 from hoc_cli.system import RobotSystem

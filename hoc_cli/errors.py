@@ -51,7 +51,7 @@ class JointSelectionError(ModelError):
     """The task's ``joints``, ``locked`` or ``gravity`` do not fit the URDF.
 
     ``task_key`` names the task key at fault (``locked.nope``, ``joints[2]``), so that a command can
-    blame the task file rather than the URDF (see ``hoc_cli.commands.common.load_model``).
+    blame the task file rather than the URDF (see ``hoc_cli.io.robot.load_model``).
     """
 
     def __init__(self, message: str, *, file: str | Path | None = None, key: str | None = None,

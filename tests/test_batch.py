@@ -98,7 +98,7 @@ def test_the_cli_and_a_single_plan_do_not_import_dask_or_pyarrow():
 
 def test_a_sweep_is_the_cartesian_product_of_its_axes_with_reproducible_random_values(tmp_path):
     from hoc_cli.batch.spec import load_spec
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
 
     base = write_base(tmp_path)
@@ -328,8 +328,8 @@ def test_ctrl_c_cancels_keeps_the_completed_rows_exits_130_and_resume_finishes(t
 
 @pytest.fixture(scope="module")
 def arm():
-    from hoc_cli.commands.common import load_model
     from hoc_cli.elements import HermiteMesh
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task, resolve
     from hoc_cli.system import RobotSystem
 

@@ -19,11 +19,11 @@ import pytest
 
 ca = pytest.importorskip("casadi")
 
-from hoc_cli.commands.common import load_model  # noqa: E402
 from hoc_cli.dynamics import link_poses  # noqa: E402
 from hoc_cli.elements import HermiteMesh  # noqa: E402
 from hoc_cli.free_time import joint_goal_solver, minimize_time  # noqa: E402
 from hoc_cli.goals import plan_goals  # noqa: E402
+from hoc_cli.io.robot import load_model  # noqa: E402
 from hoc_cli.io.task import load_yaml, parse_task, resolve  # noqa: E402
 from hoc_cli.io.task.problem import task_goals, task_limits  # noqa: E402
 from hoc_cli.system import RobotSystem  # noqa: E402

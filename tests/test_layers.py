@@ -147,3 +147,25 @@ def test_a_fixed_time_plan_loads_no_module_it_does_not_use(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+#: what makes a task ready to solve: ``hoc_cli.report.prepare`` does it for both front ends
+PREPARATION = {"load_model", "resolve", "task_limits", "check_jerk_order", "check_boundary_states", "task_collision",
+               "check_boundary_clearance", "enforced_problem", "problem_from_task", "refuse_infeasible", "plan_report",
+               "sample_plan", "write_outputs", "SolveOptions"}
+
+
+def preparation_taken(module: str, tree: ast.AST) -> set[str]:
+    """The names of ``PREPARATION`` that ``module`` imports from the package (it should call ``prepare``)."""
+    return {n for mod, names in imports(tree, module) if mod.startswith("hoc_cli") for n in names} & PREPARATION
+
+
+@pytest.mark.parametrize("module", ["hoc_cli.commands.plan", "hoc_cli.batch.job"])
+def test_hoc_plan_and_hoc_batch_prepare_a_task_through_report_prepare(module):
+    assert preparation_taken(module, MODULES[module]) == set()
+    assert any(mod == "hoc_cli.report.prepare" for mod, _ in imports(MODULES[module], module))
+
+
+def test_the_preparation_check_sees_a_front_end_building_its_own_problem():
+    tree = ast.parse("def _solve():\n    from hoc_cli.io.task.problem import problem_from_task, task_limits\n")
+    assert preparation_taken("hoc_cli.batch.job", tree) == {"problem_from_task", "task_limits"}

@@ -88,6 +88,7 @@ def test_hoc_new_to_stdout_and_its_default_name(tmp_path, monkeypatch):
     (["new", "nope.urdf"], "nope.urdf"),
     (["new", "{robot}", "-o", "{tmp}/t.txt"], "expected .yaml"),
     (["new", "{robot}", "-o", "{tmp}/no/dir/t.yaml"], "does not exist"),
+    (["new", "{robot}", "-o", "{robot}/t.yaml"], "pendulum.urdf' is not a directory"),
     (["new", "{robot}", "-o", "{robot}"], "expected .yaml"),
 ])
 def test_hoc_new_bad_input_is_one_line_and_exit_2(tmp_path, args, needle):

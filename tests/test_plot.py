@@ -102,6 +102,7 @@ def test_without_matplotlib_plot_says_how_to_install_it_and_exits_2(files, tmp_p
     (["nope.csv", "-o", "{tmp}/fig.png"], "file not found"),
     (["{csv}", "-o", "{tmp}/fig.jpg"], "expected .png, .pdf or .svg"),
     (["{csv}", "-o", "{tmp}/no/such/dir/fig.png"], "does not exist"),
+    (["{csv}", "-o", "{csv}/fig.png"], "is not a directory"),  # as hoc plan's -o says
 ])
 def test_bad_input_or_output_is_one_line_and_exit_2(files, tmp_path, args, expected):
     args = [a.format(tmp=tmp_path, csv=files[0]) for a in args]

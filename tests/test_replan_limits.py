@@ -209,7 +209,7 @@ def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():
 
 def _task(path, text: str):
     """(system, goals, limits, x0 states) of a task file written at ``path``."""
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task, resolve
     from hoc_cli.io.task.problem import task_goals, task_limits
 

@@ -43,3 +43,34 @@ def test_hoc_plan_exit_1_line_comes_from_the_table(tmp_path):
     status = Status.of(summary["status"])
     assert status is Status.MAX_ITER and summary["converged"] is False
     assert unmet_line(status, summary["message"], "was not written (-o none)") in r.stderr
+
+
+REFERENCE = ROOT / "docs" / "reference.md"
+
+
+def documented_statuses(text: str) -> dict[str, list[str]]:
+    """The rows of docs/reference.md's "Status values" table: status value -> its cells after the first."""
+    section = text.split("## Status values", 1)[1].split("\n## ", 1)[0]
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 6:
+            rows[cells[0].strip("`")] = cells[1:]
+    return rows
+
+
+def test_every_status_is_documented_with_its_exit_code_and_words():
+    rows = documented_statuses(REFERENCE.read_text(encoding="utf-8"))
+    assert set(rows) == {s.value for s in Status}, "docs/reference.md's Status values table is not the enum"
+    for status in Status:
+        meaning, code, word, kept, counted = rows[status.value]
+        assert meaning and (code == "0") == (status is Status.CONVERGED), status
+        assert (word, kept, counted) == (MESSAGES[status].word, MESSAGES[status].kept, MESSAGES[status].counted)
+
+
+def test_the_status_table_check_sees_a_missing_row():
+    text = REFERENCE.read_text(encoding="utf-8")
+    rows = documented_statuses(text)
+    assert rows["infeasible"][1:] == ["1", "infeasible", "the least-violating plan", "not converged"]
+    without = "\n".join(line for line in text.splitlines() if not line.startswith("| `goal_missed`"))
+    assert set(documented_statuses(without)) == {s.value for s in Status} - {"goal_missed"}

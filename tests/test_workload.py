@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from hoc_cli.cli import app
 from hoc_cli.commands import plan as plan_cmd
-from hoc_cli.commands.common import load_model
 from hoc_cli.errors import OutputError
+from hoc_cli.io.robot import load_model
 from hoc_cli.io.task import load_task
 from hoc_cli.report.workload import WARN_BYTES, WARN_SECONDS, Heartbeat, estimate_workload
 from tests._robots import task_configs

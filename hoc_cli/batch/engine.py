@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence
 
 from hoc_cli.errors import HocError, TaskError
-from hoc_cli.report.files import TERMINATING
+from hoc_cli.report.files import TERMINATING, signal_handlers
 
 CONNECT_TIMEOUT_S = 10.0  # default of --connect-timeout [s]
 WORKERS_PER_CORE = 4  # --workers at most this many worker processes per available core
@@ -171,7 +171,7 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
         except Exception as exc:  # noqa: BLE001 - whatever Dask raises is one line
             raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler!r} ({type(exc).__name__}: "
                                  f"{str(exc)[:120]})", key=key) from None
-        try:
+        with _closing(client):
             if not client.nthreads():
                 try:
                     client.wait_for_workers(1, timeout=timeout)
@@ -180,9 +180,6 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
                                          f"{timeout:g} s; expected workers started with 'dask worker {scheduler}'; "
                                          "--connect-timeout sets the wait)", key=key) from None
             yield client
-        finally:
-            with _dask_quiet():
-                client.close()
         return
     check_workers(workers)
     import dask
@@ -201,12 +198,8 @@ def connect(workers: int | None = None, scheduler: str | None = None, *, timeout
             cluster = LocalCluster(n_workers=workers or available_cores(), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
                                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
-        client = Client(cluster, set_as_default=False)
-        try:
+        with _closing(Client(cluster, set_as_default=False)) as client:
             yield client
-        finally:
-            with _dask_quiet():
-                client.close()
     finally:
         if cluster is not None:
             with _dask_quiet():
@@ -234,6 +227,16 @@ def _dask_quiet() -> Iterator[None]:
 
 
 @contextmanager
+def _closing(client: Any) -> Iterator[Any]:
+    """``client`` for the block, closed after it without Dask's closing chatter."""
+    try:
+        yield client
+    finally:
+        with _dask_quiet():
+            client.close()
+
+
+@contextmanager
 def _signals_deferred() -> Iterator[None]:
     """SIGINT, SIGTERM and SIGHUP held back while the worker processes start, then delivered.
 
@@ -248,18 +251,10 @@ def _signals_deferred() -> Iterator[None]:
     def record(signum: int, frame: Any) -> None:
         caught.append(signum)
 
-    previous: dict[int, Any] = {}
     try:
-        for sig in held:
-            previous[sig] = signal.signal(sig, record)
-    except ValueError:  # not the main thread: nothing to do
-        yield
-        return
-    try:
-        yield
+        with signal_handlers(held, record):  # not the main thread: nothing to do
+            yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         for sig in dict.fromkeys(caught):
             signal.raise_signal(sig)
 

@@ -62,54 +62,35 @@ def _message(exc: Exception) -> str:
 
 
 def _solve(job: Job, out_dir: str | None, kinds: tuple[str, ...]) -> dict:
-    from hoc_cli.io.task import load_task, parse_task, resolve
-    from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
-    from hoc_cli.report.collision import prepare_collision
+    from hoc_cli.io.task import load_task, parse_task
     from hoc_cli.report.files import OutputTarget, output_transaction
-    from hoc_cli.report.inputs import check_columns, check_sample_times, check_starts, load_model, read_urdf_text
-    from hoc_cli.report.limits import check_boundary_states, refuse_infeasible
-    from hoc_cli.report.outputs import sample_plan, write_outputs
-    from hoc_cli.report.summary import plan_report, reproducible_summary
-    from hoc_cli.strategy import SolveOptions, solve
-    from hoc_cli.system import RobotSystem
+    from hoc_cli.report.inputs import check_starts
+    from hoc_cli.report.prepare import prepare
+    from hoc_cli.strategy import solve
 
     source = Path(job.source)
     if job.doc is None:
         task = load_task(source, purpose="plan")  # raises the reason the file is not a task
     else:
         task = parse_task(job.doc, path=source, text=job.yaml_text(), purpose="plan")
-    names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
-    targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
-    check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)
-    model = load_model(task)
-    check_columns(targets, model.joint_names)
-    states = resolve(task, model.joint_names)
-    limits = task_limits(model, states.limits)
-    check_jerk_order(task, limits, task.order)
-    if task.limits.mode == "enforce":
-        check_boundary_states(task, limits, states)
     starts = task.solver.starts if job.starts is None else job.starts  # the spec's starts, else the task's
     seed = task.solver.seed if job.seed is None else job.seed
     check_starts(starts, seed, None, key="solver.starts" if job.starts is None else "starts")
-    problem = problem_from_task(task, model, states, limits if task.limits.mode == "enforce" else None)
-    collision, problem, collision_mode = prepare_collision(task, model, states, problem, starts=starts)
-    if problem.has_goals and starts > 1:
+    names = [f"{PLANS_DIR}/{job.id}.{kind}" for kind in kinds] if out_dir is not None else []
+    targets = [OutputTarget(Path(out_dir) / name, kind) for name, kind in zip(names, kinds)] if names else []
+    ready = prepare(task, targets, starts=starts)
+    if ready.problem.has_goals and starts > 1:
         raise TaskError("multi-start applies to joint goals in a fixed T (the task has goals: docs/goals.md)",
                         file=task.path, key="solver.starts")
-    if task.limits.mode == "enforce":  # a task no trajectory within the limits can meet: proven before the solve
-        refuse_infeasible(task, RobotSystem(model), limits, states)
-    options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
-                           estimate_error=False)  # as ``hoc plan``, without its error estimate
-    planned = naming_file(lambda: solve(problem, options), task.path)
-    reported = plan_report(task, model, planned, states, limits=limits, collision=collision,
-                           collision_mode=collision_mode, seed=seed)  # a batch plan has no --init
+    ready.refuse_infeasible()  # a task no trajectory within the enforced limits can meet: proven before the solve
+    options = ready.options(starts=starts, seed=seed, estimate_error=False)  # as ``hoc plan``, without its estimate
+    planned = naming_file(lambda: solve(ready.problem, options), task.path)
+    reported = ready.report(planned, seed=seed)  # a batch plan has no --init
     if targets:
         (Path(out_dir) / PLANS_DIR).mkdir(parents=True, exist_ok=True)
-        urdf_text = read_urdf_text(task.robot) if "mcap" in kinds else ""
-        traj = sample_plan(RobotSystem(model), reported.result, model.joint_names, task.rate)
+        traj = ready.sample(reported)
         with output_transaction():
-            write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                          summary=reproducible_summary(reported.summary), goals=planned.goals)
+            ready.write(targets, traj, reported.summary, planned.goals)
     return row_of(job, reported, names)
 
 

@@ -214,7 +214,7 @@ def _sweep_jobs(doc: dict, where: Path, starts: int | None, seed: int | None, la
         parts = _key_path(key, where_key, label)
         if isinstance(spec, dict) and "random" in spec:
             if model is None and _wants_limits(spec["random"]):
-                from hoc_cli.report.inputs import load_model
+                from hoc_cli.io.robot import load_model
 
                 model = load_model(task)
             values = _random(spec, parts, base_doc, model, where_key, fail)
@@ -278,7 +278,7 @@ def _refuse_unknown_keys(doc: dict, base_path: Path, keys: list[str], label, mod
         if models is not None:
             spec = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
             if spec not in models:
-                from hoc_cli.report.inputs import load_model
+                from hoc_cli.io.robot import load_model
 
                 try:
                     models[spec] = load_model(task)

@@ -14,12 +14,12 @@ from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
     json_ready,
-    load_model,
     print_json,
     read_urdf_text,
     stderr_console,
 )
 from hoc_cli.errors import OutputError
+from hoc_cli.io.robot import load_model
 
 
 def run(scenario_path: Path, *, as_json: bool = False, seed: int | None = None, noise: float | None = None,

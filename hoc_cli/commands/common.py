@@ -33,10 +33,11 @@ from hoc_cli.report.files import (  # noqa: F401  (re-exported)
     output_transaction,
     parse_outputs,
     refuse_inputs,
+    signal_handlers,
     start_run,
     what_changed,
 )
-from hoc_cli.report.inputs import check_columns, check_sample_times, load_model, read_urdf_text  # noqa: F401
+from hoc_cli.report.inputs import check_columns, check_sample_times, read_urdf_text  # noqa: F401
 from hoc_cli.report.jsonio import json_ready, print_json, validate_json  # noqa: F401  (re-exported)
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
@@ -64,12 +65,12 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
     handled = list(TERMINATING)
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when SIGINT is ignored
         handled.append(signal.SIGINT)
-    previous: dict[int, Any] = {}
-    try:
-        for sig in handled:
-            previous[sig] = signal.signal(sig, _on_signal)
-    except ValueError:  # not in the main thread (e.g. some test runners)
-        pass
+    with signal_handlers(handled, _on_signal):  # not in the main thread (e.g. some test runners): none
+        return _run_body(body, debug, quiet)
+
+
+def _run_body(body: Callable[[], int], debug: bool, quiet: bool) -> int:
+    """``body()`` with its failures mapped to exit codes and one ``hoc: error:`` line (``run_guarded``)."""
     start_run()
     try:
         with warnings.catch_warnings():
@@ -94,9 +95,6 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
     except Terminated as exc:
         report_error(f"{_SIGNAL_WORDS.get(exc.signum, f'signal {exc.signum}')}; {what_changed()}")
         return 128 + exc.signum
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def refuse_irregular(inputs: list[tuple[Path | str | None, str | None, str]], *, missing_ok: bool = False) -> None:

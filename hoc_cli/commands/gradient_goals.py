@@ -38,6 +38,15 @@ class PartCheck:
     of: int
 
 
+def checked_coordinates(size: int, most: int) -> np.ndarray | None:
+    """The coordinates a gradient check compares: None (all ``size``) up to ``most``, else a fixed random
+    subset of ``most`` (sorted; seed 0, so a check is repeatable).
+    """
+    if size <= most:
+        return None
+    return np.sort(np.random.default_rng(0).choice(size, most, replace=False))
+
+
 def goal_gradient_checks(model, order: str, T: float, N: int, fractions, q0, dq0, goals: Goals, *,
                          cost: str, free_time: bool, max_coordinates: int) -> list[PartCheck]:
     """The checks of the module docstring at the initial trajectory on N elements of [0, T] [s] (nodes at
@@ -51,9 +60,7 @@ def goal_gradient_checks(model, order: str, T: float, N: int, fractions, q0, dq0
     problem = problem_at(T)
     x = problem.initial_guess()
     C = problem.coefficients(x)
-    coordinates = None
-    if x.size > max_coordinates:
-        coordinates = np.sort(np.random.default_rng(0).choice(x.size, max_coordinates, replace=False))
+    coordinates = checked_coordinates(x.size, max_coordinates)
     n_checked = x.size if coordinates is None else coordinates.size
     out = []
     with np.errstate(all="ignore"):

@@ -28,7 +28,7 @@ import numpy as np
 
 from hoc_cli.commands.common import EXIT_OK, atomic_output, refuse_inputs, stderr_console
 from hoc_cli.errors import HocWarning, OutputError
-from hoc_cli.report.files import OutputTarget
+from hoc_cli.report.files import OutputTarget, check_output_directory
 
 MARGIN = 0.1  # of each position range, kept free at either end for x0 and x1
 STEP_RAD, STEP_M = 0.3, 0.05  # largest move per joint from x0 to x1
@@ -61,9 +61,7 @@ def run(urdf: Path, output: str | None = None, *, force: bool = False, quiet: bo
         if path.suffix.lower() not in (".yaml", ".yml"):
             raise OutputError(f"unknown extension {path.suffix or '(none)'!r} (expected .yaml, or - for standard output)",
                               file=path, key="--output")
-        parent = path.parent if str(path.parent) else Path(".")
-        if not parent.is_dir():
-            raise OutputError(f"directory {str(parent)!r} does not exist", file=path, key="--output")
+        check_output_directory(path)
         if path.exists() and not force:
             raise OutputError("exists; hoc new never replaces a file (expected --force, or another -o)", file=path,
                               key="--output")

@@ -11,13 +11,9 @@ from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START
 from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
-    check_columns,
-    check_sample_times,
-    load_model,
     output_transaction,
     parse_outputs,
     print_json,
-    read_urdf_text,
     refuse_inputs,
     refuse_urdf_task,
     stderr_console,
@@ -27,24 +23,18 @@ from hoc_cli.commands.common import (
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import Infeasible, InputFileError, OutputError, TaskError, naming_file
 from hoc_cli.goals.mesh import scaled_mesh
-from hoc_cli.io.task import Task, apply_overrides, load_task, resolve
-from hoc_cli.io.task.problem import check_jerk_order, problem_from_task, task_limits
+from hoc_cli.io.task import Task, apply_overrides, load_task
 from hoc_cli.optimize import check_gradient
 from hoc_cli.problem import ControlProblem
 from hoc_cli.report.collision import (
-    check_boundary_clearance,
     collision_markers,
-    enforced_problem,
-    task_collision,
     warn_collisions,
 )
 from hoc_cli.report.jsonio import json_ready
-from hoc_cli.report.limits import check_boundary_states, locked_outside, refuse_infeasible
-from hoc_cli.report.outputs import sample_plan, write_outputs
+from hoc_cli.report.prepare import prepare
 from hoc_cli.report.status import unmet_line
-from hoc_cli.report.summary import plan_report, reproducible_summary
 from hoc_cli.report.workload import WARN_SECONDS, Heartbeat, check_workload
-from hoc_cli.strategy import Plan, SolveOptions, WarmStart, node_fractions, solve
+from hoc_cli.strategy import Plan, WarmStart, node_fractions, solve
 from hoc_cli.system import RobotSystem
 
 GRADIENT_RTOL = 1e-6  # --check-gradient fails above this (measured on the shipped tasks: <= 3e-9)
@@ -68,25 +58,11 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     refuse_inputs(targets, {"the task": task.path, "the URDF": task.robot, "--init": init})
     if as_json and any(t.path is None for t in targets):
         raise OutputError("'-o -' (CSV on stdout) cannot be combined with --json (JSON on stdout)", key="--output")
-    check_sample_times(targets, task.T if task.time.free is None else task.time.free.max, task.rate, file=task.path)
-    model = load_model(task)
-    check_columns(targets, model.joint_names)
-    urdf_text = read_urdf_text(task.robot) if any(t.kind == "mcap" for t in targets) else ""  # stored in MCAPs
-    states = resolve(task, model.joint_names)
     console = stderr_console(quiet=quiet, progress=progress)
     show = not quiet and (progress or console.is_terminal)
-    limits = task_limits(model, states.limits)
-    mode = task.limits.mode
-    check_jerk_order(task, limits, task.order)
-    if mode == "enforce":
-        check_boundary_states(task, limits, states)
-    else:
-        _warn_outside_limits(console, task, model, states)
-    collision = task_collision(task, model)  # None: collision.mode off (docs/collision.md)
-    check_boundary_clearance(task, model, collision, states)
-    problem = problem_from_task(task, model, states, limits if mode == "enforce" else None)
-    problem, collision_mode = enforced_problem(task, model, collision, problem, starts=starts,
-                                               explicit=(overrides or {}).get("collision") is not None)
+    ready = prepare(task, targets, starts=starts, explicit_collision=(overrides or {}).get("collision") is not None,
+                    console=console)
+    model, states, problem = ready.model, ready.states, ready.problem
     has_goals = problem.has_goals  # a link goal, vias or a free T
     auto = task.N is None
     mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
@@ -111,13 +87,12 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
         return _check_gradient(task, model, states, mesh, None if warm is None else warm.coeffs, console, as_json)
     if not has_goals:
         _refuse_nonfinite_cost(task, model, states, mesh, None if warm is None else warm.coeffs)
-    if mode == "enforce":  # after every input check: a task no trajectory within the limits can meet exits 1
-        try:  # at once (constraints/feasibility.py)
-            refuse_infeasible(task, RobotSystem(model), limits, states)
-        except Infeasible as exc:
-            if as_json:
-                print_json(json_ready(exc.summary))
-            raise
+    try:  # after every input check: a task no trajectory within the enforced limits can meet exits 1 at once
+        ready.refuse_infeasible()  # (constraints/feasibility.py)
+    except Infeasible as exc:
+        if as_json:
+            print_json(json_ready(exc.summary))
+        raise
     cores = 1
     if starts > 1:
         from hoc_cli.batch.engine import available_cores
@@ -142,24 +117,20 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
             console.print(f"start {o.index:3d}  J {o.J:<18.12g} {o.status:<12s} iterations {o.iterations:5d} "
                           f"{time.perf_counter() - start:6.2f}s", highlight=False, soft_wrap=True)
 
-    system = RobotSystem(model)
-    options = SolveOptions(method=task.method, tol=task.tol, max_iter=task.max_iter, starts=starts, seed=seed,
-                           estimate_error=not has_goals, callback=report, on_start=report_start, on_phase=beat.say,
-                           client=starts_pool if starts > 1 else None)
+    options = ready.options(starts=starts, seed=seed, estimate_error=not has_goals, callback=report,
+                            on_start=report_start, on_phase=beat.say, client=starts_pool if starts > 1 else None)
     with beat:
         planned: Plan = _with_file(task, lambda: solve(problem, options, warm))
     found = planned.auto
     with beat.phase("sampling the plan and checking its limits"):
-        reported = plan_report(task, model, planned, states, limits=limits, collision=collision,
-                               collision_mode=collision_mode, seed=seed, warm=warm is not None)
+        reported = ready.report(planned, seed=seed, warm=warm is not None)
         result, summary = reported.result, reported.summary
-        traj = sample_plan(system, result, model.joint_names, task.rate)
+        traj = ready.sample(reported)
         validate_json(summary)  # before any output is written
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
-        summary["outputs"] = write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
-                                           summary=reproducible_summary(summary), goals=planned.goals,
-                                           scene=collision_markers(collision, model, targets))
+        summary["outputs"] = ready.write(targets, traj, summary, planned.goals,
+                                         scene=collision_markers(ready.collision, model, targets))
     warn_limit_violations(summary["limit_violations"])
     warn_collisions(summary.get("collisions") or [])
     if as_json:
@@ -188,15 +159,22 @@ def _with_file(task: Task, fn):
     return naming_file(fn, task.path)
 
 
+def _starting_point(task: Task, model, states, mesh: HermiteMesh, C_init) -> tuple[ControlProblem, np.ndarray]:
+    """The joint-goal problem of ``task`` on ``mesh`` and where its solve starts: the free coefficients of the
+    minimum-jerk guess, or of ``C_init`` (N+1, m, n: --init's plan).
+    """
+    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
+    return problem, problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+
+
 def _check_gradient(task: Task, model, states, mesh: HermiteMesh, C_init, console, as_json: bool) -> int:
     """``--check-gradient``: the cost gradient at the initial guess against central differences."""
-    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
-    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
-    coordinates = None
-    if x.size > GRADIENT_MAX_COORDINATES:
-        coordinates = np.sort(np.random.default_rng(0).choice(x.size, GRADIENT_MAX_COORDINATES, replace=False))
+    from hoc_cli.commands.gradient_goals import checked_coordinates
+
+    problem, x = _starting_point(task, model, states, mesh, C_init)
     with np.errstate(all="ignore"):
-        check = check_gradient(problem.value, x, problem.evaluate(x).grad, coordinates=coordinates)
+        check = check_gradient(problem.value, x, problem.evaluate(x).grad,
+                               coordinates=checked_coordinates(x.size, GRADIENT_MAX_COORDINATES))
     passed = check.passed(GRADIENT_RTOL)
     worst, where = None, "no free coefficients (every coefficient is fixed by x0 and x1)"
     if check.coordinates.size:
@@ -232,8 +210,7 @@ def _refuse_nonfinite_cost(task: Task, model, states, mesh: HermiteMesh, C_init)
     """TaskError (exit 2) when the cost is not finite where the solve starts (the minimum-jerk guess, or
     --init's plan): values of the task (or its URDF) far beyond physical size; one cost evaluation.
     """
-    problem = ControlProblem(RobotSystem(model), mesh, states.q0, states.dq0, states.q1, states.dq1, cost=task.cost)
-    x = problem.initial_guess() if C_init is None else problem.layout.pack(C_init)
+    problem, x = _starting_point(task, model, states, mesh, C_init)
     with np.errstate(all="ignore"):  # the torques and ½ Σ w uᵀu: a singular M is the solve's to report (exit 1)
         q, dq, ddq = problem.op.apply(problem.coefficients(x))
         u = problem.system.inverse_dynamics(q, dq, ddq)
@@ -241,19 +218,6 @@ def _refuse_nonfinite_cost(task: Task, model, states, mesh: HermiteMesh, C_init)
     if not finite:
         raise TaskError(f"the {task.cost} cost is not finite at the start of the solve (expected T, x0, x1, gravity "
                         "and the URDF's masses and lengths of physical size)", file=task.path)
-
-
-def _warn_outside_limits(console, task: Task, model, states) -> None:
-    for label, q in (("x0.q", states.q0), ("x1.q", states.q1)):
-        if q is None:  # a link goal
-            continue
-        for i, name in enumerate(model.joint_names):
-            if q[i] < model.lower[i] or q[i] > model.upper[i]:
-                console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "
-                              f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False, markup=False, soft_wrap=True)
-    for name, value, lo, hi in locked_outside(task):
-        console.print(f"hoc: warning: {task.path}: locked.{name} = {value:g} is outside the URDF limits [{lo:g}, {hi:g}]",
-                      highlight=False, markup=False, soft_wrap=True)
 
 
 def _init_plan(path: Path, joints) -> tuple[HermiteMesh, np.ndarray, int | None]:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from hoc_cli.commands.common import EXIT_OK, OutputTarget, atomic_output, refuse_inputs
 from hoc_cli.errors import HocError, InputFileError, ModelError, OutputError
+from hoc_cli.report.files import check_output_directory
 
 MCAP_MAGIC = b"\x89MCAP"
 INSTALL_HINT = "matplotlib is needed for 'hoc plot' (install it with: pip install 'hoc[plot]')"
@@ -29,9 +30,7 @@ def run(files: Path | list[Path], output: Path, *, robot: Path | None = None, no
     if fmt not in FORMATS:
         raise OutputError(f"unknown figure extension {output.suffix or '(none)'!r} (expected .png, .pdf or .svg)",
                           file=output, key="--output")
-    parent = output.parent if str(output.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"directory {str(parent)!r} does not exist", file=output, key="--output")
+    check_output_directory(output)
     refuse_inputs([OutputTarget(output, fmt)], {**{f"the plotted file {i + 1}": f for i, f in enumerate(files)},
                                                 "--robot": robot})
     try:

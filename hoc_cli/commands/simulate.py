@@ -49,12 +49,9 @@ import yaml
 from hoc_cli.commands.common import (
     EXIT_OK,
     EXIT_UNMET,
-    OutputTarget,
-    atomic_output,
     check_columns,
     check_sample_times,
     json_ready,
-    load_model,
     output_transaction,
     parse_outputs,
     print_json,
@@ -67,7 +64,9 @@ from hoc_cli.commands.common import (
     warn_limit_violations,
 )
 from hoc_cli.errors import InputFileError, OutputError, TaskError
+from hoc_cli.io.robot import load_model
 from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve, yaml_error_detail
+from hoc_cli.report.outputs import write_outputs
 
 METHODS = ("hermite", "rk")
 
@@ -207,8 +206,11 @@ def run(
             passed = summary["check"]["passed"]
         validate_json(summary)  # before any output is written
 
+        # no wall-clock time in the file: the same inputs give the same bytes
+        stored = {k: v for k, v in summary.items() if k not in ("outputs", "wall_time_s")}
         with output_transaction():  # every output is replaced, or none
-            _write_outputs(targets, traj, model, urdf_text, task, summary)
+            write_outputs(targets, traj, model=model, urdf_text=urdf_text, task_text=task.text,
+                          metadata={"simulation": json.dumps(stored, allow_nan=False)})
     warn_limit_violations(summary["limit_violations"])
 
     if as_json:
@@ -360,18 +362,12 @@ def _check_span(file: Path, t: np.ndarray, T: float) -> None:
 
 def _torque_file(file: Path, system, joints: tuple[str, ...], T: float):
     """A ``--torque`` CSV or MCAP as a torque source and a one-word description."""
-    from hoc_cli import torque as torque_sources
-
     suffix = file.suffix.lower()
     if suffix == ".csv":
         from hoc_cli.io.csv import read_csv
 
         traj = read_csv(file)
-        cols = _columns(file, tuple(traj.joints), joints)
-        if traj.K < 2:
-            raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
-        _check_span(file, traj.t, T)
-        return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "csv"
+        return _sampled_torque(traj, file, _columns(file, tuple(traj.joints), joints), T), "csv"
     if suffix == ".mcap":
         from hoc_cli.io.mcap import read_plan
 
@@ -389,10 +385,17 @@ def _torque_from_plan(plan, file: Path, system, joints: tuple[str, ...], T: floa
         if traj.mesh.T < T * (1 - 1e-12):
             raise InputFileError(f"the plan lasts {traj.mesh.T:g} s; the simulation needs {T:g} s", file=file)
         return torque_sources.PlannedTorque(system, traj.mesh, np.asarray(traj.coeffs)[:, :, cols]), "plan (exact Hermite)"
+    return _sampled_torque(traj, file, cols, T), "plan (sampled)"
+
+
+def _sampled_torque(traj, file: Path, cols, T: float):
+    """The torques u of a sampled trajectory's columns ``cols``, interpolated; at least 2 samples spanning [0, T]."""
+    from hoc_cli import torque as torque_sources
+
     if traj.K < 2:
         raise InputFileError("needs at least 2 samples to interpolate a torque history", file=file)
     _check_span(file, traj.t, T)
-    return torque_sources.SampledTorque(traj.t, traj.u[:, cols]), "plan (sampled)"
+    return torque_sources.SampledTorque(traj.t, traj.u[:, cols])
 
 
 # --------------------------------------------------------------------------- outputs
@@ -408,28 +411,6 @@ def _limit_violations(model, traj) -> list[dict]:
                 worst = x[:, i][np.argmax(np.where(above, x[:, i] - hi[i], lo[i] - x[:, i]))]
                 out.append({"joint": joint, "kind": kind, "worst": float(worst)})
     return out
-
-
-def _write_outputs(targets: list[OutputTarget], traj, model, urdf_text: str, task: Task, summary: dict) -> None:
-    from hoc_cli.io.csv import write_csv
-
-    for target in targets:
-        if target.path is None:
-            write_csv(sys.stdout, traj)
-            sys.stdout.flush()
-        elif target.kind == "csv":
-            with atomic_output(target.path) as fh:
-                write_csv(fh, traj)
-        else:
-            from hoc_cli import dynamics
-            from hoc_cli.io.mcap import write_mcap
-
-            # no wall-clock time in the file: the same inputs give the same bytes
-            stored = {k: v for k, v in summary.items() if k not in ("outputs", "wall_time_s")}
-            meta = {"simulation": json.dumps(stored, allow_nan=False)}
-            with atomic_output(target.path) as fh:
-                write_mcap(fh, traj, urdf_text=urdf_text, task_text=task.text, metadata=meta,
-                           link_poses=lambda q: dynamics.link_poses(model, q), locked=model.locked)
 
 
 class _progress:

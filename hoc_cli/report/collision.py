@@ -70,16 +70,6 @@ def task_collision(task, model) -> CollisionScene | None:
                            disabled=spec.disabled + spec.ignore)
 
 
-def prepare_collision(task, model, states, problem, *, explicit: bool = False, starts: int = 1):
-    """(scene or None, the problem with the constraint when enforced, the mode in effect) for ``task``:
-    ``task_collision``, ``check_boundary_clearance`` and ``enforced_problem`` in one call (``hoc batch``).
-    """
-    scene = task_collision(task, model)
-    check_boundary_clearance(task, model, scene, states)
-    problem, mode = enforced_problem(task, model, scene, problem, explicit=explicit, starts=starts)
-    return scene, problem, mode
-
-
 def enforced_problem(task, model, scene: CollisionScene | None, problem, *, explicit: bool = False,
                      starts: int = 1):
     """(the problem, with the collision constraint when enforced, and the mode in effect).

@@ -84,10 +84,7 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
         if kind is None:
             raise OutputError(f"unknown output extension {path.suffix or '(none)'!r} (expected .csv or .mcap, - for CSV on stdout, or none for no file)",
                               file=path, key="--output")
-        parent = path.parent if str(path.parent) else Path(".")
-        if not parent.is_dir():
-            what = "is not a directory" if parent.exists() else "does not exist"
-            raise OutputError(f"directory {str(parent)!r} {what}", file=path, key="--output")
+        check_output_directory(path)
         if not real.parent.is_dir():
             raise OutputError(f"is a symbolic link to {os.readlink(path)!r}, whose directory does not exist",
                               file=path, key="--output")
@@ -95,6 +92,14 @@ def parse_outputs(outputs: list[str] | None, stem: str) -> list[OutputTarget]:
             raise OutputError("not writable", file=path, key="--output")
         targets.append(OutputTarget(path, kind))
     return targets
+
+
+def check_output_directory(path: Path) -> None:
+    """OutputError (exit 2) naming ``path`` when the directory it would be written in is missing or not one."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise OutputError(f"directory {str(parent)!r} {what}", file=path, key="--output")
 
 
 def _name_max(directory: Path) -> int:
@@ -181,8 +186,7 @@ def output_transaction() -> Iterator[None]:
     try:
         yield
     except BaseException:
-        for tmp, _ in mine:
-            _unlink(tmp)
+        _discard(mine)
         raise
     finally:
         _pending = outer
@@ -194,8 +198,7 @@ def output_transaction() -> Iterator[None]:
     try:
         lock.__enter__()
     except BaseException:
-        for tmp, _ in mine:
-            _unlink(tmp)
+        _discard(mine)
         raise
     try:
         with _signals_blocked():
@@ -225,6 +228,30 @@ def _signals_blocked() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextmanager
+def signal_handlers(signals, handler) -> Iterator[None]:
+    """``handler`` for each of ``signals`` in the block, the handlers before it restored after it; outside the
+    main thread (where Python sets no handler) nothing changes.
+    """
+    previous: dict[int, Any] = {}
+    try:
+        for sig in signals:
+            previous[sig] = signal.signal(sig, handler)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def _discard(pending: list[tuple[str, Path]]) -> None:
+    """Remove the temporary files of ``pending`` renames (a failed or interrupted transaction)."""
+    for tmp, _ in pending:
+        _unlink(tmp)
 
 
 def _unlink(tmp: str) -> None:

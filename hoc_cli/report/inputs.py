@@ -1,36 +1,18 @@
-"""What ``hoc plan`` and ``hoc batch`` load and check before a solve, each failure one ``hoc: error:`` line.
+"""What ``hoc plan`` and ``hoc batch`` check before a solve, each failure one ``hoc: error:`` line.
 
-``load_model`` reads a task's robot and blames the task's key for a ``joints``/``locked``/``gravity``
-misfit; ``check_columns``, ``check_sample_times`` and ``read_urdf_text`` make sure every requested
+``check_columns``, ``check_sample_times`` and ``read_urdf_text`` make sure every requested
 output can be written before any work is done; ``check_starts`` checks a multi-start request.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from hoc_cli.errors import InputFileError, JointSelectionError, OutputError, TaskError
+from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.report.files import OutputTarget
 
 #: the most starts of one multi-start solve (each is a whole solve; beyond a few dozen they rarely find a
 #: better optimum, and a count like 10^6 would only keep the machine busy for days)
 MAX_STARTS = 1000
-
-
-def load_model(task, *, urdf_label: str | None = None, task_label: str | None = None):
-    """``load_robot`` for a task; a ``joints``/``locked``/``gravity`` misfit blames the task key.
-
-    ``urdf_label`` and ``task_label`` are what messages call the URDF and the task file (default:
-    their paths), e.g. ``plan.mcap: attachment robot.urdf`` for a plan's attached files.
-    """
-    from hoc_cli.model import load_robot
-
-    try:
-        return load_robot(task.robot, joints=list(task.joints) if task.joints else None, locked=task.locked,
-                          gravity=task.gravity, label=urdf_label)
-    except JointSelectionError as exc:
-        named = exc.key == exc.task_key or exc.task_key.startswith("locked.")  # the key names the joint
-        raise TaskError(exc.detail if named else f"{exc.key}: {exc.detail}",
-                        file=task_label or task.path, key=exc.task_key) from None
 
 
 def check_columns(targets: list[OutputTarget], joints) -> None:

@@ -39,6 +39,22 @@ def check_boundary_states(task, limits: JointLimits, states) -> None:
                         "enforced; lock it within them, or use --limits report)", file=task.path, key=f"locked.{name}")
 
 
+def warn_outside_limits(console, task, model, states) -> None:
+    """With limits reported, not enforced: one ``hoc: warning:`` line on ``console`` for each of x0.q, x1.q
+    and ``locked:`` outside the URDF position limits.
+    """
+    for label, q in (("x0.q", states.q0), ("x1.q", states.q1)):
+        if q is None:  # a link goal
+            continue
+        for i, name in enumerate(model.joint_names):
+            if q[i] < model.lower[i] or q[i] > model.upper[i]:
+                console.print(f"hoc: warning: {task.path}: {label}.{name} = {q[i]:g} is outside the URDF limits "
+                              f"[{model.lower[i]:g}, {model.upper[i]:g}]", highlight=False, markup=False, soft_wrap=True)
+    for name, value, lo, hi in locked_outside(task):
+        console.print(f"hoc: warning: {task.path}: locked.{name} = {value:g} is outside the URDF limits [{lo:g}, {hi:g}]",
+                      highlight=False, markup=False, soft_wrap=True)
+
+
 def locked_outside(task) -> list[tuple[str, float, float, float]]:
     """(joint, value, lower, upper) of every ``locked:`` value outside its joint's URDF position limits."""
     if not task.locked:

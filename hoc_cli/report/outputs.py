@@ -15,9 +15,11 @@ if TYPE_CHECKING:
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
-                  summary: dict, goals=None, scene=None) -> list[str]:
+                  metadata: dict[str, str], goals=None, scene=None) -> list[str]:
     """Write ``traj`` to every target; returns the labels written ("-" for stdout).
 
+    ``metadata``: the MCAP's ``hoc`` metadata record beside ``task`` and ``joints`` (``summary_metadata``
+    of a plan, the ``simulation`` summary of a replay).
     ``goals`` (``hoc_cli.goals.Goals`` or None): link goals shown on an MCAP's /goal_marker.
     ``scene`` (a MarkerArray message, ``hoc_cli.io.mcap_obstacles``, or None): an MCAP's /collision_scene.
     Each file goes to a temporary file beside its target and is renamed into place only when
@@ -40,12 +42,16 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
             from hoc_cli.io.mcap import write_mcap
 
             with atomic_output(target.path) as fh:
-                write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text,
-                           metadata={"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)},
+                write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text, metadata=metadata,
                            link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj),
                            locked=model.locked, scene=scene)
         written.append(target.label)
     return written
+
+
+def summary_metadata(summary: dict) -> dict[str, str]:
+    """A plan's MCAP metadata: ``summary``, its JSON summary without wall-clock times (``reproducible_summary``)."""
+    return {"summary": json.dumps(summary, sort_keys=True, default=float, allow_nan=False)}
 
 
 def _markers(goals, urdf_text: str, traj: Trajectory) -> list:

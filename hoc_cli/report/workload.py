@@ -286,7 +286,7 @@ def plan_workloads(jobs, sample: int = 2000) -> BatchWorkload:
             task = parse_task(job.doc, path=Path(job.source), text="", purpose="plan")
             key = (str(task.robot), task.joints, tuple(sorted(task.locked.items())) if task.locked else ())
             if key not in joints:
-                from hoc_cli.report.inputs import load_model
+                from hoc_cli.io.robot import load_model
 
                 joints[key] = load_model(task).n
         except (HocError, TypeError, ValueError, AttributeError):
