@@ -216,29 +216,59 @@ def output_transaction() -> Iterator[None]:
         lock.__exit__(None, None, None)
 
 
+#: depth of ``_signals_blocked`` blocks running now, and the signals that arrived inside them (handler, signum)
+_held = 0
+_deferred: list[tuple[Any, int]] = []
+
+
 @contextmanager
 def _signals_blocked() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP held for the block: the handlers installed by ``signal_handlers`` run at its end.
+
+    The thread's signal mask alone is not enough: a process signal goes to any thread that does not
+    block it (a BLAS or progress thread), and Python then runs the handler in the main thread at once.
+    So the handlers themselves defer (``_deferring``) while a block runs, and the first signal that
+    arrived is handled when the outermost block ends.
+    """
+    global _held
     mask = {signal.SIGINT, *TERMINATING}
     try:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, mask)
     except (AttributeError, ValueError, OSError):  # no POSIX signal masks here
-        yield
-        return
+        old = None
+    _held += 1
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        _held -= 1
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if not _held and _deferred:
+            handler, signum = _deferred[0]
+            _deferred.clear()
+            handler(signum, None)
+
+
+def _deferring(handler):
+    """``handler`` run at once, or at the end of the ``_signals_blocked`` block running now."""
+    def deferred_or_now(signum: int, frame: Any) -> None:
+        if _held:
+            _deferred.append((handler, signum))
+            return
+        handler(signum, frame)
+    return deferred_or_now
 
 
 @contextmanager
 def signal_handlers(signals, handler) -> Iterator[None]:
-    """``handler`` for each of ``signals`` in the block, the handlers before it restored after it; outside the
-    main thread (where Python sets no handler) nothing changes.
+    """``handler`` for each of ``signals`` in the block (held during ``_signals_blocked`` blocks), the handlers
+    before it restored after it; outside the main thread (where Python sets no handler) nothing changes.
     """
     previous: dict[int, Any] = {}
+    held = _deferring(handler)
     try:
         for sig in signals:
-            previous[sig] = signal.signal(sig, handler)
+            previous[sig] = signal.signal(sig, held)
     except ValueError:  # not the main thread
         pass
     try:
@@ -290,11 +320,15 @@ def atomic_output(path: Path) -> Iterator[Any]:
     if path.is_symlink():  # write through the link, as a plain `open(path, "w")` would
         path = Path(os.path.realpath(path))
     parent = path.parent if str(path.parent) else Path(".")
+    tmp: str | None = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path.name, parent), suffix=".tmp", dir=parent)
-    except OSError as exc:
-        raise _write_error(shown, exc) from None
-    try:
+        try:
+            # signals blocked while the file is made and its name kept: a signal landing at once
+            # after the file appears is raised here, with ``tmp`` set, and the file is removed below
+            with _signals_blocked():
+                fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path.name, parent), suffix=".tmp", dir=parent)
+        except OSError as exc:
+            raise _write_error(shown, exc) from None
         try:
             with os.fdopen(fd, "wb") as fh:
                 yield fh
@@ -318,7 +352,8 @@ def atomic_output(path: Path) -> Iterator[Any]:
                     raise _write_error(shown, exc) from None
                 _committed.append(str(shown))
     except BaseException:
-        _unlink(tmp)
+        if tmp is not None:
+            _unlink(tmp)
         raise
 
 

@@ -1,0 +1,57 @@
+"""Signals held during the renames and the making of a temporary file, even when another thread takes them.
+
+A process signal goes to any thread that does not block it; Python then runs its handler in the main
+thread at once, whatever the main thread's mask. ``report.files`` holds the handlers it installs
+(``signal_handlers``) for the length of a ``_signals_blocked`` block and runs the first one at its end.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from hoc_cli.report import files
+
+pytestmark = pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks needed")
+
+
+class Stop(BaseException):
+    pass
+
+
+def _raise(signum, frame):
+    raise Stop(signum)
+
+
+def test_a_signal_taken_by_another_thread_is_handled_at_the_end_of_the_block():
+    go, sent = threading.Event(), threading.Event()
+
+    def sender():  # started before the block: this thread does not block SIGTERM
+        go.wait(5)
+        os.kill(os.getpid(), signal.SIGTERM)
+        sent.set()
+
+    thread = threading.Thread(target=sender)
+    thread.start()
+    reached_end = False
+    with files.signal_handlers([signal.SIGTERM], _raise):
+        with pytest.raises(Stop):
+            with files._signals_blocked():
+                go.set()
+                assert sent.wait(5)
+                for _ in range(200):  # Python code runs on: the handler would have fired by now
+                    time.sleep(0.001)
+                reached_end = True
+    thread.join()
+    assert reached_end
+
+
+def test_a_signal_outside_a_block_is_handled_at_once():
+    with files.signal_handlers([signal.SIGTERM], _raise):
+        with pytest.raises(Stop):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):
+                time.sleep(0.001)
