@@ -49,20 +49,114 @@ MARGIN = 0.01
 START_CLEARANCE = 0.03
 
 
-def _scene(rng) -> list[dict]:
-    boxes = [{"name": "table", "box": {"size": [0.6, 1.4, 0.04]}, "position": [0.55, 0.0, 0.0]},
-             {"name": "wall", "box": {"size": [float(rng.uniform(0.2, 0.35)), 0.04, float(rng.uniform(0.25, 0.4))]},
-              "position": [float(rng.uniform(0.45, 0.6)), 0.0, 0.2]}]
-    for i in range(2):
-        side = 1 if i == 0 else -1
-        boxes.append({"name": f"box{i}", "box": {"size": [float(v) for v in rng.uniform(0.05, 0.12, 3)]},
-                      "position": [float(rng.uniform(0.45, 0.8)), float(side * rng.uniform(0.3, 0.6)), 0.1]})
-    return boxes
+FAMILIES = ("wall", "shelf", "cage", "clutter")
+TABLE = {"name": "table", "box": {"size": [0.6, 1.4, 0.04]}, "position": [0.55, 0.0, 0.0]}
+DISTAL = ("panda_link6", "panda_link7", "panda_hand", "panda_leftfinger", "panda_rightfinger")
+FOREARM = ("panda_link5",)
+REACH = np.array([0.0, 1.0, 0.0, -0.8, 0.0, 3.0, 0.785])  # the hand level, pointing ahead over the table
+
+
+def _box(name: str, size, center, yaw: float = 0.0) -> dict:
+    """A box obstacle: full sides ``size`` (m) in a frame turned by ``yaw`` about z, centred at ``center``."""
+    return {"name": name, "box": {"size": [float(v) for v in size]}, "position": [float(v) for v in center],
+            "orientation": [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]}
+
+
+def _extent(ends: tuple, yaw: float) -> np.ndarray:
+    """(3, 2) the box [lo, hi] along depth u, lateral v and z that holds the capsules ``ends`` = (a, b, r)
+    of the hand's links, in the frame turned by ``yaw`` about z.
+    """
+    a, b, r = ends
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1.0]])  # world → (u, v, z)
+    pts = np.concatenate([a @ R.T, b @ R.T])
+    rr = np.concatenate([r, r])[:, None]
+    return np.stack([(pts - rr).min(axis=0), (pts + rr).max(axis=0)], axis=1)
+
+
+def _compartment(rng, ends, arm, yaw: float, *, front: bool) -> list[dict]:
+    """A shelf compartment round the hand's links (open towards the robot: boards below and above, a back, two
+    sides, gaps 4–7 cm), its open face 3 cm beyond the forearm (``arm``: its capsules), standing on the table on
+    its side panels; with ``front`` a cage: the back and sides are bars (corner posts, two rails a side) and a
+    bar lies across the bottom of the opening, so the hand must come in over it.
+    """
+    box = _extent(ends, yaw)
+    g = rng.uniform(0.04, 0.07, 5)
+    t = 0.02
+    u0, u1 = max(box[0, 0] - 0.02, _extent(arm, yaw)[0, 1] + 0.03), box[0, 1] + g[0]
+    v0, v1 = box[1, 0] - g[1], box[1, 1] + g[2]
+    z0, z1 = box[2, 0] - g[3], box[2, 1] + g[4]
+    depth, width = u1 - u0, v1 - v0 + 2 * t
+    uc, vc = (u0 + u1) / 2, (v0 + v1) / 2
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def world(u, v, z):
+        return [u * c - v * s, u * s + v * c, z]
+
+    top = z1 + t
+    out = [_box("shelf_bottom", [depth, width, t], world(uc, vc, z0 - t / 2), yaw),
+           _box("shelf_top", [depth, width, t], world(uc, vc, z1 + t / 2), yaw)]
+    if not front:
+        return out + [_box("shelf_back", [t, width, top], world(u1 + t / 2, vc, top / 2), yaw),
+                      _box("shelf_left", [depth, t, top], world(uc, v1 + t / 2, top / 2), yaw),
+                      _box("shelf_right", [depth, t, top], world(uc, v0 - t / 2, top / 2), yaw)]
+    # a cage of 2 cm bars: corner posts, two rails along the back and each side, a lip across the opening
+    for i, (u, v) in enumerate([(u0, v0), (u0, v1), (u1, v0), (u1, v1)]):
+        out.append(_box(f"cage_post{i}", [t, t, top], world(u + t / 2 * np.sign(u - uc), v + t / 2 * np.sign(v - vc),
+                                                            top / 2), yaw))
+    for k, z in enumerate((z0 + (z1 - z0) / 3, z0 + 2 * (z1 - z0) / 3)):
+        out.append(_box(f"cage_back{k}", [t, width, t], world(u1 + t / 2, vc, z), yaw))
+        out.append(_box(f"cage_left{k}", [depth, t, t], world(uc, v1 + t / 2, z), yaw))
+        out.append(_box(f"cage_right{k}", [depth, t, t], world(uc, v0 - t / 2, z), yaw))
+    out.append(_box("cage_lip", [t, width, t], world(u0 + t / 2, vc, z0 + t / 2), yaw))
+    return out
+
+
+def _candidate(rng, family: str, capsules) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """One draw of (q0, q1, obstacles) for ``family``; ``capsules(q, links=DISTAL)`` gives (a, b, r) of the links'
+    capsules at q.
+    """
+    side = rng.choice([-1.0, 1.0])
+    if family in ("wall", "clutter"):
+        q0 = LEFT + rng.normal(size=7) * 0.15
+        q1 = RIGHT + rng.normal(size=7) * 0.15
+        if side < 0:
+            q0, q1 = q1, q0
+    else:  # the goal in a compartment ahead, the start off to one side
+        q1 = REACH + rng.normal(size=7) * 0.08
+        q1[0] = rng.uniform(-0.6, 0.6)
+        q0 = (LEFT if side > 0 else RIGHT) + rng.normal(size=7) * 0.15
+    obstacles = [dict(TABLE)]
+    if family == "wall":
+        obstacles.append(_box("wall", [rng.uniform(0.2, 0.35), 0.04, rng.uniform(0.25, 0.4)],
+                              [rng.uniform(0.45, 0.6), 0.0, 0.2]))
+        for i in range(2):
+            s = 1 if i == 0 else -1
+            obstacles.append(_box(f"box{i}", rng.uniform(0.05, 0.12, 3),
+                                  [rng.uniform(0.45, 0.8), s * rng.uniform(0.3, 0.6), 0.1]))
+    elif family == "clutter":  # boxes on the table, one where the straight path's midpoint holds the hand
+        a, b, _ = capsules((q0 + q1) / 2)
+        mid = (a.mean(axis=0) + b.mean(axis=0)) / 2
+        size = rng.uniform(0.1, 0.2, 3)
+        size[2] = max(size[2], mid[2] + 0.05)
+        obstacles.append(_box("block", size, [mid[0], mid[1], size[2] / 2], rng.uniform(-0.5, 0.5)))
+        for i in range(4):
+            size = rng.uniform(0.05, 0.15, 3)
+            obstacles.append(_box(f"box{i}", size, [rng.uniform(0.35, 0.8), rng.uniform(-0.6, 0.6), size[2] / 2],
+                                  rng.uniform(-np.pi, np.pi)))
+    else:
+        a, b, _ = capsules(q1)
+        hand = (a.mean(axis=0) + b.mean(axis=0)) / 2
+        obstacles += _compartment(rng, capsules(q1), capsules(q1, FOREARM), float(np.arctan2(hand[1], hand[0])),
+                                  front=family == "cage")
+    return q0, q1, obstacles
 
 
 def problems(count: int, N: int, seed: int = 0) -> list[dict]:
-    """``count`` task documents whose start and goal are ``START_CLEARANCE`` clear (hoc's distances)."""
-    from hoc_cli.collision.evaluate import distances
+    """``count`` task documents, the families in turn, whose start and goal are ``START_CLEARANCE`` clear
+    (hoc's distances) and within the joint limits.
+    """
+    from hoc_cli.collision.evaluate import distances, world_capsules
     from hoc_cli.commands.common import load_model
     from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
@@ -70,21 +164,41 @@ def problems(count: int, N: int, seed: int = 0) -> list[dict]:
     rng = np.random.default_rng(seed)
     out = []
     with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "task.yaml"
+        base = {"robot": str(PANDA), "joints": JOINTS, "locked": {"panda_finger_joint1": 0.02},
+                "x0": {"q": LEFT.tolist()}, "x1": {"q": RIGHT.tolist()}, "T": 2.0, "N": N,
+                "output": {"rate": 1000.0}, "collision": {"margin": MARGIN, "srdf": str(SRDF), "obstacles": [TABLE]}}
+        path.write_text(yaml.safe_dump(base, sort_keys=False))
+        task = load_task(path, purpose="plan")
+        model = load_model(task)
+        robot = task_collision(task, model).robot
+        lo, hi = model.lower + 0.05, model.upper - 0.05
+
+        def capsules(q, links=DISTAL):
+            from types import SimpleNamespace
+            which = np.array([name in links for name in robot.links])
+            a, b = world_capsules(model, SimpleNamespace(robot=robot), np.asarray(q)[None])
+            return a[0, which], b[0, which], robot.radius[which]
+
         while len(out) < count:
-            q0 = LEFT + rng.normal(size=7) * 0.15
-            q1 = RIGHT + rng.normal(size=7) * 0.15
-            doc = {"robot": str(PANDA), "joints": JOINTS, "locked": {"panda_finger_joint1": 0.02},
-                   "x0": {"q": [float(v) for v in q0]}, "x1": {"q": [float(v) for v in q1]}, "T": 2.0, "N": N,
-                   "output": {"rate": 1000.0},
-                   "collision": {"margin": MARGIN, "srdf": str(SRDF), "obstacles": _scene(rng)}}
-            path = Path(tmp) / "task.yaml"
-            path.write_text(yaml.safe_dump(doc, sort_keys=False))
+            family = FAMILIES[len(out) % len(FAMILIES)]
+            q0, q1, obstacles = _candidate(rng, family, capsules)
+            if not (np.all((q0 > lo) & (q0 < hi)) and np.all((q1 > lo) & (q1 < hi))):
+                continue
+            doc = dict(base, x0={"q": [float(v) for v in q0]}, x1={"q": [float(v) for v in q1]},
+                       collision=dict(base["collision"], obstacles=obstacles))
+            doc["family"] = family
+            path.write_text(_task_text(doc))
             task = load_task(path, purpose="plan")
-            model = load_model(task)
             scene = task_collision(task, model)
             if distances(model, scene, np.stack([q0, q1])).min() >= START_CLEARANCE:
                 out.append(doc)
     return out
+
+
+def _task_text(doc: dict) -> str:
+    """The task file of a problem (its ``family`` left out)."""
+    return yaml.safe_dump({k: v for k, v in doc.items() if k != "family"}, sort_keys=False)
 
 
 def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
@@ -157,7 +271,7 @@ def run(doc: dict, workdir: Path) -> dict:
     from hoc_cli.problem import minimum_jerk_guess
 
     path = workdir / "task.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)
@@ -185,7 +299,7 @@ def drake_row(doc: dict, workdir: Path) -> dict:
     from hoc_cli.io.task import load_task
 
     path = workdir / "task.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)

@@ -69,6 +69,8 @@ REFINE_POINTS = 4
 MAX_REFINEMENTS = 6
 VIA_TRIES = 3
 VIA_MAX_OUTER = 10
+LOOSE_TOL = 1e-5      # the inner solves' relative tolerance until the points are clear and the clearance certified
+COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close to the bound (it only starts the next)
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +205,7 @@ class CollisionConstraint:
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
         prev = math.inf
         refinements = 0
+        tight = float(np.max(bound - D, initial=0.0)) <= VIOLATION_TOL  # the start is clear at the points already
         status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
         outer = 0
         try:
@@ -212,7 +215,7 @@ class CollisionConstraint:
                 p, k = np.nonzero(np.broadcast_to(near, D.shape))
                 rows = p.size
                 problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
-                res, _, er = inner(problem, x, tol)
+                res, _, er = inner(problem, x, tol if tight and full else max(tol, LOOSE_TOL))
                 x = res.x
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
                 terms = problem.terms[0]
@@ -223,11 +226,17 @@ class CollisionConstraint:
                     _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
                                f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
                                f"min d {float(D.min()):.4f}")
+                if not full and excess <= COARSE_EXCESS:
+                    status, message = "converged", f"near the bound at the points (outer iterations: {outer})"
+                    break
                 if excess <= VIOLATION_TOL:
                     if not full:
                         status, message = "converged", f"clear at the points (outer iterations: {outer})"
                         break
                     cert = certify(model, scene, mesh, problem.coefficients(x))
+                    if cert.certified and not tight:  # once more with the plan's tolerance, λ updated
+                        tight = True
+                        continue
                     if cert.certified:
                         if res.converged:
                             status = "converged"
