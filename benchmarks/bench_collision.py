@@ -29,15 +29,14 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import json
+import subprocess
+import sys
 import sysconfig
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
-from typer.testing import CliRunner
-
-from hoc_cli.cli import app
 
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 PANDA = ERD / "panda_description" / "urdf" / "panda.urdf"
@@ -201,8 +200,18 @@ def _task_text(doc: dict) -> str:
     return yaml.safe_dump({k: v for k, v in doc.items() if k != "family"}, sort_keys=False)
 
 
-def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
-    """The smallest signed distance over the scene's pairs at every CSV sample by coal and Pinocchio (None without them)."""
+def _csv_q(csv_path: Path) -> np.ndarray:
+    """The joint positions (K, 7) of a plan's CSV."""
+    import csv
+
+    rows = list(csv.DictReader(csv_path.open()))
+    return np.array([[float(row[f"q.{j}"]) for j in JOINTS] for row in rows])
+
+
+def _coal_clearance(doc: dict, qs: np.ndarray, workdir: Path) -> float | None:
+    """The smallest signed distance over the scene's pairs at every configuration qs (K, 7) by coal and Pinocchio
+    (None without them).
+    """
     try:
         import coal
         import pinocchio as pin
@@ -213,7 +222,8 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
     from hoc_cli.commands.plan_collision import task_collision
     from hoc_cli.io.task import load_task
 
-    path = csv_path.with_name("task.yaml")
+    path = workdir / "task.yaml"
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)
@@ -237,10 +247,6 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
                        pin.SE3(np.stack([x, np.cross(z, x), z], axis=1), (a + b) / 2)))
     obstacles = [(coal.Box(*(2 * o.primitive.half)), coal.Transform3s(o.primitive.rotation, o.primitive.center))
                  for o in scene.obstacles]
-    import csv
-
-    rows = list(csv.DictReader(csv_path.open()))
-    qs = np.array([[float(row[f"q.{j}"]) for j in JOINTS] for row in rows])
     req = coal.DistanceRequest()
     req.enable_signed_distance = True
     worst = np.inf
@@ -262,7 +268,10 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
     return float(worst)
 
 
-def run(doc: dict, workdir: Path) -> dict:
+def run(doc: dict, workdir: Path, timeout: float) -> dict:
+    """``hoc plan`` on one problem (a subprocess, stopped after ``timeout`` s: a failure), the guess's clearance, the
+    plan's clearance at 1 kHz by coal.
+    """
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.commands.common import load_model
     from hoc_cli.commands.plan_collision import task_collision
@@ -279,19 +288,31 @@ def run(doc: dict, workdir: Path) -> dict:
     z = np.zeros(7)
     C = minimum_jerk_guess(mesh, np.array(doc["x0"]["q"]), z, np.array(doc["x1"]["q"]), z)
     guess = float(distances(model, scene, mesh.evaluate(C, np.linspace(0, 2.0, 2001))).min())
-    r = CliRunner().invoke(app, ["plan", str(path), "--json", "-q", "-o", str(workdir / "out.csv")])
+    out = workdir / "out.csv"
+    out.unlink(missing_ok=True)
+    hoc = Path(sys.executable).with_name("hoc")
+    try:
+        r = subprocess.run([str(hoc), "plan", str(path), "--json", "-q", "-o", str(out)], capture_output=True,
+                           text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"guess_clearance": guess, "exit": None, "status": "timeout", "converged": False, "certified": False,
+                "J": None, "time_s": timeout, "lower_bound": None, "start": None, "success": False, "coal_1khz": None}
     s = json.loads(r.stdout)
     c = s["min_clearance"]
-    ok = r.exit_code == 0 and s["converged"] and c["certified"]
-    return {"guess_clearance": guess, "exit": r.exit_code, "status": s["status"], "converged": s["converged"],
+    ok = r.returncode == 0 and s["converged"] and c["certified"]
+    return {"guess_clearance": guess, "exit": r.returncode, "status": s["status"], "converged": s["converged"],
             "certified": c["certified"], "J": s["cost"], "time_s": s["wall_time_s"], "lower_bound": c["lower_bound"],
             "start": (s.get("collision_enforce") or {}).get("start"), "success": ok,
-            "coal_1khz": _coal_clearance(doc, workdir / "out.csv") if ok else None}
+            "coal_1khz": _coal_clearance(doc, _csv_q(out), workdir) if out.exists() else None}
 
 
 def drake_row(doc: dict, workdir: Path) -> dict:
-    """Drake's plan of the same problem: success, solve time, its smallest distance at 1 kHz (hoc's distances)."""
+    """Drake's plan of the same problem: success, solve time, its smallest distance at 1 kHz (hoc's and coal's)."""
+    import logging
+
     from _drake_collision import drake_plan
+
+    logging.getLogger("drake").setLevel(logging.ERROR)  # its URDF parser's notes on tags it ignores
 
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.commands.common import load_model
@@ -305,45 +326,59 @@ def drake_row(doc: dict, workdir: Path) -> dict:
     scene = task_collision(task, model)
     ok, elapsed, Q, _ = drake_plan(PANDA.read_text(), scene, np.array(doc["x0"]["q"]), np.array(doc["x1"]["q"]),
                                    2.0, MARGIN)
-    return {"success": ok, "time_s": elapsed, "clearance_1khz": float(distances(model, scene, Q).min())}
+    return {"success": ok, "time_s": elapsed, "clearance_1khz": float(distances(model, scene, Q).min()),
+            "coal_1khz": _coal_clearance(doc, Q, workdir)}
+
+
+def _fmt(v, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--count", type=int, default=3)
+    ap.add_argument("--count", type=int, default=4)
     ap.add_argument("--N", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=120.0, help="s per hoc plan (then counted as a failure)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--drake", action="store_true", help="Drake's sampled minimum-distance plan beside each")
     args = ap.parse_args()
     docs = problems(args.count, args.N, args.seed)
     results = []
-    print(f"{'#':>3} {'guess d':>8} {'status':>11} {'J':>10} {'time s':>7} {'proven >=':>10} {'coal 1 kHz':>10}  start")
+    head = f"{'#':>3} {'scene':>7} {'guess d':>8} {'status':>13} {'J':>9} {'time s':>7} {'proven >=':>9} {'coal 1 kHz':>10}"
+    print(head + ("  | Drake: ok  time s  coal 1 kHz" if args.drake else ""))
     with tempfile.TemporaryDirectory() as tmp:
         for i, doc in enumerate(docs):
-            r = run(doc, Path(tmp))
+            r = run(doc, Path(tmp), args.timeout)
+            r["family"] = doc["family"]
             results.append(r)
-            coal = "-" if r["coal_1khz"] is None else f"{r['coal_1khz']:.5f}"
             drake = ""
             if args.drake:
                 r["drake"] = d = drake_row(doc, Path(tmp))
-                drake = f"  | Drake {'ok' if d['success'] else 'failed'} {d['time_s']:.2f} s, 1 kHz {d['clearance_1khz']:.5f}"
-            print(f"{i:>3} {r['guess_clearance']:>8.4f} {r['status']:>11} {r['J']:>10.4f} {r['time_s']:>7.2f} "
-                  f"{r['lower_bound']:>10.5f} {coal:>10}  {r['start']}{drake}", flush=True)
+                drake = f"  | {'yes' if d['success'] else 'no':>8} {d['time_s']:>7.2f} {_fmt(d['coal_1khz'], '10.5f')}"
+            print(f"{i:>3} {doc['family']:>7} {r['guess_clearance']:>8.4f} {r['status']:>13} {_fmt(r['J'], '9.3f')} "
+                  f"{r['time_s']:>7.2f} {_fmt(r['lower_bound'], '9.5f')} {_fmt(r['coal_1khz'], '10.5f')}{drake}", flush=True)
+    n = len(results)
     ok = [r for r in results if r["success"]]
     times = np.array([r["time_s"] for r in results])
     coal = [r["coal_1khz"] for r in ok if r["coal_1khz"] is not None]
-    print(f"success {len(ok)}/{len(results)} (converged and certified); guesses in collision "
-          f"{sum(r['guess_clearance'] < MARGIN for r in results)}/{len(results)}; plan time median "
-          f"{np.median(times):.2f} s, 98th percentile {np.percentile(times, 98):.2f} s; smallest coal clearance at 1 kHz "
-          f"over the successes {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
+    between = sum(c < MARGIN - 1e-9 for c in coal)
+    print(f"hoc: success {len(ok)}/{n} = {100 * len(ok) / n:.0f} % (converged and certified); guesses in collision "
+          f"{sum(r['guess_clearance'] < 0 for r in results)}/{n}; plan time median {np.median(times):.2f} s, 98th "
+          f"percentile {np.percentile(times, 98):.2f} s; of its successes below the margin between samples (coal, "
+          f"1 kHz) {between}, smallest clearance {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
     if args.drake:
         dr = [r["drake"] for r in results]
         dok = [d for d in dr if d["success"]]
-        print(f"Drake: success {len(dok)}/{len(dr)} (SNOPT's own test), plan time median "
-              f"{np.median([d['time_s'] for d in dr]):.2f} s; of its successes, below the margin between its samples "
-              f"{sum(d['clearance_1khz'] < MARGIN - 1e-9 for d in dok)}, in collision (< 0) "
-              f"{sum(d['clearance_1khz'] < 0 for d in dok)}")
+        dtimes = np.array([d["time_s"] for d in dr])
+        c = [d["coal_1khz"] if d["coal_1khz"] is not None else d["clearance_1khz"] for d in dok]
+        print(f"Drake: success {len(dok)}/{n} = {100 * len(dok) / n:.0f} % (SNOPT's own test); plan time median "
+              f"{np.median(dtimes):.2f} s, 98th percentile {np.percentile(dtimes, 98):.2f} s; of its successes below "
+              f"the margin between samples {sum(v < MARGIN - 1e-9 for v in c)}, in collision (< 0) "
+              f"{sum(v < 0 for v in c)}")
+        print(f"ratios hoc/Drake: success {len(ok) / max(len(dok), 1):.2f}, median time "
+              f"{np.median(times) / np.median(dtimes):.2f}, 98th percentile time "
+              f"{np.percentile(times, 98) / np.percentile(dtimes, 98):.2f}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
 
