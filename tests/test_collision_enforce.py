@@ -220,10 +220,17 @@ def test_via_candidates_are_clear_shortest_first_where_the_straight_path_is_not(
 
 
 def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatch):
+    import dataclasses
+
     import hoc_cli.collision.enforce as enforce
 
-    monkeypatch.setattr(enforce, "MAX_OUTER", 1)  # the start gets one outer iteration: it stays in collision
-    monkeypatch.setattr(enforce, "COARSE_MAX_OUTER", 1)
+    loop = enforce.CollisionConstraint._loop
+
+    def failing(self, *args):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
+        got = loop(self, *args)
+        return got if args[-1] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
+
+    monkeypatch.setattr(enforce.CollisionConstraint, "_loop", failing)
     r, s = plan(workdir, two_link([BALL], N=4))
     assert r.exit_code == 0, r.stderr
     assert s["collision_enforce"]["start"] in ("guess", "via") and s["min_clearance"]["certified"]

@@ -1,9 +1,10 @@
 """Collision avoidance enforced: the augmented-Lagrangian outer loop, with the certificate as its stopping test.
 
 Imposed: d ≥ bound at ``POINTS_PER_ELEMENT`` points of every element (t = 0 and T excluded: x0 and
-x1 are data, checked before the solve), at every point for every pair that comes closer than
-bound + ``INFLUENCE`` at some point or has a positive multiplier, re-selected each outer iteration
-(a pair is imposed along the whole trajectory: an inner solve may move its contact in time). bound = margin + inflation, the
+x1 are data, checked before the solve), for every pair that comes closer than bound + ``INFLUENCE``
+at some point or has a positive multiplier, at every point where it is closer than bound +
+``ROW_REACH`` or has a multiplier, re-selected each outer iteration (a pair is imposed well beyond
+its contact: an inner solve may move the contact in time). bound = margin + inflation, the
 inflation ``INFLATION`` (lowered for a pair whose x0 or x1 distance leaves less room). The terms
 are ``constraint.CollisionTerms`` (PHR), added to the control problem through its ``terms`` hook.
 
@@ -53,7 +54,8 @@ from hoc_cli.model.tree import RobotModel
 _log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
 POINTS_PER_ELEMENT = 8
 MIN_POINTS = 64       # points per level at least (a coarse level's path must not slip between its points)
-INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at a point are imposed there
+INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at some point are imposed ...
+ROW_REACH = 0.1       # m beyond the bound: ... at every point where they are nearer than this (or hold a multiplier)
 INFLATION = 1e-3      # m imposed above the margin at the points
 VIOLATION_TOL = 5e-4  # m: the points' worst violation at which the certificate is asked (half the inflation:
                       # the points are then 0.5 mm clear of the margin; the certificate decides)
@@ -211,8 +213,8 @@ class CollisionConstraint:
         try:
             for outer in range(1, max_outer + 1):
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
-                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed at every point
-                p, k = np.nonzero(np.broadcast_to(near, D.shape))
+                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
+                p, k = np.nonzero(near & ((D < bound + ROW_REACH) | (lam > 0)))  # ... where within ROW_REACH
                 rows = p.size
                 problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
                 res, _, er = inner(problem, x, tol if tight and full else max(tol, LOOSE_TOL))
