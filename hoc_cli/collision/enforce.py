@@ -38,13 +38,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from hoc_cli.collision.certify import Certificate, certify
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations
+from hoc_cli.collision.constraint import CollisionTerms, point_configurations, sphere_rows_scene
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.guess import via_candidates, via_guess
 from hoc_cli.collision.scene import CollisionScene
@@ -55,7 +55,7 @@ _log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
 POINTS_PER_ELEMENT = 8
 MIN_POINTS = 64       # points per level at least (a coarse level's path must not slip between its points)
 INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at some point are imposed ...
-ROW_REACH = 0.1       # m beyond the bound: ... at every point where they are nearer than this (or hold a multiplier)
+ROW_REACH = 0.25      # m beyond the bound: ... at every point where they are nearer than this (or hold a multiplier)
 INFLATION = 1e-3      # m imposed above the margin at the points
 VIOLATION_TOL = 5e-4  # m: the points' worst violation at which the certificate is asked (half the inflation:
                       # the points are then 0.5 mm clear of the margin; the certificate decides)
@@ -71,6 +71,7 @@ REFINE_POINTS = 4
 MAX_REFINEMENTS = 6
 VIA_TRIES = 3
 VIA_MAX_OUTER = 10
+SPHERE_ROWS = True    # obstacles are imposed against spheres along the capsules (constraint.sphere_rows_scene)
 LOOSE_TOL = 1e-5      # the inner solves' relative tolerance until the points are clear and the clearance certified
 COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close to the bound (it only starts the next)
 
@@ -159,6 +160,7 @@ class CollisionConstraint:
 
     model: RobotModel
     scene: CollisionScene
+    _rows: list = field(default_factory=list, repr=False)  # the rows' scene, built on first use
 
     def solve(self, problem, x0: np.ndarray, tol: float, inner: Callable, *, warm: CollisionWarm | None = None,
               full: bool = True):
@@ -188,17 +190,27 @@ class CollisionConstraint:
             return got[:3] + (dataclasses.replace(o, message=message),)
         return best
 
-    def _bounds(self, problem) -> np.ndarray:
-        """The bound (Q,) m per pair: margin + INFLATION, or less where x0 or x1 is nearer (half its room)."""
+    def rows_scene(self) -> CollisionScene:
+        """The pairs imposed (``constraint.sphere_rows_scene``: obstacles against spheres along the capsules)."""
+        got = self._rows
+        if not got:
+            got.append(sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene)
+        return got[0]
+
+    def _bounds(self, problem, scene: CollisionScene) -> np.ndarray:
+        """The bound (Q,) m per pair of ``scene``: margin + INFLATION, or less where x0 or x1 is nearer (half its
+        room; below the margin for a sphere pair whose padding takes the room).
+        """
         q0, _, q1, _ = problem.boundary
         margin = self.scene.margin
-        ends = distances(self.model, self.scene, np.stack([q0, q1])).min(axis=0)
-        return margin + np.clip(0.5 * (ends - margin), 0.0, INFLATION)
+        ends = distances(self.model, scene, np.stack([q0, q1])).min(axis=0)
+        return margin + np.minimum(0.5 * (ends - margin), INFLATION)
 
     def _loop(self, problem, x: np.ndarray, tol: float, inner: Callable, warm: CollisionWarm | None, full: bool,
               max_outer: int, start: str):
-        model, scene, mesh = self.model, self.scene, problem.mesh
-        bound = self._bounds(problem)                                   # (Q,)
+        model, mesh, exact = self.model, problem.mesh, self.scene
+        scene = self.rows_scene()  # the rows; the certificate takes the exact pairs
+        bound = self._bounds(problem, scene)                            # (Q,)
         points = base_points(mesh)
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
@@ -235,7 +247,7 @@ class CollisionConstraint:
                     if not full:
                         status, message = "converged", f"clear at the points (outer iterations: {outer})"
                         break
-                    cert = certify(model, scene, mesh, problem.coefficients(x))
+                    cert = certify(model, exact, mesh, problem.coefficients(x))
                     if cert.certified and not tight:  # once more with the plan's tolerance, λ updated
                         tight = True
                         continue
@@ -268,7 +280,7 @@ class CollisionConstraint:
             problem.terms = ()
         C = problem.coefficients(x)
         if cert is None and full:
-            cert = certify(model, scene, mesh, C)
+            cert = certify(model, exact, mesh, C)
         if status != "converged":
             if cert is not None:
                 closest, pair, t = cert.distance, cert.pair, cert.t
