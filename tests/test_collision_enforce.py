@@ -115,6 +115,7 @@ def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_c
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
     assert s["collision_mode"] == "check" and "min_clearance" in s
+    assert "hoc: warning: collision enforcement plans joint goals" in r.stderr and "planned with collision check" in r.stderr
 
 
 @pytest.fixture(scope="module")
