@@ -1,26 +1,30 @@
-"""hoc's collision-enforced plans on Panda problems among boxes, in the MotionBenchMaker style (issue 25).
+"""hoc's collision-enforced plans on Panda problems in cluttered scenes, in the MotionBenchMaker style (issue 25).
 
-Run:  python benchmarks/bench_collision.py              (3 problems, N = 8: about 1.5 minutes on 2 cores)
-      python benchmarks/bench_collision.py --count 20 --N 16 --json collision.json
-      python benchmarks/bench_collision.py --drake      (Drake's sampled constraint beside hoc)
+Run:  python benchmarks/bench_collision.py              (4 problems, one per scene family: about a minute)
+      python benchmarks/bench_collision.py --count 20 --drake --json collision.json   (docs/collision.md §6)
 
 Problems (seeded, reproducible): the Panda (example-robot-data, its SRDF's pairs off, fingers
-locked at 0.02 m) over a table, with a wall standing between the start and the goal and 2 boxes on
-the table at random; start and goal are reaches to the left and to the right of the wall, perturbed
-at random and kept when every pair is at least 3 cm clear. T = 2 s, covariant cost, URDF limits.
+locked at 0.02 m) over a table, the scene families in turn (``FAMILIES``): ``wall`` (a wall between
+a start reaching to one side and a goal reaching to the other, and 2 boxes), ``shelf`` (the goal's
+hand level in a compartment built round it: boards below and above, a back and two sides),
+``cage`` (that compartment made of bars, a bar across the bottom of its opening) and ``clutter``
+(a block where the straight path's midpoint puts the hand, and 4 boxes). Start and goal are
+perturbed at random, within the joint limits, and kept when every pair is at least 3 cm clear.
+T = 2 s, covariant cost, URDF limits, margin 1 cm.
 
-Per problem: whether the minimum-jerk guess collides (hoc's distances at 1 kHz), ``hoc plan``'s
-outcome (status, J, wall time, certified lower bound), and the clearance of the written plan at
-1 kHz by coal with Pinocchio's kinematics (the same capsules, coal's distances: independent of
-hoc's distance and certificate code; skipped without coal). Summary: success rate (converged and
-certified), plan time median and 98th percentile, the smallest coal clearance over the successes
-(it must be >= margin − 1e-9: no collision between samples).
+Per problem: the minimum-jerk guess's clearance (hoc's distances at 1 kHz), ``hoc plan``'s outcome
+in a subprocess stopped after ``--timeout`` s (status, J, wall time, certified lower bound), and the
+clearance of the written plan at 1 kHz by coal with Pinocchio's kinematics (the same capsules,
+coal's distances: independent of hoc's distance and certificate code; skipped without coal).
+Summary: success rate (converged and certified), plan time median and 98th percentile, how many
+successes come below the margin between samples by coal (0 when the certificate holds).
 
 ``--drake`` (benchmark-only: ``pip install drake``): beside it, Drake's KinematicTrajectoryOptimization
 with MinimumDistanceLowerBoundConstraint at 25 sampled points of the path, on the same capsules and
 pairs (benchmarks/_drake_collision.py; its cost is the path length, not hoc's effort: compare the
-clearance, not J), and its clearance at 1 kHz by hoc's distances: a sampled constraint can pass an
-obstacle between its samples.
+clearance, not J), its plan measured by coal at 1 kHz too: a sampled constraint can pass an
+obstacle between its samples. The ratios hoc/Drake of success and of the time's median and 98th
+percentile close the report.
 """
 from __future__ import annotations
 
@@ -29,15 +33,14 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import json
+import subprocess
+import sys
 import sysconfig
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
-from typer.testing import CliRunner
-
-from hoc_cli.cli import app
 
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 PANDA = ERD / "panda_description" / "urdf" / "panda.urdf"
@@ -49,20 +52,114 @@ MARGIN = 0.01
 START_CLEARANCE = 0.03
 
 
-def _scene(rng) -> list[dict]:
-    boxes = [{"name": "table", "box": {"size": [0.6, 1.4, 0.04]}, "position": [0.55, 0.0, 0.0]},
-             {"name": "wall", "box": {"size": [float(rng.uniform(0.2, 0.35)), 0.04, float(rng.uniform(0.25, 0.4))]},
-              "position": [float(rng.uniform(0.45, 0.6)), 0.0, 0.2]}]
-    for i in range(2):
-        side = 1 if i == 0 else -1
-        boxes.append({"name": f"box{i}", "box": {"size": [float(v) for v in rng.uniform(0.05, 0.12, 3)]},
-                      "position": [float(rng.uniform(0.45, 0.8)), float(side * rng.uniform(0.3, 0.6)), 0.1]})
-    return boxes
+FAMILIES = ("wall", "shelf", "cage", "clutter")
+TABLE = {"name": "table", "box": {"size": [0.6, 1.4, 0.04]}, "position": [0.55, 0.0, 0.0]}
+DISTAL = ("panda_link6", "panda_link7", "panda_hand", "panda_leftfinger", "panda_rightfinger")
+FOREARM = ("panda_link5",)
+REACH = np.array([0.0, 1.0, 0.0, -0.8, 0.0, 3.0, 0.785])  # the hand level, pointing ahead over the table
+
+
+def _box(name: str, size, center, yaw: float = 0.0) -> dict:
+    """A box obstacle: full sides ``size`` (m) in a frame turned by ``yaw`` about z, centred at ``center``."""
+    return {"name": name, "box": {"size": [float(v) for v in size]}, "position": [float(v) for v in center],
+            "orientation": [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]}
+
+
+def _extent(ends: tuple, yaw: float) -> np.ndarray:
+    """(3, 2) the box [lo, hi] along depth u, lateral v and z that holds the capsules ``ends`` = (a, b, r)
+    of the hand's links, in the frame turned by ``yaw`` about z.
+    """
+    a, b, r = ends
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1.0]])  # world → (u, v, z)
+    pts = np.concatenate([a @ R.T, b @ R.T])
+    rr = np.concatenate([r, r])[:, None]
+    return np.stack([(pts - rr).min(axis=0), (pts + rr).max(axis=0)], axis=1)
+
+
+def _compartment(rng, ends, arm, yaw: float, *, front: bool) -> list[dict]:
+    """A shelf compartment round the hand's links (open towards the robot: boards below and above, a back, two
+    sides, gaps 4–7 cm), its open face 3 cm beyond the forearm (``arm``: its capsules), standing on the table on
+    its side panels; with ``front`` a cage: the back and sides are bars (corner posts, two rails a side) and a
+    bar lies across the bottom of the opening, so the hand must come in over it.
+    """
+    box = _extent(ends, yaw)
+    g = rng.uniform(0.04, 0.07, 5)
+    t = 0.02
+    u0, u1 = max(box[0, 0] - 0.02, _extent(arm, yaw)[0, 1] + 0.03), box[0, 1] + g[0]
+    v0, v1 = box[1, 0] - g[1], box[1, 1] + g[2]
+    z0, z1 = box[2, 0] - g[3], box[2, 1] + g[4]
+    depth, width = u1 - u0, v1 - v0 + 2 * t
+    uc, vc = (u0 + u1) / 2, (v0 + v1) / 2
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def world(u, v, z):
+        return [u * c - v * s, u * s + v * c, z]
+
+    top = z1 + t
+    out = [_box("shelf_bottom", [depth, width, t], world(uc, vc, z0 - t / 2), yaw),
+           _box("shelf_top", [depth, width, t], world(uc, vc, z1 + t / 2), yaw)]
+    if not front:
+        return out + [_box("shelf_back", [t, width, top], world(u1 + t / 2, vc, top / 2), yaw),
+                      _box("shelf_left", [depth, t, top], world(uc, v1 + t / 2, top / 2), yaw),
+                      _box("shelf_right", [depth, t, top], world(uc, v0 - t / 2, top / 2), yaw)]
+    # a cage of 2 cm bars: corner posts, two rails along the back and each side, a lip across the opening
+    for i, (u, v) in enumerate([(u0, v0), (u0, v1), (u1, v0), (u1, v1)]):
+        out.append(_box(f"cage_post{i}", [t, t, top], world(u + t / 2 * np.sign(u - uc), v + t / 2 * np.sign(v - vc),
+                                                            top / 2), yaw))
+    for k, z in enumerate((z0 + (z1 - z0) / 3, z0 + 2 * (z1 - z0) / 3)):
+        out.append(_box(f"cage_back{k}", [t, width, t], world(u1 + t / 2, vc, z), yaw))
+        out.append(_box(f"cage_left{k}", [depth, t, t], world(uc, v1 + t / 2, z), yaw))
+        out.append(_box(f"cage_right{k}", [depth, t, t], world(uc, v0 - t / 2, z), yaw))
+    out.append(_box("cage_lip", [t, width, t], world(u0 + t / 2, vc, z0 + t / 2), yaw))
+    return out
+
+
+def _candidate(rng, family: str, capsules) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """One draw of (q0, q1, obstacles) for ``family``; ``capsules(q, links=DISTAL)`` gives (a, b, r) of the links'
+    capsules at q.
+    """
+    side = rng.choice([-1.0, 1.0])
+    if family in ("wall", "clutter"):
+        q0 = LEFT + rng.normal(size=7) * 0.15
+        q1 = RIGHT + rng.normal(size=7) * 0.15
+        if side < 0:
+            q0, q1 = q1, q0
+    else:  # the goal in a compartment ahead, the start off to one side
+        q1 = REACH + rng.normal(size=7) * 0.08
+        q1[0] = rng.uniform(-0.6, 0.6)
+        q0 = (LEFT if side > 0 else RIGHT) + rng.normal(size=7) * 0.15
+    obstacles = [dict(TABLE)]
+    if family == "wall":
+        obstacles.append(_box("wall", [rng.uniform(0.2, 0.35), 0.04, rng.uniform(0.25, 0.4)],
+                              [rng.uniform(0.45, 0.6), 0.0, 0.2]))
+        for i in range(2):
+            s = 1 if i == 0 else -1
+            obstacles.append(_box(f"box{i}", rng.uniform(0.05, 0.12, 3),
+                                  [rng.uniform(0.45, 0.8), s * rng.uniform(0.3, 0.6), 0.1]))
+    elif family == "clutter":  # boxes on the table, one where the straight path's midpoint holds the hand
+        a, b, _ = capsules((q0 + q1) / 2)
+        mid = (a.mean(axis=0) + b.mean(axis=0)) / 2
+        size = rng.uniform(0.1, 0.2, 3)
+        size[2] = max(size[2], mid[2] + 0.05)
+        obstacles.append(_box("block", size, [mid[0], mid[1], size[2] / 2], rng.uniform(-0.5, 0.5)))
+        for i in range(4):
+            size = rng.uniform(0.05, 0.15, 3)
+            obstacles.append(_box(f"box{i}", size, [rng.uniform(0.35, 0.8), rng.uniform(-0.6, 0.6), size[2] / 2],
+                                  rng.uniform(-np.pi, np.pi)))
+    else:
+        a, b, _ = capsules(q1)
+        hand = (a.mean(axis=0) + b.mean(axis=0)) / 2
+        obstacles += _compartment(rng, capsules(q1), capsules(q1, FOREARM), float(np.arctan2(hand[1], hand[0])),
+                                  front=family == "cage")
+    return q0, q1, obstacles
 
 
 def problems(count: int, N: int, seed: int = 0) -> list[dict]:
-    """``count`` task documents whose start and goal are ``START_CLEARANCE`` clear (hoc's distances)."""
-    from hoc_cli.collision.evaluate import distances
+    """``count`` task documents, the families in turn, whose start and goal are ``START_CLEARANCE`` clear
+    (hoc's distances) and within the joint limits.
+    """
+    from hoc_cli.collision.evaluate import distances, world_capsules
     from hoc_cli.io.robot import load_model
     from hoc_cli.io.task import load_task
     from hoc_cli.report.collision import task_collision
@@ -70,25 +167,55 @@ def problems(count: int, N: int, seed: int = 0) -> list[dict]:
     rng = np.random.default_rng(seed)
     out = []
     with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "task.yaml"
+        base = {"robot": str(PANDA), "joints": JOINTS, "locked": {"panda_finger_joint1": 0.02},
+                "x0": {"q": LEFT.tolist()}, "x1": {"q": RIGHT.tolist()}, "T": 2.0, "N": N,
+                "output": {"rate": 1000.0}, "collision": {"margin": MARGIN, "srdf": str(SRDF), "obstacles": [TABLE]}}
+        path.write_text(yaml.safe_dump(base, sort_keys=False))
+        task = load_task(path, purpose="plan")
+        model = load_model(task)
+        robot = task_collision(task, model).robot
+        lo, hi = model.lower + 0.05, model.upper - 0.05
+
+        def capsules(q, links=DISTAL):
+            from types import SimpleNamespace
+            which = np.array([name in links for name in robot.links])
+            a, b = world_capsules(model, SimpleNamespace(robot=robot), np.asarray(q)[None])
+            return a[0, which], b[0, which], robot.radius[which]
+
         while len(out) < count:
-            q0 = LEFT + rng.normal(size=7) * 0.15
-            q1 = RIGHT + rng.normal(size=7) * 0.15
-            doc = {"robot": str(PANDA), "joints": JOINTS, "locked": {"panda_finger_joint1": 0.02},
-                   "x0": {"q": [float(v) for v in q0]}, "x1": {"q": [float(v) for v in q1]}, "T": 2.0, "N": N,
-                   "output": {"rate": 1000.0},
-                   "collision": {"margin": MARGIN, "srdf": str(SRDF), "obstacles": _scene(rng)}}
-            path = Path(tmp) / "task.yaml"
-            path.write_text(yaml.safe_dump(doc, sort_keys=False))
+            family = FAMILIES[len(out) % len(FAMILIES)]
+            q0, q1, obstacles = _candidate(rng, family, capsules)
+            if not (np.all((q0 > lo) & (q0 < hi)) and np.all((q1 > lo) & (q1 < hi))):
+                continue
+            doc = dict(base, x0={"q": [float(v) for v in q0]}, x1={"q": [float(v) for v in q1]},
+                       collision=dict(base["collision"], obstacles=obstacles))
+            doc["family"] = family
+            path.write_text(_task_text(doc))
             task = load_task(path, purpose="plan")
-            model = load_model(task)
             scene = task_collision(task, model)
             if distances(model, scene, np.stack([q0, q1])).min() >= START_CLEARANCE:
                 out.append(doc)
     return out
 
 
-def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
-    """The smallest signed distance over the scene's pairs at every CSV sample by coal and Pinocchio (None without them)."""
+def _task_text(doc: dict) -> str:
+    """The task file of a problem (its ``family`` left out)."""
+    return yaml.safe_dump({k: v for k, v in doc.items() if k != "family"}, sort_keys=False)
+
+
+def _csv_q(csv_path: Path) -> np.ndarray:
+    """The joint positions (K, 7) of a plan's CSV."""
+    import csv
+
+    rows = list(csv.DictReader(csv_path.open()))
+    return np.array([[float(row[f"q.{j}"]) for j in JOINTS] for row in rows])
+
+
+def _coal_clearance(doc: dict, qs: np.ndarray, workdir: Path) -> float | None:
+    """The smallest signed distance over the scene's pairs at every configuration qs (K, 7) by coal and Pinocchio
+    (None without them).
+    """
     try:
         import coal
         import pinocchio as pin
@@ -99,7 +226,8 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
     from hoc_cli.io.task import load_task
     from hoc_cli.report.collision import task_collision
 
-    path = csv_path.with_name("task.yaml")
+    path = workdir / "task.yaml"
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)
@@ -123,10 +251,6 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
                        pin.SE3(np.stack([x, np.cross(z, x), z], axis=1), (a + b) / 2)))
     obstacles = [(coal.Box(*(2 * o.primitive.half)), coal.Transform3s(o.primitive.rotation, o.primitive.center))
                  for o in scene.obstacles]
-    import csv
-
-    rows = list(csv.DictReader(csv_path.open()))
-    qs = np.array([[float(row[f"q.{j}"]) for j in JOINTS] for row in rows])
     req = coal.DistanceRequest()
     req.enable_signed_distance = True
     worst = np.inf
@@ -148,7 +272,10 @@ def _coal_clearance(doc: dict, csv_path: Path) -> float | None:
     return float(worst)
 
 
-def run(doc: dict, workdir: Path) -> dict:
+def run(doc: dict, workdir: Path, timeout: float) -> dict:
+    """``hoc plan`` on one problem (a subprocess, stopped after ``timeout`` s: a failure), the guess's clearance, the
+    plan's clearance at 1 kHz by coal.
+    """
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.io.robot import load_model
@@ -157,7 +284,7 @@ def run(doc: dict, workdir: Path) -> dict:
     from hoc_cli.report.collision import task_collision
 
     path = workdir / "task.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)
@@ -165,19 +292,31 @@ def run(doc: dict, workdir: Path) -> dict:
     z = np.zeros(7)
     C = minimum_jerk_guess(mesh, np.array(doc["x0"]["q"]), z, np.array(doc["x1"]["q"]), z)
     guess = float(distances(model, scene, mesh.evaluate(C, np.linspace(0, 2.0, 2001))).min())
-    r = CliRunner().invoke(app, ["plan", str(path), "--json", "-q", "-o", str(workdir / "out.csv")])
+    out = workdir / "out.csv"
+    out.unlink(missing_ok=True)
+    hoc = Path(sys.executable).with_name("hoc")
+    try:
+        r = subprocess.run([str(hoc), "plan", str(path), "--json", "-q", "-o", str(out)], capture_output=True,
+                           text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"guess_clearance": guess, "exit": None, "status": "timeout", "converged": False, "certified": False,
+                "J": None, "time_s": timeout, "lower_bound": None, "start": None, "success": False, "coal_1khz": None}
     s = json.loads(r.stdout)
     c = s["min_clearance"]
-    ok = r.exit_code == 0 and s["converged"] and c["certified"]
-    return {"guess_clearance": guess, "exit": r.exit_code, "status": s["status"], "converged": s["converged"],
+    ok = r.returncode == 0 and s["converged"] and c["certified"]
+    return {"guess_clearance": guess, "exit": r.returncode, "status": s["status"], "converged": s["converged"],
             "certified": c["certified"], "J": s["cost"], "time_s": s["wall_time_s"], "lower_bound": c["lower_bound"],
             "start": (s.get("collision_enforce") or {}).get("start"), "success": ok,
-            "coal_1khz": _coal_clearance(doc, workdir / "out.csv") if ok else None}
+            "coal_1khz": _coal_clearance(doc, _csv_q(out), workdir) if out.exists() else None}
 
 
 def drake_row(doc: dict, workdir: Path) -> dict:
-    """Drake's plan of the same problem: success, solve time, its smallest distance at 1 kHz (hoc's distances)."""
+    """Drake's plan of the same problem: success, solve time, its smallest distance at 1 kHz (hoc's and coal's)."""
+    import logging
+
     from _drake_collision import drake_plan
+
+    logging.getLogger("drake").setLevel(logging.ERROR)  # its URDF parser's notes on tags it ignores
 
     from hoc_cli.collision.evaluate import distances
     from hoc_cli.io.robot import load_model
@@ -185,51 +324,65 @@ def drake_row(doc: dict, workdir: Path) -> dict:
     from hoc_cli.report.collision import task_collision
 
     path = workdir / "task.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    path.write_text(_task_text(doc))
     task = load_task(path, purpose="plan")
     model = load_model(task)
     scene = task_collision(task, model)
     ok, elapsed, Q, _ = drake_plan(PANDA.read_text(), scene, np.array(doc["x0"]["q"]), np.array(doc["x1"]["q"]),
                                    2.0, MARGIN)
-    return {"success": ok, "time_s": elapsed, "clearance_1khz": float(distances(model, scene, Q).min())}
+    return {"success": ok, "time_s": elapsed, "clearance_1khz": float(distances(model, scene, Q).min()),
+            "coal_1khz": _coal_clearance(doc, Q, workdir)}
+
+
+def _fmt(v, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--count", type=int, default=3)
+    ap.add_argument("--count", type=int, default=4)
     ap.add_argument("--N", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=120.0, help="s per hoc plan (then counted as a failure)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--drake", action="store_true", help="Drake's sampled minimum-distance plan beside each")
     args = ap.parse_args()
     docs = problems(args.count, args.N, args.seed)
     results = []
-    print(f"{'#':>3} {'guess d':>8} {'status':>11} {'J':>10} {'time s':>7} {'proven >=':>10} {'coal 1 kHz':>10}  start")
+    head = f"{'#':>3} {'scene':>7} {'guess d':>8} {'status':>13} {'J':>9} {'time s':>7} {'proven >=':>9} {'coal 1 kHz':>10}"
+    print(head + ("  | Drake: ok  time s  coal 1 kHz" if args.drake else ""))
     with tempfile.TemporaryDirectory() as tmp:
         for i, doc in enumerate(docs):
-            r = run(doc, Path(tmp))
+            r = run(doc, Path(tmp), args.timeout)
+            r["family"] = doc["family"]
             results.append(r)
-            coal = "-" if r["coal_1khz"] is None else f"{r['coal_1khz']:.5f}"
             drake = ""
             if args.drake:
                 r["drake"] = d = drake_row(doc, Path(tmp))
-                drake = f"  | Drake {'ok' if d['success'] else 'failed'} {d['time_s']:.2f} s, 1 kHz {d['clearance_1khz']:.5f}"
-            print(f"{i:>3} {r['guess_clearance']:>8.4f} {r['status']:>11} {r['J']:>10.4f} {r['time_s']:>7.2f} "
-                  f"{r['lower_bound']:>10.5f} {coal:>10}  {r['start']}{drake}", flush=True)
+                drake = f"  | {'yes' if d['success'] else 'no':>8} {d['time_s']:>7.2f} {_fmt(d['coal_1khz'], '10.5f')}"
+            print(f"{i:>3} {doc['family']:>7} {r['guess_clearance']:>8.4f} {r['status']:>13} {_fmt(r['J'], '9.3f')} "
+                  f"{r['time_s']:>7.2f} {_fmt(r['lower_bound'], '9.5f')} {_fmt(r['coal_1khz'], '10.5f')}{drake}", flush=True)
+    n = len(results)
     ok = [r for r in results if r["success"]]
     times = np.array([r["time_s"] for r in results])
     coal = [r["coal_1khz"] for r in ok if r["coal_1khz"] is not None]
-    print(f"success {len(ok)}/{len(results)} (converged and certified); guesses in collision "
-          f"{sum(r['guess_clearance'] < MARGIN for r in results)}/{len(results)}; plan time median "
-          f"{np.median(times):.2f} s, 98th percentile {np.percentile(times, 98):.2f} s; smallest coal clearance at 1 kHz "
-          f"over the successes {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
+    between = sum(c < MARGIN - 1e-9 for c in coal)
+    print(f"hoc: success {len(ok)}/{n} = {100 * len(ok) / n:.0f} % (converged and certified); guesses in collision "
+          f"{sum(r['guess_clearance'] < 0 for r in results)}/{n}; plan time median {np.median(times):.2f} s, 98th "
+          f"percentile {np.percentile(times, 98):.2f} s; of its successes below the margin between samples (coal, "
+          f"1 kHz) {between}, smallest clearance {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
     if args.drake:
         dr = [r["drake"] for r in results]
         dok = [d for d in dr if d["success"]]
-        print(f"Drake: success {len(dok)}/{len(dr)} (SNOPT's own test), plan time median "
-              f"{np.median([d['time_s'] for d in dr]):.2f} s; of its successes, below the margin between its samples "
-              f"{sum(d['clearance_1khz'] < MARGIN - 1e-9 for d in dok)}, in collision (< 0) "
-              f"{sum(d['clearance_1khz'] < 0 for d in dok)}")
+        dtimes = np.array([d["time_s"] for d in dr])
+        c = [d["coal_1khz"] if d["coal_1khz"] is not None else d["clearance_1khz"] for d in dok]
+        print(f"Drake: success {len(dok)}/{n} = {100 * len(dok) / n:.0f} % (SNOPT's own test); plan time median "
+              f"{np.median(dtimes):.2f} s, 98th percentile {np.percentile(dtimes, 98):.2f} s; of its successes below "
+              f"the margin between samples {sum(v < MARGIN - 1e-9 for v in c)}, in collision (< 0) "
+              f"{sum(v < 0 for v in c)}")
+        print(f"ratios hoc/Drake: success {len(ok) / max(len(dok), 1):.2f}, median time "
+              f"{np.median(times) / np.median(dtimes):.2f}, 98th percentile time "
+              f"{np.percentile(times, 98) / np.percentile(dtimes, 98):.2f}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
 

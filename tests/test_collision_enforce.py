@@ -13,7 +13,7 @@ import yaml
 from typer.testing import CliRunner
 
 from hoc_cli.cli import app
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations
+from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
 from hoc_cli.collision.enforce import base_points
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.geometry import Shape
@@ -115,6 +115,7 @@ def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_c
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
     assert s["collision_mode"] == "check" and "min_clearance" in s
+    assert "hoc: warning: collision enforcement plans joint goals" in r.stderr and "planned with collision check" in r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +127,23 @@ def lbr7_scene():
     obstacles = [Obstacle("ball", sphere([0.35, 0.0, 0.55], 0.12)),
                  Obstacle("box", Box(np.array([0.2, -0.3, 0.5]), np.eye(3), np.array([0.1, 0.05, 0.2])))]
     return model, collision_scene(model, robot, obstacles, margin=0.02)
+
+
+def test_the_spheres_standing_for_a_capsule_keep_within_the_padding_of_its_distance(lbr7_scene):
+    model, scene = lbr7_scene
+    rows = sphere_rows_scene(scene)
+    assert rows.size > scene.size
+    q = np.random.default_rng(3).uniform(-1.5, 1.5, (40, model.n))
+    D, Ds = distances(model, scene, q), distances(model, rows, q)   # (K, Q), (K, Q')
+    spheres = 0
+    for names in set(scene.names):
+        exact = D[:, [k for k in range(scene.size) if scene.names[k] == names]].min(axis=1)
+        cover = Ds[:, [k for k in range(rows.size) if rows.names[k] == names]].min(axis=1)
+        assert np.all(cover <= exact + 1e-12) and np.all(cover >= exact - SPHERE_PADDING - 1e-12)
+        spheres += np.sum([rows.names[k] == names for k in range(rows.size)]) > 1
+    assert spheres == 14  # 7 links against the ball and the box: spheres; the self pairs as they are
+    self_pairs = scene.kind == 0
+    assert np.array_equal(D[:, self_pairs], Ds[:, rows.kind == 0])
 
 
 def _terms(model, scene, mesh, C, rho=50.0):
@@ -220,10 +238,17 @@ def test_via_candidates_are_clear_shortest_first_where_the_straight_path_is_not(
 
 
 def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatch):
+    import dataclasses
+
     import hoc_cli.collision.enforce as enforce
 
-    monkeypatch.setattr(enforce, "MAX_OUTER", 1)  # the start gets one outer iteration: it stays in collision
-    monkeypatch.setattr(enforce, "COARSE_MAX_OUTER", 1)
+    loop = enforce.CollisionConstraint._loop
+
+    def failing(self, *args):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
+        got = loop(self, *args)
+        return got if args[-1] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
+
+    monkeypatch.setattr(enforce.CollisionConstraint, "_loop", failing)
     r, s = plan(workdir, two_link([BALL], N=4))
     assert r.exit_code == 0, r.stderr
     assert s["collision_enforce"]["start"] in ("guess", "via") and s["min_clearance"]["certified"]

@@ -22,9 +22,64 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hoc_cli.collision.evaluate import pair_contacts, pair_gradient, world_capsules
-from hoc_cli.collision.scene import CollisionScene
+from hoc_cli.collision.robot import RobotGeometry
+from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
+
+SPHERE_PADDING = 2e-3  # m: how far the spheres standing for a capsule against obstacles may reach beyond it
+
+
+def sphere_rows_scene(scene: CollisionScene, padding: float = SPHERE_PADDING) -> CollisionScene:
+    """The pairs the penalty imposes: ``scene``'s self pairs as they are, and each capsule–obstacle pair as
+    pairs of spheres along the capsule against that obstacle.
+
+    A capsule of length L and radius r is covered by K spheres centred at a + i/(K−1)·(b − a) with radius
+    R = √(r² + (L/(2(K−1)))²) (each sphere holds the capsule's slice out to the spacing's half), K the smallest
+    with R − r ≤ ``padding``: every sphere pair's distance is at most the capsule's, and at least it minus
+    ``padding``. Each sphere's distance to an obstacle is continuously differentiable while its centre is
+    outside the obstacle; a capsule's is not where its witness point jumps (a capsule parallel to a box face
+    or a capsule: the two ends equally near), and an inner solve whose optimum sits on such a kink crawls.
+    The primitives of ``scene`` keep their indices (the self pairs use them); the spheres follow them.
+    """
+    robot = scene.robot
+    P = robot.size
+    obstacle_pairs = scene.kind != KIND_SELF
+    used = np.unique(scene.prim[obstacle_pairs])
+    links, index, body = list(robot.links), list(robot.link_index), list(robot.body)
+    a, b, radius = list(robot.a), list(robot.b), list(robot.radius)
+    spheres: dict[int, list[int]] = {}
+    for p in used:
+        r = float(robot.radius[p])
+        L = float(np.linalg.norm(robot.b[p] - robot.a[p]))
+        half = np.sqrt(padding * (2 * r + padding))      # the half spacing whose R − r is the padding
+        K = 1 if L == 0 else max(2, int(np.ceil(L / (2 * half))) + 1)
+        R = r if K == 1 else float(np.sqrt(r * r + (L / (2 * (K - 1))) ** 2))
+        spheres[int(p)] = []
+        for i in range(K):
+            c = robot.a[p] + (i / max(K - 1, 1)) * (robot.b[p] - robot.a[p])
+            spheres[int(p)].append(len(links))
+            links.append(robot.links[p])
+            index.append(robot.link_index[p])
+            body.append(robot.body[p])
+            a.append(c)
+            b.append(c)
+            radius.append(R)
+    prim, other, kind, names = [], [], [], []
+    for k in range(scene.size):
+        targets = [int(scene.prim[k])] if not obstacle_pairs[k] else spheres[int(scene.prim[k])]
+        for t in targets:
+            prim.append(t)
+            other.append(int(scene.other[k]))
+            kind.append(int(scene.kind[k]))
+            names.append(scene.names[k])
+    geometry = RobotGeometry(links=tuple(links), link_index=np.array(index, dtype=int), body=np.array(body, dtype=int),
+                             a=np.array(a, dtype=float).reshape(-1, 3), b=np.array(b, dtype=float).reshape(-1, 3),
+                             radius=np.array(radius, dtype=float), per_link=robot.per_link)
+    assert geometry.size >= P
+    return CollisionScene(robot=geometry, obstacles=scene.obstacles, margin=scene.margin,
+                          prim=np.array(prim, dtype=int), other=np.array(other, dtype=int),
+                          kind=np.array(kind, dtype=int), names=tuple(names))
 
 
 def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:

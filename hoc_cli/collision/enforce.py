@@ -1,9 +1,10 @@
 """Collision avoidance enforced: the augmented-Lagrangian outer loop, with the certificate as its stopping test.
 
 Imposed: d ≥ bound at ``POINTS_PER_ELEMENT`` points of every element (t = 0 and T excluded: x0 and
-x1 are data, checked before the solve), at every point for every pair that comes closer than
-bound + ``INFLUENCE`` at some point or has a positive multiplier, re-selected each outer iteration
-(a pair is imposed along the whole trajectory: an inner solve may move its contact in time). bound = margin + inflation, the
+x1 are data, checked before the solve), for every pair that comes closer than bound + ``INFLUENCE``
+at some point or has a positive multiplier, at every point where it is closer than bound +
+``ROW_REACH`` or has a multiplier, re-selected each outer iteration (a pair is imposed well beyond
+its contact: an inner solve may move the contact in time). bound = margin + inflation, the
 inflation ``INFLATION`` (lowered for a pair whose x0 or x1 distance leaves less room). The terms
 are ``constraint.CollisionTerms`` (PHR), added to the control problem through its ``terms`` hook.
 
@@ -37,13 +38,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from hoc_cli.collision.certify import Certificate, certify
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations
+from hoc_cli.collision.constraint import CollisionTerms, point_configurations, sphere_rows_scene
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.guess import via_candidates, via_guess
 from hoc_cli.collision.scene import CollisionScene
@@ -53,7 +54,8 @@ from hoc_cli.model.tree import RobotModel
 _log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
 POINTS_PER_ELEMENT = 8
 MIN_POINTS = 64       # points per level at least (a coarse level's path must not slip between its points)
-INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at a point are imposed there
+INFLUENCE = 0.05      # m beyond the bound: pairs nearer than this at some point are imposed ...
+ROW_REACH = 0.25      # m beyond the bound: ... at every point where they are nearer than this (or hold a multiplier)
 INFLATION = 1e-3      # m imposed above the margin at the points
 VIOLATION_TOL = 5e-4  # m: the points' worst violation at which the certificate is asked (half the inflation:
                       # the points are then 0.5 mm clear of the margin; the certificate decides)
@@ -69,6 +71,9 @@ REFINE_POINTS = 4
 MAX_REFINEMENTS = 6
 VIA_TRIES = 3
 VIA_MAX_OUTER = 10
+SPHERE_ROWS = True    # obstacles are imposed against spheres along the capsules (constraint.sphere_rows_scene)
+LOOSE_TOL = 1e-5      # the inner solves' relative tolerance until the points are clear and the clearance certified
+COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close to the bound (it only starts the next)
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,6 +160,7 @@ class CollisionConstraint:
 
     model: RobotModel
     scene: CollisionScene
+    _rows: list = field(default_factory=list, repr=False)  # the rows' scene, built on first use
 
     def solve(self, problem, x0: np.ndarray, tol: float, inner: Callable, *, warm: CollisionWarm | None = None,
               full: bool = True):
@@ -184,17 +190,27 @@ class CollisionConstraint:
             return got[:3] + (dataclasses.replace(o, message=message),)
         return best
 
-    def _bounds(self, problem) -> np.ndarray:
-        """The bound (Q,) m per pair: margin + INFLATION, or less where x0 or x1 is nearer (half its room)."""
+    def rows_scene(self) -> CollisionScene:
+        """The pairs imposed (``constraint.sphere_rows_scene``: obstacles against spheres along the capsules)."""
+        got = self._rows
+        if not got:
+            got.append(sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene)
+        return got[0]
+
+    def _bounds(self, problem, scene: CollisionScene) -> np.ndarray:
+        """The bound (Q,) m per pair of ``scene``: margin + INFLATION, or less where x0 or x1 is nearer (half its
+        room; below the margin for a sphere pair whose padding takes the room).
+        """
         q0, _, q1, _ = problem.boundary
         margin = self.scene.margin
-        ends = distances(self.model, self.scene, np.stack([q0, q1])).min(axis=0)
-        return margin + np.clip(0.5 * (ends - margin), 0.0, INFLATION)
+        ends = distances(self.model, scene, np.stack([q0, q1])).min(axis=0)
+        return margin + np.minimum(0.5 * (ends - margin), INFLATION)
 
     def _loop(self, problem, x: np.ndarray, tol: float, inner: Callable, warm: CollisionWarm | None, full: bool,
               max_outer: int, start: str):
-        model, scene, mesh = self.model, self.scene, problem.mesh
-        bound = self._bounds(problem)                                   # (Q,)
+        model, mesh, exact = self.model, problem.mesh, self.scene
+        scene = self.rows_scene()  # the rows; the certificate takes the exact pairs
+        bound = self._bounds(problem, scene)                            # (Q,)
         points = base_points(mesh)
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
@@ -203,16 +219,17 @@ class CollisionConstraint:
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
         prev = math.inf
         refinements = 0
+        tight = float(np.max(bound - D, initial=0.0)) <= VIOLATION_TOL  # the start is clear at the points already
         status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
         outer = 0
         try:
             for outer in range(1, max_outer + 1):
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
-                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed at every point
-                p, k = np.nonzero(np.broadcast_to(near, D.shape))
+                near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
+                p, k = np.nonzero(near & ((D < bound + ROW_REACH) | (lam > 0)))  # ... where within ROW_REACH
                 rows = p.size
                 problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
-                res, _, er = inner(problem, x, tol)
+                res, _, er = inner(problem, x, tol if tight and full else max(tol, LOOSE_TOL))
                 x = res.x
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
                 terms = problem.terms[0]
@@ -223,11 +240,17 @@ class CollisionConstraint:
                     _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
                                f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
                                f"min d {float(D.min()):.4f}")
+                if not full and excess <= COARSE_EXCESS:
+                    status, message = "converged", f"near the bound at the points (outer iterations: {outer})"
+                    break
                 if excess <= VIOLATION_TOL:
                     if not full:
                         status, message = "converged", f"clear at the points (outer iterations: {outer})"
                         break
-                    cert = certify(model, scene, mesh, problem.coefficients(x))
+                    cert = certify(model, exact, mesh, problem.coefficients(x))
+                    if cert.certified and not tight:  # once more with the plan's tolerance, λ updated
+                        tight = True
+                        continue
                     if cert.certified:
                         if res.converged:
                             status = "converged"
@@ -257,7 +280,7 @@ class CollisionConstraint:
             problem.terms = ()
         C = problem.coefficients(x)
         if cert is None and full:
-            cert = certify(model, scene, mesh, C)
+            cert = certify(model, exact, mesh, C)
         if status != "converged":
             if cert is not None:
                 closest, pair, t = cert.distance, cert.pair, cert.t

@@ -11,20 +11,58 @@ import numpy as np
 from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
-from hoc_cli.dynamics.kinematics import body_poses, link_poses
+from hoc_cli.dynamics.kinematics import body_poses
 from hoc_cli.model.tree import RobotModel
+
+_CACHE: dict = {}  # id(object) → (object, arrays derived from it): per-scene and per-model constants
+
+
+def _cached(key: str, owner, build):
+    """``build()`` once per ``owner`` object (kept alive with its entry, so the id is not reused)."""
+    entry = _CACHE.get((key, id(owner)))
+    if entry is None or entry[0] is not owner:
+        if len(_CACHE) > 64:
+            _CACHE.clear()
+        entry = _CACHE[(key, id(owner))] = (owner, build())
+    return entry[1]
+
+
+def _primitive_frames(model: RobotModel, scene: CollisionScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(body (P,) carrying each primitive, −1 on the fixed base; the segment ends (P, 3) and (P, 3) in that body's
+    frame (the link offset applied)).
+    """
+    robot = scene.robot
+    index = robot.link_index
+    body = np.asarray(model.link_body, dtype=int)[index]
+    off = np.asarray(model.link_offset, dtype=float)[index]            # (P, 4, 4) link pose in its body
+    a = np.einsum("pij,pj->pi", off[:, :3, :3], robot.a) + off[:, :3, 3]
+    b = np.einsum("pij,pj->pi", off[:, :3, :3], robot.b) + off[:, :3, 3]
+    return body, a, b
+
+
+def _kinematics(model: RobotModel, scene: CollisionScene, q: np.ndarray, axes: bool = False):
+    """(a, b) segment ends (K, P, 3) of every primitive at q (K, n), root frame; with ``axes`` also the joint axes
+    Z and points on them O, each (K, 3, n): one pass of the body poses.
+    """
+    K, n = len(q), model.n
+    body, la, lb = _cached("frames", scene, lambda: _primitive_frames(model, scene))
+    poses = body_poses(model, q.T, model.order) if n else {}
+    if n:
+        T = np.stack([poses[j] for j in range(n)] + [np.broadcast_to(np.eye(4), (K, 4, 4))], axis=1)  # (K, n+1, 4, 4)
+    else:
+        T = np.broadcast_to(np.eye(4), (K, 1, 4, 4))
+    Tp = T[:, np.where(body < 0, n, body)]                               # (K, P, 4, 4); body −1: the root frame
+    R, t = Tp[..., :3, :3], Tp[..., :3, 3]
+    a = np.einsum("kpij,pj->kpi", R, la) + t
+    b = np.einsum("kpij,pj->kpi", R, lb) + t
+    if not axes:
+        return a, b
+    return a, b, np.swapaxes(T[:, :n, :3, 2], 1, 2), np.swapaxes(T[:, :n, :3, 3], 1, 2)
 
 
 def world_capsules(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
     """Segment ends (a, b), each (K, P, 3), of every robot primitive at configurations q (K, n), root frame."""
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    robot = scene.robot
-    poses = link_poses(model, q)
-    T = np.stack([poses[name] for name in robot.links], axis=1) if robot.size else np.zeros((len(q), 0, 4, 4))
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    a = np.einsum("kpij,pj->kpi", R, robot.a) + t
-    b = np.einsum("kpij,pj->kpi", R, robot.b) + t
-    return a, b
+    return _kinematics(model, scene, np.atleast_2d(np.asarray(q, dtype=float)))
 
 
 def _obstacle_arrays(scene: CollisionScene) -> dict:
@@ -53,7 +91,7 @@ def pair_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.
     robot = scene.robot
     prim, other, kind = scene.prim[pairs], scene.other[pairs], scene.kind[pairs]
     a1, b1, r1 = a[rows, prim], b[rows, prim], robot.radius[prim]
-    obs = _obstacle_arrays(scene)
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
     for k in (KIND_SELF, KIND_CAPSULE, KIND_BOX, KIND_HALFSPACE):
         m = kind == k
         if not m.any():
@@ -113,18 +151,19 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
-    a, b = world_capsules(model, scene, q)
+    n = model.n
+    if n == 0:
+        a, b = world_capsules(model, scene, q)
+        c = pair_contacts(scene, a, b, rows, pairs)
+        return c.distance, np.zeros((rows.size, n))
+    a, b, Z, O = _kinematics(model, scene, q, axes=True)             # Z, O (K, 3, n): joint axes, points on them
     c = pair_contacts(scene, a, b, rows, pairs)
     robot = scene.robot
-    n = model.n
     grad = np.zeros((rows.size, n))
-    if rows.size == 0 or n == 0:
+    if rows.size == 0:
         return c.distance, grad
-    poses = body_poses(model, q.T, model.order)
-    Z = np.stack([poses[j][:, :3, 2] for j in range(n)], axis=2)     # (K, 3, n) joint axes, root frame
-    O = np.stack([poses[j][:, :3, 3] for j in range(n)], axis=2)     # (K, 3, n) points on them
     revolute = ~np.asarray(model.is_prismatic, dtype=bool)
-    anc = _ancestors(model)
+    anc = _cached("ancestors", model, lambda: _ancestors(model))
     body_a = robot.body[scene.prim[pairs]]
     body_b = np.where(scene.kind[pairs] == KIND_SELF, robot.body[scene.other[pairs]], -1)
     Zr, Or = Z[rows], O[rows]

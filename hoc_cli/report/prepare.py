@@ -123,6 +123,7 @@ def prepare(task: Task, targets: list[OutputTarget], *, starts: int, explicit_co
     scene = task_collision(task, model)  # None: collision.mode off (docs/collision.md)
     check_boundary_clearance(task, model, scene, states)
     problem = problem_from_task(task, model, states, limits if enforce else None)
-    problem, mode = enforced_problem(task, model, scene, problem, starts=starts, explicit=explicit_collision)
+    problem, mode = enforced_problem(task, model, scene, problem, starts=starts, explicit=explicit_collision,
+                                     announce=console is not None)
     return Prepared(task=task, model=model, states=states, limits=limits, problem=problem, collision=scene,
                     collision_mode=mode, urdf_text=urdf_text)
