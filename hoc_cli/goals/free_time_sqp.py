@@ -26,8 +26,10 @@ same first-order conditions as the search's end.
 On a uniform mesh of 2·``COARSE_N`` elements or more without vias, whose initial trajectory keeps the limits, 1. and
 2. run first on ``COARSE_N`` elements (steps of a programme a fraction of the size), and the coarse optimum, resampled
 to the mesh at its T with least-squares multipliers, starts the steps in x and T there (``_coarse_first``): the lbr7
-catch at N = 8, 16, 32 takes 48 + 17 steps on 4 elements and 5 or 6 on the mesh, where steps 1. and 2. on the mesh
-take ~47 + 27 (each a programme of up to ~700 unknowns at N = 32). The coarse T is within 1e-4 of the mesh's; the
+catch at N = 8, 16, 32 takes 48 + 17 steps on 4 elements and 5 to 7 on the mesh, where steps 1. and 2. on the mesh
+take ~47 + 27 (each a programme of up to ~700 unknowns at N = 32). Under the torque cost the coarse optimum is
+farther from the mesh's (J 438.2 against 435.4 at N = 8): the steps in x and T from it stop after ``FINE_STEPS``, and
+23 steps at the coarse T (merit test) and 6 in x and T follow, where the steps on the mesh alone take 183 + 53. The coarse T is within 1e-4 of the mesh's; the
 optimum reached is the one the steps on the mesh reach (J to 1e-14, T to 1e-10 relative, measured). When a coarse
 stage does not converge, 1. and 2. run on the mesh.
 
@@ -59,6 +61,7 @@ MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the
 COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
 # catch under the torque cost takes 183, 9 s, where ``plan_goals`` takes 50 s)
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
+FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 
@@ -118,7 +121,8 @@ def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int
     ``coarse`` elements: the steps from scratch at the guess and the steps in x and T there (each step a small
     programme; the goal rows' violation floor ``COLD_FLOOR``, as far from the optimum), then the coarse optimum
     resampled to the mesh at its T (multipliers and working set by least squares, ``hoc_cli.goals.warm.previous_plan``)
-    and the steps in x and T from it, the quadrature test at their end. None when the mesh is not uniform, has fewer
+    and the steps in x and T from it (at most ``FINE_STEPS``; when they do not converge, steps at the coarse T from
+    it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
     than 2·``coarse`` elements, the goals have vias, the coarse initial trajectory breaks a limit, or a stage does not
     converge (the steps on the mesh itself then run).
     """
@@ -142,7 +146,12 @@ def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
     plan = previous_plan(system, fine, resample(r.plan.mesh, r.plan.coeffs, fine), q0, dq0, goals, cost=cost, G=G,
                          limits=limits)
-    r = replan(system, plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+    r = replan(system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
+    if not r.converged:  # far from the mesh's optimum (the torque cost): steps at the coarse T first, as from scratch
+        r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
+                   violation_floor=COLD_FLOOR, merit=True)
+        if r.converged:
+            r = replan(system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
     r = _with_quadrature(r, system, goals, span, limits, max_steps) if r.converged else None
     if r is None:
         return None
