@@ -23,8 +23,8 @@ same first-order conditions as the search's end.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
-On a uniform mesh of 2·``COARSE_N`` elements or more without vias, whose initial trajectory keeps the limits, 1. and
-2. run first on ``COARSE_N`` elements (steps of a programme a fraction of the size), and the coarse optimum, resampled
+On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. resampled to ``COARSE_N``
+elements keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction of the size), and the coarse optimum, resampled
 to the mesh at its T with least-squares multipliers, starts the steps in x and T there (``_coarse_first``): the lbr7
 catch at N = 8, 16, 32 takes 48 + 17 steps on 4 elements and 5 to 7 on the mesh, where steps 1. and 2. on the mesh
 take ~47 + 27 (each a programme of up to ~700 unknowns at N = 32). Under the torque cost the coarse optimum is
@@ -89,10 +89,9 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
                 mesh = scaled_mesh(start.mesh.order, guess, start.mesh.N, mesh_fractions(start.mesh))
                 start = previous_plan(system, mesh, found.coeffs, q0, dq0, goals, cost=start.problem.cost, G=start.G,
                                       multipliers="zeros")
-        else:
-            found = _coarse_first(system, start, goals, limits, span, cold_steps, max_steps, coarse) if coarse else None
-            if found is not None:
-                return found
+        coarsened = _coarse_first(system, start, goals, limits, span, cold_steps, max_steps, coarse) if coarse else None
+        if coarsened is not None:
+            return coarsened
         r = replan(system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
         r = _with_quadrature(r, system, goals, None, limits, max_steps) if r.converged else None
@@ -117,23 +116,25 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
 
 def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int, max_steps: int,
                   coarse: int) -> FreeTimeResult | None:
-    """The free-T optimum on the mesh of ``start`` (the initial trajectory at the guess, within the limits) by way of
-    ``coarse`` elements: the steps from scratch at the guess and the steps in x and T there (each step a small
+    """The free-T optimum on the mesh of ``start`` (the initial trajectory at the guess, or the restored one) by way of
+    ``coarse`` elements: ``start`` resampled to them (zero multipliers), the steps from scratch at its T and the steps in x and T there (each step a small
     programme; the goal rows' violation floor ``COLD_FLOOR``, as far from the optimum), then the coarse optimum
     resampled to the mesh at its T (multipliers and working set by least squares, ``hoc_cli.goals.warm.previous_plan``)
     and the steps in x and T from it (at most ``FINE_STEPS``; when they do not converge, steps at the coarse T from
     it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
-    than 2·``coarse`` elements, the goals have vias, the coarse initial trajectory breaks a limit, or a stage does not
-    converge (the steps on the mesh itself then run).
+    than 2·``coarse`` elements, the goals have vias, the resampled start breaks a limit (the UR5's fast catch after its
+    restoration), or a stage does not converge (the steps on the mesh itself then run).
     """
-    from hoc_cli.goals.warm import initial_plan, previous_plan
+    from hoc_cli.goals.warm import previous_plan
 
     mesh = start.mesh
     if not mesh.uniform or mesh.N < 2 * coarse or goals.vias:
         return None
     q0, dq0 = start.problem.boundary[:2]
     cost, G = start.problem.cost, start.G
-    plan = initial_plan(system, HermiteMesh(mesh.order, mesh.T, coarse), q0, dq0, goals, cost=cost, G=G)
+    level = HermiteMesh(mesh.order, mesh.T, coarse)
+    plan = previous_plan(system, level, resample(mesh, start.coeffs, level), q0, dq0, goals, cost=cost, G=G,
+                         multipliers="zeros")
     if _breaks_limits(system, plan, limits):
         return None
     r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=COLD_FLOOR,
