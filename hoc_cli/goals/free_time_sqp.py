@@ -23,15 +23,16 @@ same first-order conditions as the search's end.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
-On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. resampled to ``COARSE_N``
-elements keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction of the size), and the coarse optimum, resampled
-to the mesh at its T with least-squares multipliers, starts the steps in x and T there (``_coarse_first``): the lbr7
-catch at N = 8, 16, 32 takes 48 + 17 steps on 4 elements and 5 to 7 on the mesh, where steps 1. and 2. on the mesh
-take ~47 + 27 (each a programme of up to ~700 unknowns at N = 32). Under the torque cost the coarse optimum is
-farther from the mesh's (J 438.2 against 435.4 at N = 8): the steps in x and T from it stop after ``FINE_STEPS``, and
-23 steps at the coarse T (merit test) and 6 in x and T follow, where the steps on the mesh alone take 183 + 53. The coarse T is within 1e-4 of the mesh's; the
-optimum reached is the one the steps on the mesh reach (J to 1e-14, T to 1e-10 relative, measured). When a coarse
-stage does not converge, 1. and 2. run on the mesh.
+On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. resampled to
+``COARSE_N`` elements keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
+of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
+steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 45 + 17 steps on 4 elements and
+5 to 7 on the mesh, where 1. and 2. on the mesh take ~47 + 27 (each a programme of up to ~700 unknowns at
+N = 32). Under the torque cost the coarse optimum is farther from the mesh's (J 438.2 against 435.4 at N = 8):
+the steps in x and T from it stop after ``FINE_STEPS``, and 23 steps at the coarse T (merit test) and 6 in x
+and T follow, where 1. and 2. on the mesh take 183 + 53. The optimum reached is the one the steps on the mesh
+reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
+1e-10 to 5e-9 relative on the catch, measured). When a coarse stage does not converge, 1. and 2. run on the mesh.
 
 Moving T only once the plan at the guess has converged keeps the search's local optimum: steps in x
 and T from the initial trajectory reached the catch's optimum in fewer steps, but on a two-link link
