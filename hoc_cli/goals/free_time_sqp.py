@@ -32,7 +32,9 @@ N = 32). Under the torque cost the coarse optimum is farther from the mesh's (J 
 the steps in x and T from it stop after ``FINE_STEPS``, and 23 steps at the coarse T (merit test) and 6 in x
 and T follow, where 1. and 2. on the mesh take 183 + 53. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
-1e-10 to 5e-9 relative on the catch, measured). When a coarse stage does not converge, 1. and 2. run on the mesh.
+1e-10 to 5e-9 relative on the catch, measured). Its limit multipliers are then re-estimated by least squares
+(``_canonical_multipliers``: those of a limit held along whole elements are not unique, and the programme's pick
+depends on the path). When a coarse stage does not converge, 1. and 2. run on the mesh.
 
 Moving T only once the plan at the guess has converged keeps the search's local optimum: steps in x
 and T from the initial trajectory reached the catch's optimum in fewer steps, but on a two-link link
@@ -157,8 +159,30 @@ def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int
     r = _with_quadrature(r, system, goals, span, limits, max_steps) if r.converged else None
     if r is None:
         return None
+    r = _canonical_multipliers(system, r, goals, limits, span)
     point = _point(r)
     return _result(point, [point], span.min, span.max, span.weight)
+
+
+def _canonical_multipliers(system, r, goals, limits, span: TimeRange):
+    """The converged replan ``r`` with its limit multipliers re-estimated at its optimum by least squares
+    (``hoc_cli.goals.warm.previous_plan``, μ ≥ 0 over the rows within 1e-3 of their bound) and confirmed by steps in
+    x and T from there that take none; ``r`` itself when they take a step or do not converge.
+
+    Where a limit holds along whole elements its Bernstein rows are linearly dependent and the programme's multipliers
+    among them are not unique: each step's programme picks some, depending on the working set it started from. The
+    least-squares estimate does not depend on the path: warm replans from it (``hoc_cli.realtime``) take the steps
+    they take from the plan of the steps on the mesh alone (the lbr7 catch: 2-4 steps after a step cut by its budget,
+    where the multipliers of the coarse path's last programme took up to 12).
+    """
+    from hoc_cli.goals.warm import previous_plan
+
+    plan = r.plan
+    q0, dq0 = plan.problem.boundary[:2]
+    again = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G,
+                          limits=limits)
+    confirmed = replan(system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
+    return confirmed if confirmed.converged and confirmed.steps == 0 else r
 
 
 def _breaks_limits(system, plan, limits) -> bool:
