@@ -19,7 +19,7 @@ from hoc_cli.dynamics import link_poses
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.goals import FrameResidual, Goals, inverse_kinematics, plan_goals
 from hoc_cli.goals.active_limits import ActiveRows, all_rows, from_multipliers
-from hoc_cli.goals.free_time_sqp import COLD_STEPS
+from hoc_cli.goals.free_time_sqp import COARSE_N, COLD_STEPS
 from hoc_cli.goals.qp_step import bordered_factor, solve_qp, upper_factor
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.model import load_robot
@@ -185,6 +185,27 @@ def test_free_time_by_sqp_steps_meets_the_search(limits, fractions, cold_steps):
     if limits is not None:
         assert check_limits(SYSTEM, limits, sqp.result.mesh, sqp.result.coeffs).feasible
     assert sqp.result.mesh.uniform == (fractions is None)
+
+
+def test_free_time_first_on_a_coarse_mesh_meets_the_steps_on_the_mesh():
+    """From a guess whose initial trajectory keeps the limits (T = 1.5 s; at 0.95 s it breaks the velocity limit and
+    the restoration runs instead), ``minimize_time_sqp`` finds T on ``COARSE_N`` elements first and then needs a few
+    steps in x and T on the mesh: the same optimum as the steps on the mesh alone (``coarse=0``: T to 1e-8,
+    J + weight·T to 1e-12 relative), stationary in T, within the limits by the exact check."""
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
+
+    goals = goals_at(0.01)
+    solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=LIMITS)
+    fine, coarse = (minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=1.5, weight=1.0, limits=LIMITS, coarse=c)
+                    for c in (0, COARSE_N))
+    assert fine.converged and coarse.converged and coarse.bound is None
+    assert len(fine.history) == 2 and len(coarse.history) == 1  # one plan on the mesh: the coarse optimum's steps
+    assert coarse.result.optimizer.iterations <= 6 < fine.result.optimizer.iterations
+    assert coarse.T == pytest.approx(fine.T, rel=1e-8)
+    assert coarse.objective == pytest.approx(fine.objective, rel=1e-12)
+    assert abs(coarse.dJ_dT + 1.0) <= 1e-6 * (coarse.J / coarse.T + 1.0)
+    assert check_limits(SYSTEM, LIMITS, coarse.result.mesh, coarse.result.coeffs).feasible
 
 
 def test_replan_with_a_binding_effort_limit_keeps_the_penalty_steps():

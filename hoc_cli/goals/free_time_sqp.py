@@ -23,6 +23,19 @@ same first-order conditions as the search's end.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
+On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. resampled to
+``COARSE_N`` elements keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
+of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
+steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 45 + 17 steps on 4 elements and
+5 to 7 on the mesh, where 1. and 2. on the mesh take ~47 + 27 (each a programme of up to ~700 unknowns at
+N = 32). Under the torque cost the coarse optimum is farther from the mesh's (J 438.2 against 435.4 at N = 8):
+the steps in x and T from it stop after ``FINE_STEPS``, and 23 steps at the coarse T (merit test) and 6 in x
+and T follow, where 1. and 2. on the mesh take 183 + 53. The optimum reached is the one the steps on the mesh
+reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
+1e-10 to 5e-9 relative on the catch, measured). Its limit multipliers are then re-estimated by least squares
+(``_canonical_multipliers``: those of a limit held along whole elements are not unique, and the programme's pick
+depends on the path). When a coarse stage does not converge, 1. and 2. run on the mesh.
+
 Moving T only once the plan at the guess has converged keeps the search's local optimum: steps in x
 and T from the initial trajectory reached the catch's optimum in fewer steps, but on a two-link link
 goal they ran to T's upper bound, a local optimum of J + weight·T 40 % dearer than the interior one.
@@ -37,25 +50,28 @@ from collections.abc import Callable
 import numpy as np
 
 from hoc_cli.constraints.bounds import KINEMATIC
+from hoc_cli.elements import HermiteMesh
 from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time, plan_time_derivative
 from hoc_cli.goals.active_limits import all_rows
 from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.restoration import restore
 from hoc_cli.optimize.blas import one_thread
-from hoc_cli.planner import QUADRATURE_RTOL
+from hoc_cli.planner import QUADRATURE_RTOL, resample
 
 MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the search takes over (the lbr7 catch
 # under the torque cost takes 55, zigzagging in T; the search after them costs minutes there)
 COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
 # catch under the torque cost takes 183, 9 s, where ``plan_goals`` takes 50 s)
+COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
+FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 
 
 @one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], system, goals, T_min: float,
                       T_max: float, *, guess: float | None = None, weight: float = 0.0, limits=None,
-                      max_steps: int = MAX_STEPS, cold_steps: int = COLD_STEPS) -> FreeTimeResult:
+                      max_steps: int = MAX_STEPS, cold_steps: int = COLD_STEPS, coarse: int = COARSE_N) -> FreeTimeResult:
     """The free-T optimum (module docstring); ``solve`` as ``minimize_time``'s (a ``GoalSolver``, whose results
     are ``GoalResult``; without an ``initial`` method the steps from scratch are skipped); ``goals``: the
     ``Goals``; ``limits``: the enforced ``JointLimits`` or None; ``cold_steps`` = 0 skips the steps from scratch.
@@ -76,6 +92,9 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
                 mesh = scaled_mesh(start.mesh.order, guess, start.mesh.N, mesh_fractions(start.mesh))
                 start = previous_plan(system, mesh, found.coeffs, q0, dq0, goals, cost=start.problem.cost, G=start.G,
                                       multipliers="zeros")
+        coarsened = _coarse_first(system, start, goals, limits, span, cold_steps, max_steps, coarse) if coarse else None
+        if coarsened is not None:
+            return coarsened
         r = replan(system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
         r = _with_quadrature(r, system, goals, None, limits, max_steps) if r.converged else None
@@ -96,6 +115,74 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
         return first if T == first.T else solve(T, nearest)
 
     return minimize_time(seeded, T_min, T_max, guess=guess, weight=weight)
+
+
+def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int, max_steps: int,
+                  coarse: int) -> FreeTimeResult | None:
+    """The free-T optimum on the mesh of ``start`` (the initial trajectory at the guess, or the restored one) by way of
+    ``coarse`` elements: ``start`` resampled to them (zero multipliers), the steps from scratch at its T and the steps in x and T there (each step a small
+    programme; the goal rows' violation floor ``COLD_FLOOR``, as far from the optimum), then the coarse optimum
+    resampled to the mesh at its T (multipliers and working set by least squares, ``hoc_cli.goals.warm.previous_plan``)
+    and the steps in x and T from it (at most ``FINE_STEPS``; when they do not converge, steps at the coarse T from
+    it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
+    than 2·``coarse`` elements, the goals have vias, the resampled start breaks a limit (the UR5's fast catch after its
+    restoration), or a stage does not converge (the steps on the mesh itself then run).
+    """
+    from hoc_cli.goals.warm import previous_plan
+
+    mesh = start.mesh
+    if not mesh.uniform or mesh.N < 2 * coarse or goals.vias:
+        return None
+    q0, dq0 = start.problem.boundary[:2]
+    cost, G = start.problem.cost, start.G
+    level = HermiteMesh(mesh.order, mesh.T, coarse)
+    plan = previous_plan(system, level, resample(mesh, start.coeffs, level), q0, dq0, goals, cost=cost, G=G,
+                         multipliers="zeros")
+    if _breaks_limits(system, plan, limits):
+        return None
+    r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=COLD_FLOOR,
+               merit=True)
+    if r.converged:
+        r = replan(system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
+                   violation_floor=COLD_FLOOR)
+    if not r.converged:
+        return None
+    fine = HermiteMesh(mesh.order, r.T, mesh.N)
+    plan = previous_plan(system, fine, resample(r.plan.mesh, r.plan.coeffs, fine), q0, dq0, goals, cost=cost, G=G,
+                         limits=limits)
+    r = replan(system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
+    if not r.converged:  # far from the mesh's optimum (the torque cost): steps at the coarse T first, as from scratch
+        r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
+                   violation_floor=COLD_FLOOR, merit=True)
+        if r.converged:
+            r = replan(system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+    r = _with_quadrature(r, system, goals, span, limits, max_steps) if r.converged else None
+    if r is None:
+        return None
+    r = _canonical_multipliers(system, r, goals, limits, span)
+    point = _point(r)
+    return _result(point, [point], span.min, span.max, span.weight)
+
+
+def _canonical_multipliers(system, r, goals, limits, span: TimeRange):
+    """The converged replan ``r`` with its limit multipliers re-estimated at its optimum by least squares
+    (``hoc_cli.goals.warm.previous_plan``, μ ≥ 0 over the rows within 1e-3 of their bound) and confirmed by steps in
+    x and T from there that take none; ``r`` itself when they take a step or do not converge.
+
+    Where a limit holds along whole elements its Bernstein rows are linearly dependent and the programme's multipliers
+    among them are not unique: each step's programme picks some, depending on the working set it started from. The
+    least-squares estimate does not depend on the path: warm replans from it (``hoc_cli.realtime``) take the steps
+    they take from the plan of the steps on the mesh alone (the lbr7 catch: 2-4 steps after a step cut by its budget,
+    where the multipliers of the coarse path's last programme took up to 12).
+    """
+    from hoc_cli.goals.warm import previous_plan
+
+    plan = r.plan
+    q0, dq0 = plan.problem.boundary[:2]
+    again = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G,
+                          limits=limits)
+    confirmed = replan(system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
+    return confirmed if confirmed.converged and confirmed.steps == 0 else r
 
 
 def _breaks_limits(system, plan, limits) -> bool:
