@@ -79,7 +79,7 @@ def main() -> None:
             cpu = [1e3 * r.cpu_s for r in run.records]
             steps = [r.plan.steps for r in run.records]
             print(f"  {name:20s} {run.status:8s} error {1e3 * run.position_error:5.2f} mm, {run.relative_speed:.4f} m/s; "
-                  f"{run.cycles} cycles, steps/cycle {np.mean(steps):.1f}, overruns {run.overruns}")
+                  f"{run.cycles} updates, steps/update {np.mean(steps):.1f}, overruns (discarded) {run.overruns}, skipped {run.skipped}")
             print(f"    wall ms {dist(wall)}")
             print(f"    CPU ms  {dist(cpu)}")
             if run is rt and more:
@@ -104,11 +104,12 @@ def main() -> None:
         caught, errors = 0, []
         cycle = sc.cycle if args.steps is None else dataclasses.replace(sc.cycle, steps=args.steps, budget=1e9)
         for k, throw in enumerate(family(goal.position, goal.velocity, args.family, goal.acceleration)):
-            run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle)
+            run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle, timed=args.steps is None)
             caught += run.caught
             errors.append(run.position_error)
             print(f"  throw {k:2d}: {run.status:11s} {1e3 * run.position_error:5.2f} mm {run.relative_speed:.4f} m/s, "
-                  f"last estimate off by {1e3 * run.records[-1].position_error:5.2f} mm", flush=True)
+                  f"last estimate off by {1e3 * run.records[-1].position_error:5.2f} mm; {run.overruns} overruns, "
+                  f"{run.skipped} skipped of {run.cycles}", flush=True)
         how = "the scenario's budget" if args.steps is None else f"{args.steps} steps per update"
         print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm, {how}): {caught} caught; "
               f"position error median {1e3 * np.median(errors):.2f} mm, max {1e3 * np.max(errors):.2f} mm")

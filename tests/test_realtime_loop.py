@@ -82,7 +82,7 @@ SCENARIO = """\
 task: {root}/configs/catch_ball.yaml
 throw: {{position: [0.6825, -0.0475, 0.1296], velocity: [-0.10, 0.30, 3.08]}}
 observe: {{rate: 100, noise: 0.002, seed: 3}}
-cycle: {{rate: 20, budget: 1.0, steps: 2, commit: 0.03}}
+cycle: {{rate: 20, budget: 0.05, steps: 2, commit: 0.03}}
 """
 
 
@@ -99,11 +99,13 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
     r = hoc("catch", str(sc), "--json", "-o", str(out), "--seed", "4", "--noise", "0.003")
     assert r.returncode in (0, 1), r.stderr
     s = json.loads(r.stdout)
-    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "cycles"):
+    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "skipped", "cycles"):
         assert key in s
     assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4 and s["noise"] == 0.003
     assert r.returncode == (0 if s["caught"] else 1)
-    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] != "held")
+    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] not in ("held", "skipped"))
+    assert s["overruns"] == sum(u["late"] for u in s["updates"])
+    assert all(u["wall_ms"] > s["budget_ms"] for u in s["updates"] if u["late"])
     from mcap.reader import make_reader
 
     with open(out, "rb") as fh:
@@ -118,6 +120,8 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
      "cycle.rate"),
     ("task: {root}/configs/catch_ball.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\nobserve: {{sede: 1}}\n",
      "observe.sede"),
+    ("task: {root}/configs/catch_ball.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\n"
+     "cycle: {{rate: 100, budget: 0.02}}\n", "cycle.budget"),  # more than delay/rate
     ("task: {root}/configs/lbr7_reach.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\n", "task"),
 ])
 def test_a_bad_scenario_is_one_line_naming_the_file_and_the_key(tmp_path, request, text, key):
@@ -172,3 +176,29 @@ def test_observations_count_only_once_they_have_arrived(catch):
     assert run.cycles >= 3
     for rec in run.records:
         assert rec.observations == max(int(np.floor(round((rec.t - 0.05) * 100, 9))) + 1, 0)
+
+
+def test_an_update_over_its_budget_is_discarded_and_counted(catch):
+    """A budget no step fits: each update is either skipped (its predicted first step does not fit) or late (its
+    wall time over the budget): the arm stays on the first plan, and every such update is counted.
+    """
+    problem, plan = catch
+    throw = Throw(P0 + [0.01, 0.0, 0.0], V0)
+    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
+                    Cycle(rate=20.0, budget=1e-5, steps=1, commit=0.03))
+    assert run.cycles >= 3 and run.overruns + run.skipped == run.cycles and run.overruns >= 1
+    assert len(run.segments) == 1 and run.final is run.segments[0][1] and run.final.status == "cold"
+    assert all(r.late == (r.plan.status != "skipped" and r.plan.wall_time_s > 1e-5) for r in run.records)
+    untimed = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
+                        Cycle(rate=20.0, budget=1e9, steps=1, commit=0.03), timed=False)
+    assert untimed.overruns == 0 and len(untimed.segments) == untimed.cycles + 1
+
+
+def test_an_update_computes_while_the_plan_in_force_runs_for_delay_cycles(catch):
+    """delay = 2: the update from the observations at t_k starts its plan at t_k + 2/rate; the next update is then."""
+    problem, plan = catch
+    run = run_catch(problem, plan, Throw(P0, V0), Observer(rate=100.0, noise=0.005, seed=2),
+                    Cycle(rate=100.0, budget=1e9, steps=1, commit=0.05, delay=2), timed=False)
+    t = np.array([r.t for r in run.records])
+    assert np.allclose(np.diff(t), 0.02) and np.allclose([r.t_start for r in run.records], t + 0.02)
+    assert all(r.observations == int(round(r.t * 100)) + 1 for r in run.records)

@@ -5,10 +5,11 @@ beforehand). Observations of the ball's position arrive at ``Observer.rate`` wit
 coordinate (seeded), each ``latency`` [s] after it was taken. Cycle k runs at t_k = k/rate: with the
 observations received by t_k it fits the ball (``BallisticFit``; the task's target as a Gaussian prior when
 ``Observer.prior`` is given, else that target alone until ``MIN_OBSERVATIONS`` have arrived) and updates the
-plan for the start t_{k+1} = t_k + 1/rate from the state the plan in force reaches there (the arm executes the
-plan in force during the cycle: the robot's state is the plan's state), so the update has the cycle to compute.
-Updates stop once less than ``Cycle.commit`` [s] would remain; the arm then finishes the last plan. At its end
-(the catch time) the flange's position and velocity are compared with the true ball's. Pure maths: no I/O.
+plan for the start t_k + delay/rate from the state the plan in force reaches there (the arm executes the plan
+in force meanwhile: the robot's state is the plan's state), so the update has ``delay`` cycles to compute; the
+next update starts then. An update whose wall time exceeds its budget was not ready at its start: its plan is
+discarded (the replanner returns to its state before it) and it counts as an overrun. Updates stop once less than ``Cycle.commit`` [s] would remain; the arm
+then finishes the last plan. At its end (the catch time) the flange's position and velocity are compared with the true ball's. Pure maths: no I/O.
 """
 from __future__ import annotations
 
@@ -79,8 +80,10 @@ class Observer:
 @dataclass(frozen=True)
 class Cycle:
     """The control cycle: ``rate`` [Hz], ``budget`` [s] of wall time per update, ``steps`` SQP steps per update at
-    most, ``commit`` [s]: no update once less than this would remain to the catch; ``fix`` [s]: once less than this
-    remains, the updates keep the catch time (a fixed T: steps in T are far from linear on a short remaining time).
+    most, ``delay`` the cycles from an update's start (its observations) to its plan's start (the update computes
+    while the arm executes the plan in force: budget ≤ delay/rate), ``commit`` [s]: no update once less than this
+    would remain to the catch; ``fix`` [s]: once less than this remains, the updates keep the catch time (a fixed
+    T: steps in T are far from linear on a short remaining time).
     """
 
     rate: float = 100.0
@@ -88,13 +91,16 @@ class Cycle:
     steps: int = 2
     commit: float = 0.01
     fix: float = 0.1
+    delay: int = 1
 
 
 @dataclass(frozen=True)
 class CycleRecord:
     """One update: the cycle's time t [s] and the plan's start t_start [s], the plan (``CyclePlan``, with steps,
     status, residuals, wall time), the thread CPU time [s] of the update, the estimate (position (3,) [m],
-    velocity (3,) [m/s] at t_start, acceleration (3,) [m/s²]) and its error against the true ball [m, m/s], observations used.
+    velocity (3,) [m/s] at t_start, acceleration (3,) [m/s²]) and its error against the true ball [m, m/s], observations used;
+    ``budget`` [s] the update's; ``late``: its wall time exceeded it, so its plan was not ready at t_start and was
+    discarded (the arm kept the plan in force).
     """
 
     t: float
@@ -107,6 +113,8 @@ class CycleRecord:
     position_error: float
     velocity_error: float
     observations: int
+    budget: float = math.inf
+    late: bool = False
 
 
 @dataclass(eq=False)
@@ -153,8 +161,13 @@ class CatchRun:
 
     @property
     def overruns(self) -> int:
-        """Updates whose wall time exceeded the budget."""
-        return sum(r.plan.wall_time_s > self.budget for r in self.records)
+        """Updates whose wall time exceeded their budget (their plans discarded: ``CycleRecord.late``)."""
+        return sum(r.late for r in self.records)
+
+    @property
+    def skipped(self) -> int:
+        """Updates that took no step because the predicted step time did not fit in the budget."""
+        return sum(r.plan.status == "skipped" for r in self.records)
 
     @property
     def final(self) -> CyclePlan:
@@ -210,9 +223,10 @@ def observations(throw: Throw, observer: Observer, t_max: float) -> tuple[np.nda
 
 
 def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
-              on_cycle=None, replanner: Replanner | None = None) -> CatchRun:
+              on_cycle=None, replanner: Replanner | None = None, timed: bool = True) -> CatchRun:
     """Simulate the closed loop (module docstring) from ``plan`` (``hoc_cli.solve`` of ``problem``: the task's
-    nominal target) for the true ``throw``. ``on_cycle`` is called with each ``CycleRecord``.
+    nominal target) for the true ``throw``. ``on_cycle`` is called with each ``CycleRecord``. ``timed`` False: no
+    update is judged late on its wall time (a reproducible run; give a large ``cycle.budget`` too).
     """
     rp = replanner if replanner is not None else Replanner(problem, plan, max_steps=cycle.steps)
     goal = problem.link_goal
@@ -232,8 +246,10 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
     k = 0
     while True:
         t_k = k * dt
-        t_next = t_k + dt
         cur = rp.current
+        t_next = t_k + cycle.delay * dt
+        fixed = cur.t_end - t_next < cycle.fix
+        budget = cycle.budget
         if cur.t_end - t_next < cycle.commit:
             break
         while used < t_obs.size and arrived[used] <= t_k + 1e-12:
@@ -244,22 +260,26 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
             p, v = est.position, est.velocity
         else:
             p, v = p_nom + v_nom * t_next + 0.5 * g * t_next**2, v_nom + g * t_next
-        target = Target(p, v, g)
         x = (cur.state(t_next)[0], cur.state(t_next, 1)[0])
-        start = (t_next, x[0], x[1])
+        saved = rp.state()
         c0 = time.thread_time()
-        new = rp.update(t_next, x, target, cycle.budget, free_time=cur.t_end - t_next >= cycle.fix)
+        new = rp.update(t_next, x, Target(p, v, g), budget, free_time=not fixed)
         cpu = time.thread_time() - c0
+        late = timed and new.status not in ("held", "skipped") and new.wall_time_s > budget
+        if late:  # not ready at t_next: the arm keeps the plan in force
+            rp.restore(saved)
+        elif new.status not in ("held", "skipped"):
+            segments.append((t_next, new))
+            target, start = Target(p, v, g), (t_next, x[0], x[1])
         p_true, v_true = throw.states(t_next)
         rec = CycleRecord(t=t_k, t_start=t_next, plan=new, cpu_s=cpu, position=p, velocity=v, acceleration=g,
                           position_error=float(np.linalg.norm(p - p_true[0])),
-                          velocity_error=float(np.linalg.norm(v - v_true[0])), observations=used)
+                          velocity_error=float(np.linalg.norm(v - v_true[0])), observations=used, budget=budget,
+                          late=late)
         records.append(rec)
-        if new.status != "held":
-            segments.append((t_next, new))
         if on_cycle is not None:
             on_cycle(rec)
-        k += 1
+        k += cycle.delay
     return _outcome(problem, throw, records, segments, target, start, cycle.budget)
 
 
