@@ -13,6 +13,7 @@ then finishes the last plan. At its end (the catch time) the flange's position a
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -21,6 +22,7 @@ import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.realtime.ballistic import BallisticFit
+from hoc_cli.realtime.feedback import correct
 from hoc_cli.realtime.replanner import CyclePlan, Replanner, Target
 
 CATCH_POSITION = 5e-3  # [m] the flange within this of the ball at the catch time ...
@@ -28,6 +30,7 @@ CATCH_SPEED = 0.05  # [m/s] ... moving with it to within this: caught
 MIN_OBSERVATIONS = 3  # without a prior, the fit is used from this many observations on
 REACH_SAMPLES = 200  # catch times at which an unreachable ball is confirmed out of the arm's reach
 NOISE_FLOOR = 1e-6  # [m] the fit's σ for noise-free observations (their weight stays finite)
+GATE = 0.01  # [m] no update while the estimate's σ of a coordinate of the ball at the catch is above this
 SAMPLES_PER_CYCLE = 4  # executed states recorded per cycle (closest approach, the MCAP's /tf)
 
 
@@ -83,7 +86,9 @@ class Cycle:
     most, ``delay`` the cycles from an update's start (its observations) to its plan's start (the update computes
     while the arm executes the plan in force: budget ≤ delay/rate), ``commit`` [s]: no update once less than this
     would remain to the catch; ``fix`` [s]: once less than this remains, the updates keep the catch time (a fixed
-    T: steps in T are far from linear on a short remaining time).
+    T: steps in T are far from linear on a short remaining time); ``feedback`` [s]: when > 0, the updates of that
+    last phase are feedback corrections (``feedback.correct``, a few ms) instead of SQP steps, one every cycle,
+    each with this budget and its plan starting this long after its observations.
     """
 
     rate: float = 100.0
@@ -92,6 +97,7 @@ class Cycle:
     commit: float = 0.01
     fix: float = 0.1
     delay: int = 1
+    feedback: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -247,9 +253,10 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
     while True:
         t_k = k * dt
         cur = rp.current
-        t_next = t_k + cycle.delay * dt
-        fixed = cur.t_end - t_next < cycle.fix
-        budget = cycle.budget
+        fixed = cur.t_end - (t_k + cycle.delay * dt) < cycle.fix
+        feedback = fixed and cycle.feedback > 0.0
+        t_next = t_k + (cycle.feedback if feedback else cycle.delay * dt)
+        budget = cycle.feedback if feedback else cycle.budget
         if cur.t_end - t_next < cycle.commit:
             break
         while used < t_obs.size and arrived[used] <= t_k + 1e-12:
@@ -258,17 +265,28 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         if prior is not None or used >= MIN_OBSERVATIONS:
             est = fit.estimate(t_next)
             p, v = est.position, est.velocity
+            if math.sqrt(np.max(np.diag(est.at(cur.t_end).covariance)[:3])) > GATE:
+                k += 1  # the estimate does not know the ball at the catch better than this yet: no update
+                continue
         else:
             p, v = p_nom + v_nom * t_next + 0.5 * g * t_next**2, v_nom + g * t_next
         x = (cur.state(t_next)[0], cur.state(t_next, 1)[0])
         saved = rp.state()
         c0 = time.thread_time()
-        new = rp.update(t_next, x, Target(p, v, g), budget, free_time=not fixed)
+        if feedback:
+            w0, tau = time.perf_counter(), cur.t_end - t_next
+            new = correct(problem.system, problem.limits, goal.link, cur, t_next, p + v * tau + 0.5 * g * tau**2, v + g * tau)
+            new = dataclasses.replace(cur if new is None else new, wall_time_s=time.perf_counter() - w0,
+                                      **({"steps": 0, "status": "held"} if new is None else {}))
+        else:
+            new = rp.update(t_next, x, Target(p, v, g), budget, free_time=not fixed)
         cpu = time.thread_time() - c0
         late = timed and new.status not in ("held", "skipped") and new.wall_time_s > budget
         if late:  # not ready at t_next: the arm keeps the plan in force
             rp.restore(saved)
         elif new.status not in ("held", "skipped"):
+            if feedback:
+                rp.current = new
             segments.append((t_next, new))
             target, start = Target(p, v, g), (t_next, x[0], x[1])
         p_true, v_true = throw.states(t_next)
@@ -279,7 +297,7 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         records.append(rec)
         if on_cycle is not None:
             on_cycle(rec)
-        k += cycle.delay
+        k += 1 if feedback else cycle.delay
     return _outcome(problem, throw, records, segments, target, start, cycle.budget)
 
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
@@ -58,6 +59,8 @@ from hoc_cli.realtime.shift import shift_plan
 
 MIN_REMAINING = 1e-3  # [s] a plan shorter than this is not replanned (held)
 HISTORY = 16  # step times remembered for the budget's prediction
+GUARD_VIOLATION = 0.01  # [m, m/s] a projected plan farther than this from its goal rows, and farther than the
+# shifted plan it started from, is not returned (held)
 
 
 @dataclass(frozen=True)
@@ -239,6 +242,8 @@ class Replanner:
             J = float(pt.problem.value(pt.problem.layout.pack(safe)))
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
                                   pt.where).violation(safe)
+        if guarded and violation > max(GUARD_VIOLATION, self._miss(mesh, C, goals)):
+            return self._hold(start)  # the projection gave up the goal for a plan no closer to it than the shifted one
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
@@ -259,6 +264,15 @@ class Replanner:
             return False
         wrap = max(self.wrap_times) if self.wrap_times else 0.0
         return now + max(times) + wrap > deadline
+
+    def _miss(self, mesh: HermiteMesh, C: np.ndarray, goals: Goals) -> float:
+        """The largest |c| [m, m/s] of the link goal's position and velocity rows for the plan (mesh, C) at its end."""
+        final, link = goals.final, self.problem.link_goal.link
+        q, dq = C[-1, :1], C[-1, 1:2]
+        p = link_poses(self.system.model, q)[link][0, :3, 3]
+        v = frame_jacobian(self.system.model, q, link)[0, :3] @ dq[0]
+        pt, vt = final.target(mesh.T)
+        return float(np.max(np.abs(np.concatenate([p - pt, v - vt]))))
 
     def _first_late(self, now: float, deadline: float) -> bool:
         """Whether the first step started now would end after the deadline, by the median of the measured first
