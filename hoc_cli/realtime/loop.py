@@ -106,7 +106,8 @@ class CycleRecord:
     status, residuals, wall time), the thread CPU time [s] of the update, the estimate (position (3,) [m],
     velocity (3,) [m/s] at t_start, acceleration (3,) [m/s²]) and its error against the true ball [m, m/s], observations used;
     ``budget`` [s] the update's; ``late``: its wall time exceeded it, so its plan was not ready at t_start and was
-    discarded (the arm kept the plan in force).
+    discarded (the arm kept the plan in force); ``kind`` "step" (the replanner's SQP update) or "feedback" (a
+    ``feedback.correct`` correction).
     """
 
     t: float
@@ -121,6 +122,7 @@ class CycleRecord:
     observations: int
     budget: float = math.inf
     late: bool = False
+    kind: str = "step"
 
 
 @dataclass(eq=False)
@@ -174,6 +176,10 @@ class CatchRun:
     def skipped(self) -> int:
         """Updates that took no step because the predicted step time did not fit in the budget."""
         return sum(r.plan.status == "skipped" for r in self.records)
+
+    def applied(self) -> list:
+        """The records whose plans the arm executed (not late, not held or skipped)."""
+        return [r for r in self.records if not r.late and r.plan.status not in ("held", "skipped")]
 
     @property
     def final(self) -> CyclePlan:
@@ -293,7 +299,7 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         rec = CycleRecord(t=t_k, t_start=t_next, plan=new, cpu_s=cpu, position=p, velocity=v, acceleration=g,
                           position_error=float(np.linalg.norm(p - p_true[0])),
                           velocity_error=float(np.linalg.norm(v - v_true[0])), observations=used, budget=budget,
-                          late=late)
+                          late=late, kind="feedback" if feedback else "step")
         records.append(rec)
         if on_cycle is not None:
             on_cycle(rec)
