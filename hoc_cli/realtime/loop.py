@@ -1,15 +1,19 @@
-"""The closed-loop catch: a thrown ball observed with noise, its ballistic estimate, one replanner update per cycle.
+"""The closed-loop catch: a thrown ball observed with noise, its ballistic estimate, the plan updated while it runs.
 
 Time t [s] starts at the throw, when the arm starts executing the plan of the task's nominal target (planned
 beforehand). Observations of the ball's position arrive at ``Observer.rate`` with Gaussian noise σ [m] per
 coordinate (seeded), each ``latency`` [s] after it was taken. Cycle k runs at t_k = k/rate: with the
 observations received by t_k it fits the ball (``BallisticFit``; the task's target as a Gaussian prior when
-``Observer.prior`` is given, else that target alone until ``MIN_OBSERVATIONS`` have arrived) and updates the
-plan for the start t_k + delay/rate from the state the plan in force reaches there (the arm executes the plan
-in force meanwhile: the robot's state is the plan's state), so the update has ``delay`` cycles to compute; the
-next update starts then. An update whose wall time exceeds its budget was not ready at its start: its plan is
-discarded (the replanner returns to its state before it) and it counts as an overrun. Updates stop once less than ``Cycle.commit`` [s] would remain; the arm
-then finishes the last plan. At its end (the catch time) the flange's position and velocity are compared with the true ball's. Pure maths: no I/O.
+``Observer.prior`` is given, else that target alone until ``MIN_OBSERVATIONS`` have arrived); while the fit's
+σ of the ball at the catch exceeds ``GATE`` × σ nothing is updated. Otherwise it updates the plan for the
+start t_k + delay/rate from the state the plan in force reaches there (the arm executes the plan in force
+meanwhile: the robot's state is the plan's state), so the SQP update has ``delay`` cycles to compute; the next
+cycle is then. In the last ``Cycle.fix`` s, with ``Cycle.feedback`` > 0, each cycle instead corrects the plan
+to the newest estimate (``feedback.correct``), applied ``feedback`` s after t_k. An update whose wall time
+exceeds its budget was not ready at its start: its plan is discarded (the replanner returns to its state
+before it) and it counts as an overrun. Nothing starts once less than ``Cycle.commit`` [s] would remain; the
+arm then finishes the last plan. At its end (the catch time) the flange's position and velocity are compared
+with the true ball's. Pure maths: no I/O.
 """
 from __future__ import annotations
 
@@ -30,7 +34,7 @@ CATCH_SPEED = 0.05  # [m/s] ... moving with it to within this: caught
 MIN_OBSERVATIONS = 3  # without a prior, the fit is used from this many observations on
 REACH_SAMPLES = 200  # catch times at which an unreachable ball is confirmed out of the arm's reach
 NOISE_FLOOR = 1e-6  # [m] the fit's σ for noise-free observations (their weight stays finite)
-GATE = 0.01  # [m] no update while the estimate's σ of a coordinate of the ball at the catch is above this
+GATE = 2.0  # no update while the estimate's σ of a coordinate of the ball at the catch exceeds this × the noise σ
 SAMPLES_PER_CYCLE = 4  # executed states recorded per cycle (closest approach, the MCAP's /tf)
 
 
@@ -271,7 +275,7 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         if prior is not None or used >= MIN_OBSERVATIONS:
             est = fit.estimate(t_next)
             p, v = est.position, est.velocity
-            if math.sqrt(np.max(np.diag(est.at(cur.t_end).covariance)[:3])) > GATE:
+            if math.sqrt(np.max(np.diag(est.at(cur.t_end).covariance)[:3])) > GATE * max(observer.noise, NOISE_FLOOR):
                 k += 1  # the estimate does not know the ball at the catch better than this yet: no update
                 continue
         else:
