@@ -106,24 +106,33 @@ def main() -> None:
         plan = solve(problem)
         goal = problem.link_goal
         caught, errors, est_errors = 0, [], []
+        overruns = skipped = updates = 0
         cycle = sc.cycle if args.steps is None else dataclasses.replace(sc.cycle, steps=args.steps, budget=1e9)
         for k, throw in enumerate(family(goal.position, goal.velocity, args.family, goal.acceleration)):
             run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle, timed=args.steps is None)
             caught += run.caught
             errors.append(run.position_error)
-            last = run.applied()[-1]  # the estimate of the plan the arm finished, at the catch time
-            tau = run.T - last.t_start
-            est = last.position + last.velocity * tau + 0.5 * last.acceleration * tau**2
-            est_errors.append(float(np.linalg.norm(est - throw.states(run.T)[0][0])))
+            applied = run.applied()
+            if applied:  # the estimate of the plan the arm finished, at the catch time
+                last = applied[-1]
+                tau = run.T - last.t_start
+                est = last.position + last.velocity * tau + 0.5 * last.acceleration * tau**2
+                est_errors.append(float(np.linalg.norm(est - throw.states(run.T)[0][0])))
+                what = (f"its estimate at the catch off by {1e3 * est_errors[-1]:5.2f} mm (from observations up to "
+                        f"{1e3 * (run.T - last.t):.0f} ms before)")
+            else:
+                what = "no update applied: the nominal plan"
             print(f"  throw {k:2d}: {run.status:11s} {1e3 * run.position_error:5.2f} mm {run.relative_speed:.4f} m/s; "
-                  f"its estimate at the catch off by {1e3 * est_errors[-1]:5.2f} mm (from observations up to "
-                  f"{1e3 * (run.T - last.t):.0f} ms before); {run.overruns} overruns, {run.skipped} skipped of "
-                  f"{run.cycles} updates", flush=True)
+                  f"{what}; {run.overruns} overruns, {run.skipped} skipped of {run.cycles} updates", flush=True)
+            overruns += run.overruns
+            skipped += run.skipped
+            updates += run.cycles
         how = "the scenario's budget" if args.steps is None else f"{args.steps} steps per update"
         print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm, {how}): {caught} caught; "
               f"position error median {1e3 * np.median(errors):.2f} mm, p90 {1e3 * np.percentile(errors, 90):.2f} mm, "
               f"max {1e3 * np.max(errors):.2f} mm; under 4 mm: {sum(e < 4e-3 for e in errors)}; the estimates at the catch "
-              f"off by median {1e3 * np.median(est_errors):.2f} mm, max {1e3 * np.max(est_errors):.2f} mm")
+              f"off by median {1e3 * np.median(est_errors):.2f} mm, max {1e3 * np.max(est_errors):.2f} mm; "
+              f"{overruns} overruns and {skipped} skipped of {updates} updates")
 
 
 def ipopt(model, problem, run, every: int, hoc_median_wall: float, hoc_median_cpu: float) -> None:

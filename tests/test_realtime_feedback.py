@@ -43,6 +43,7 @@ def test_the_correction_meets_the_moved_target_from_the_same_state_within_the_li
     assert new is not None and new.status == "feedback" and new.t0 == t_s and new.t_end == pytest.approx(plan.t_end)
     pn, vn = _end(problem, new)
     assert np.abs(pn - (p + dp)).max() < 1e-7 and np.abs(vn - (v + dv)).max() < 1e-6
+    assert new.violation == pytest.approx(max(np.abs(pn - p - dp).max(), np.abs(vn - v - dv).max()), abs=1e-9)
     for d in (0, 1):  # the robot's state at t_s is kept
         assert np.abs(new.state(t_s, d) - plan.state(t_s, d)).max() < 1e-12
     assert check_limits(problem.system, problem.limits, new.mesh, new.coeffs).feasible

@@ -23,7 +23,8 @@ Gauss-Newton rounds) and to the kinematic limits (position, velocity, accelerati
 ``SAMPLES`` points per element and two just after the start (a dense quadratic programme, ``hoc_cli.goals.qp_step.solve_qp``, from the rows
 near their bound, the rows its step breaks added; the catch rides velocity limits). When the limits leave no
 correction that meets the 6 rows (joints held at a velocity bound), the rows become a penalty ``SOFT`` times
-the objective's scale: the closest correction within the limits. The corrected plan must
+the objective's scale: the closest correction within the limits, applied only if it is closer than the plan
+in force. The corrected plan must
 pass ``check_limits`` (exact extrema, the torques at 32 points per element), else there is none. Pure maths: no I/O.
 """
 from __future__ import annotations
@@ -106,8 +107,9 @@ def _step(U, g, A, e, G, h, use) -> np.ndarray:
 def correct(system, limits, link: str, plan, t_s: float, position, velocity):
     """The plan in force ``plan`` (a ``replanner.CyclePlan``) from t_s [s] on, corrected so that ``link`` meets
     ``position`` (3,) [m] with ``velocity`` (3,) [m/s] at its end (module docstring); None when t_s is not
-    before the end, the programme has no solution or the corrected plan breaks a limit. The returned plan keeps
-    ``plan.J`` (not re-evaluated) and has status "feedback".
+    before the end, the programme has no solution, the correction would leave the flange farther from the goal
+    than the plan does, or the corrected plan breaks a limit. The returned plan keeps ``plan.J`` (not
+    re-evaluated), has status "feedback" and its ``violation`` the largest |c| of the 6 rows [m, m/s].
     """
     L = plan.t_end - t_s
     if not L > 0.0:
@@ -123,12 +125,14 @@ def correct(system, limits, link: str, plan, t_s: float, position, velocity):
     G, h, size = _limit_rows(limits, mesh, C0, L) if limits is not None else (np.zeros((0, 2 * n)),) + (np.zeros(0),) * 2
     use = h < NEAR * size  # the rows near their bound first
     x = np.zeros(2 * n)
+    miss0 = None
     try:
         for _ in range(ITERATIONS):
             q, dq = C0[-1, 0] + x[:n], C0[-1, 1] + x[n:]
             Q = np.vstack([q, q + EPS * np.eye(n), np.repeat(q[None], n, 0)])
             DQ = np.vstack([dq, np.repeat(dq[None], n, 0), dq + EPS * np.eye(n)])
             F = _flange(model, link, Q, DQ)
+            miss0 = np.max(np.abs(F[0] - goal)) if miss0 is None else miss0
             A = ((F[1:] - F[0]) / EPS).T  # (6, 2n): the columns of δq_j, then of δq̇_j at the catch
             g = W @ x  # the objective's gradient at x: the step d minimises from x
             try:
@@ -140,6 +144,9 @@ def correct(system, limits, link: str, plan, t_s: float, position, velocity):
             x = x + d
     except NumericalError:
         return None
+    miss = float(np.max(np.abs(_flange(model, link, (C0[-1, 0] + x[:n])[None], (C0[-1, 1] + x[n:])[None])[0] - goal)))
+    if miss > miss0:  # the closest correction within the limits is farther from the goal than the plan in force
+        return None
     B = basis(mesh.nodes / L, L)
     C = C0.copy()
     for d in range(C.shape[1]):
@@ -147,4 +154,4 @@ def correct(system, limits, link: str, plan, t_s: float, position, velocity):
     C[0, :2] = C0[0, :2]  # the start state exactly
     if limits is not None and not check_limits(system, limits, mesh, C).feasible:
         return None
-    return dataclasses.replace(plan, t0=t_s, mesh=mesh, coeffs=C, steps=0, status="feedback")
+    return dataclasses.replace(plan, t0=t_s, mesh=mesh, coeffs=C, steps=0, status="feedback", violation=miss)
