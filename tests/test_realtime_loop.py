@@ -1,7 +1,7 @@
 """The closed-loop catch (``hoc_cli.realtime.loop``) and ``hoc catch``.
 
-The 20-throw family of the issue (σ = 5 mm at 100 Hz, at least 19 caught) runs in benchmarks/bench_realtime.py
-(``--family``): here, for the suite's time, its first 4 throws.
+The 20-throw family of the issue (σ = 5 mm at 100 Hz, at least 19 caught) runs here and in
+benchmarks/bench_realtime.py (``--family 20``).
 """
 from __future__ import annotations
 
@@ -35,17 +35,26 @@ def catch():
     return problem, hoc_cli.solve(problem)
 
 
-def test_noisy_throws_are_caught_within_the_limits_in_every_cycle(catch):
+def test_the_family_of_20_noisy_throws_is_caught_within_the_limits_in_every_cycle(catch):
+    """The issue's test: σ = 5 mm at 100 Hz, at least 19 of the 20 seeded throws caught (flange within 5 mm of the
+    true ball at the catch time, relative speed below 0.05 m/s), with configs/catch_throw.yaml's cycle, untimed
+    (one SQP step per update, every correction applied: the same on every machine). Every plan the arm executed
+    passes the exact limits check. Measured: 19 caught, error median 3.0 mm; the miss (throw 18, 5.1 mm) is the
+    ball's estimate, which is 4.9-5.4 mm off at the catch from any observations up to 0-20 ms before it.
+    """
     problem, plan = catch
-    caught = 0
-    for k, throw in enumerate(family(P0, V0, 4)):
-        run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.005, seed=k),
-                        Cycle(rate=100.0, budget=10.0, steps=1, commit=0.01))  # configs/catch_throw.yaml's cycle
+    cycle = Cycle(rate=100.0, budget=1e9, delay=2, steps=1, commit=0.002, fix=0.1, feedback=0.01)
+    caught, errors = 0, []
+    for k, throw in enumerate(family(P0, V0, 20)):
+        run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.005, seed=k), cycle, timed=False)
         caught += run.caught
-        assert run.cycles > 30
-        for rec in run.records:  # every cycle's plan, by the exact extrema check
-            assert check_limits(problem.system, problem.limits, rec.plan.mesh, rec.plan.coeffs).feasible
-    assert caught >= 3
+        errors.append(run.position_error)
+        assert run.overruns == 0 and run.cycles > 10
+        assert any(r.plan.status == "feedback" for r in run.records)
+        for _, seg in run.segments[1:]:  # every plan in force, by the exact extrema check
+            assert check_limits(problem.system, problem.limits, seg.mesh, seg.coeffs).feasible
+    assert caught >= 19
+    assert np.median(errors) < 3.5e-3
 
 
 def test_without_noise_the_final_plan_is_the_cold_plan_of_its_problem(catch):
@@ -82,7 +91,7 @@ SCENARIO = """\
 task: {root}/configs/catch_ball.yaml
 throw: {{position: [0.6825, -0.0475, 0.1296], velocity: [-0.10, 0.30, 3.08]}}
 observe: {{rate: 100, noise: 0.002, seed: 3}}
-cycle: {{rate: 20, budget: 1.0, steps: 2, commit: 0.03}}
+cycle: {{rate: 20, budget: 0.05, steps: 2, commit: 0.03}}
 """
 
 
@@ -99,11 +108,13 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
     r = hoc("catch", str(sc), "--json", "-o", str(out), "--seed", "4", "--noise", "0.003")
     assert r.returncode in (0, 1), r.stderr
     s = json.loads(r.stdout)
-    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "cycles"):
+    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "skipped", "cycles"):
         assert key in s
     assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4 and s["noise"] == 0.003
     assert r.returncode == (0 if s["caught"] else 1)
-    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] != "held")
+    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] not in ("held", "skipped"))
+    assert s["overruns"] == sum(u["late"] for u in s["updates"])
+    assert all(u["wall_ms"] > s["budget_ms"] for u in s["updates"] if u["late"])
     from mcap.reader import make_reader
 
     with open(out, "rb") as fh:
@@ -118,6 +129,10 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
      "cycle.rate"),
     ("task: {root}/configs/catch_ball.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\nobserve: {{sede: 1}}\n",
      "observe.sede"),
+    ("task: {root}/configs/catch_ball.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\n"
+     "cycle: {{rate: 100, budget: 0.02}}\n", "cycle.budget"),  # more than delay/rate
+    ("task: {root}/configs/catch_ball.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\n"
+     "cycle: {{rate: 100, feedback: 0.02}}\n", "cycle.feedback"),  # more than 1/rate
     ("task: {root}/configs/lbr7_reach.yaml\nthrow: {{position: [0, 0, 0], velocity: [0, 0, 1]}}\n", "task"),
 ])
 def test_a_bad_scenario_is_one_line_naming_the_file_and_the_key(tmp_path, request, text, key):
@@ -164,11 +179,60 @@ def test_a_throw_with_drag_rises_as_the_closed_form_says():
 
 
 def test_observations_count_only_once_they_have_arrived(catch):
-    """With a latency of 50 ms, cycle k (t_k = k/10 s) fits the observations taken at 100 Hz up to t_k − 0.05."""
+    """With a latency of 50 ms, cycle k (t_k = k/20 s) fits the observations taken at 100 Hz up to t_k − 0.05."""
     problem, plan = catch
     throw = Throw(P0 + [0.005, 0.0, 0.0], V0)
-    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.005, seed=1, latency=0.05),
-                    Cycle(rate=10.0, budget=10.0, steps=1, commit=0.03))
+    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.001, seed=1, latency=0.05),
+                    Cycle(rate=20.0, budget=10.0, steps=1, commit=0.03))  # σ = 1 mm: updates from the first cycles
     assert run.cycles >= 3
     for rec in run.records:
         assert rec.observations == max(int(np.floor(round((rec.t - 0.05) * 100, 9))) + 1, 0)
+
+
+def test_an_update_over_its_budget_is_discarded_and_counted(catch):
+    """A budget no step fits: each update is either skipped (its predicted first step does not fit) or late (its
+    wall time over the budget): the arm stays on the first plan, and every such update is counted.
+    """
+    problem, plan = catch
+    throw = Throw(P0 + [0.01, 0.0, 0.0], V0)
+    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
+                    Cycle(rate=20.0, budget=1e-5, steps=1, commit=0.03))
+    assert run.cycles >= 3 and run.overruns + run.skipped == run.cycles and run.overruns >= 1
+    assert len(run.segments) == 1 and run.final is run.segments[0][1] and run.final.status == "cold"
+    assert all(r.late == (r.plan.status != "skipped" and r.plan.wall_time_s > 1e-5) for r in run.records)
+    untimed = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
+                        Cycle(rate=20.0, budget=1e9, steps=1, commit=0.03), timed=False)
+    assert untimed.overruns == 0 and len(untimed.segments) == untimed.cycles + 1
+
+
+def test_an_update_computes_while_the_plan_in_force_runs_for_delay_cycles(catch):
+    """delay = 2: the update from the observations at t_k starts its plan at t_k + 2/rate; the next update is then."""
+    problem, plan = catch
+    run = run_catch(problem, plan, Throw(P0, V0), Observer(rate=100.0, noise=0.005, seed=2),
+                    Cycle(rate=100.0, budget=1e9, steps=1, commit=0.05, delay=2), timed=False)
+    t = np.array([r.t for r in run.records])
+    assert np.allclose(np.diff(t), 0.02) and np.allclose([r.t_start for r in run.records], t + 0.02)
+    assert all(r.observations == int(round(r.t * 100)) + 1 for r in run.records)
+
+
+def test_no_update_while_the_estimate_does_not_know_the_catch_within_the_gate(catch):
+    """The first update waits until the fit's σ of the ball at the catch is within ``GATE`` × the noise σ in every
+    coordinate (1 cm at σ = 5 mm).
+    """
+    from hoc_cli.realtime.ballistic import BallisticFit
+    from hoc_cli.realtime.loop import GATE, observations
+
+    problem, plan = catch
+    throw, obs = Throw(P0, V0), Observer(rate=100.0, noise=0.005, seed=2)
+    run = run_catch(problem, plan, throw, obs, Cycle(rate=100.0, budget=1e9, steps=1, commit=0.05), timed=False)
+    t, y = observations(throw, obs, 1.0)
+    fit = BallisticFit(G, 0.005, prior=(np.concatenate([P0, V0]), np.array([0.05, 0.25])))
+    first = run.records[0]
+    for ti, yi in zip(t[:first.observations], y[:first.observations]):
+        fit.add(ti, yi)
+    sd = lambda f: np.sqrt(np.diag(f.estimate(plan.T).covariance)[:3]).max()  # noqa: E731
+    assert sd(fit) <= GATE * 0.005
+    fit2 = BallisticFit(G, 0.005, prior=(np.concatenate([P0, V0]), np.array([0.05, 0.25])))
+    for ti, yi in zip(t[:first.observations - 1], y[:first.observations - 1]):
+        fit2.add(ti, yi)
+    assert sd(fit2) > GATE * 0.005  # one observation fewer: not yet

@@ -94,6 +94,8 @@ def catch_summary(run, sc, plan) -> dict:
         "cpu_ms": run.cpu_ms,
         "budget_ms": 1e3 * sc.cycle.budget,
         "overruns": run.overruns,
+        "skipped": run.skipped,
+        "feedback": sum(r.kind == "feedback" for r in recs),
         "cycles": run.cycles,
         "steps": {"total": int(sum(steps)), "max_per_cycle": int(max(steps, default=0))},
         "held": sum(r.plan.status == "held" for r in recs),
@@ -105,7 +107,7 @@ def catch_summary(run, sc, plan) -> dict:
         "nominal": {"T": plan.T, "J": plan.J},
         "updates": [{"t": r.t_start, "steps": r.plan.steps, "status": r.plan.status, "violation": r.plan.violation,
                      "stationarity": r.plan.stationarity, "wall_ms": 1e3 * r.plan.wall_time_s, "cpu_ms": 1e3 * r.cpu_s,
-                     "estimate_error": r.position_error} for r in recs],
+                     "late": r.late, "kind": r.kind, "estimate_error": r.position_error} for r in recs],
         "seed": sc.observer.seed,
         "noise": sc.observer.noise,
     })
@@ -122,7 +124,8 @@ def _table(console, s: dict) -> None:
         ("relative speed", f"{s['relative_speed']:.4f} m/s (caught below 0.05 m/s)"),
         ("catch time T", f"{s['T']:.4f} s"),
         ("closest approach", f"{1e3 * s['closest_approach']['distance']:.2f} mm at {s['closest_approach']['t']:.4f} s"),
-        ("cycles", f"{s['cycles']} ({s['overruns']} over the {s['budget_ms']:.0f} ms budget, {s['held']} held)"),
+        ("updates", f"{s['cycles'] - s['feedback']} SQP, {s['feedback']} corrections; {s['overruns']} over budget "
+                    f"and discarded, {s['skipped']} skipped, {s['held']} held"),
         ("cycle wall ms", f"median {ms['median']:.1f}, p95 {ms['p95']:.1f}, p99 {ms['p99']:.1f}, max {ms['max']:.1f}"),
         ("cycle CPU ms", f"median {s['cpu_ms']['median']:.1f}, p99 {s['cpu_ms']['p99']:.1f}"),
         ("SQP steps", f"{s['steps']['total']} in all, at most {s['steps']['max_per_cycle']} per cycle"),

@@ -8,7 +8,8 @@ Keys (README, "Catching in real time"):
              target's acceleration), drag: k 1/m (default 0)}
     observe: {rate: Hz (100), noise: σ m (0.005), seed: int (0), latency: s (0),
              prior: {position: σ m, velocity: σ m/s} or null (default 0.05, 0.25)}
-    cycle:   {rate: Hz (100), budget: s (0.01), steps: int (2), commit: s (0.01), fix: s (0.1)}
+    cycle:   {rate: Hz (100), budget: s (0.01), steps: int (2), commit: s (0.01), fix: s (0.1), delay: int (1),
+             feedback: s (0: off); budget <= delay/rate and feedback <= 1/rate: an update is done before its plan starts}
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from hoc_cli.realtime.loop import Cycle, Observer, Throw
 TOP = ("task", "throw", "observe", "cycle")
 THROW = ("position", "velocity", "gravity", "drag")
 OBSERVE = ("rate", "noise", "seed", "latency", "prior")
-CYCLE = ("rate", "budget", "steps", "commit", "fix")
+CYCLE = ("rate", "budget", "steps", "commit", "fix", "delay", "feedback")
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,8 +154,16 @@ def _observer(c: _Keys, value: Any) -> Observer:
 def _cycle(c: _Keys, value: Any) -> Cycle:
     m = c.mapping(value, "cycle", CYCLE)
     d = Cycle()
-    return Cycle(rate=c.number(m.get("rate", d.rate), "cycle.rate", low=0.0, strict=True),
-                 budget=c.number(m.get("budget", d.budget), "cycle.budget", low=0.0, strict=True),
-                 steps=c.integer(m.get("steps", d.steps), "cycle.steps", 1),
+    rate = c.number(m.get("rate", d.rate), "cycle.rate", low=0.0, strict=True)
+    delay = c.integer(m.get("delay", d.delay), "cycle.delay", 1)
+    budget = c.number(m.get("budget", d.budget), "cycle.budget", low=0.0, strict=True)
+    if budget > delay / rate * (1 + 1e-9):
+        raise c.fail("cycle.budget", f"expected at most delay/rate = {delay / rate:g} s (an update must be done before "
+                                     f"its plan starts), got {budget!r}")
+    feedback = c.number(m.get("feedback", d.feedback), "cycle.feedback", low=0.0)
+    if feedback > 1.0 / rate * (1 + 1e-9):
+        raise c.fail("cycle.feedback", f"expected at most 1/rate = {1.0 / rate:g} s (a correction must be done before the "
+                                       f"next one starts), got {feedback!r}")
+    return Cycle(rate=rate, budget=budget, steps=c.integer(m.get("steps", d.steps), "cycle.steps", 1),
                  commit=c.number(m.get("commit", d.commit), "cycle.commit", low=0.0),
-                 fix=c.number(m.get("fix", d.fix), "cycle.fix", low=0.0))
+                 fix=c.number(m.get("fix", d.fix), "cycle.fix", low=0.0), delay=delay, feedback=feedback)

@@ -1,17 +1,23 @@
-"""The closed-loop catch: a thrown ball observed with noise, its ballistic estimate, one replanner update per cycle.
+"""The closed-loop catch: a thrown ball observed with noise, its ballistic estimate, the plan updated while it runs.
 
 Time t [s] starts at the throw, when the arm starts executing the plan of the task's nominal target (planned
 beforehand). Observations of the ball's position arrive at ``Observer.rate`` with Gaussian noise σ [m] per
 coordinate (seeded), each ``latency`` [s] after it was taken. Cycle k runs at t_k = k/rate: with the
 observations received by t_k it fits the ball (``BallisticFit``; the task's target as a Gaussian prior when
-``Observer.prior`` is given, else that target alone until ``MIN_OBSERVATIONS`` have arrived) and updates the
-plan for the start t_{k+1} = t_k + 1/rate from the state the plan in force reaches there (the arm executes the
-plan in force during the cycle: the robot's state is the plan's state), so the update has the cycle to compute.
-Updates stop once less than ``Cycle.commit`` [s] would remain; the arm then finishes the last plan. At its end
-(the catch time) the flange's position and velocity are compared with the true ball's. Pure maths: no I/O.
+``Observer.prior`` is given, else that target alone until ``MIN_OBSERVATIONS`` have arrived); while the fit's
+σ of the ball at the catch exceeds ``GATE`` × σ nothing is updated. Otherwise it updates the plan for the
+start t_k + delay/rate from the state the plan in force reaches there (the arm executes the plan in force
+meanwhile: the robot's state is the plan's state), so the SQP update has ``delay`` cycles to compute; the next
+cycle is then. In the last ``Cycle.fix`` s, with ``Cycle.feedback`` > 0, each cycle instead corrects the plan
+to the newest estimate (``feedback.correct``), applied ``feedback`` s after t_k. An update whose wall time
+exceeds its budget was not ready at its start: its plan is discarded (the replanner returns to its state
+before it) and it counts as an overrun. Nothing starts once less than ``Cycle.commit`` [s] would remain; the
+arm then finishes the last plan. At its end (the catch time) the flange's position and velocity are compared
+with the true ball's. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -20,6 +26,7 @@ import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.realtime.ballistic import BallisticFit
+from hoc_cli.realtime.feedback import correct
 from hoc_cli.realtime.replanner import CyclePlan, Replanner, Target
 
 CATCH_POSITION = 5e-3  # [m] the flange within this of the ball at the catch time ...
@@ -27,6 +34,7 @@ CATCH_SPEED = 0.05  # [m/s] ... moving with it to within this: caught
 MIN_OBSERVATIONS = 3  # without a prior, the fit is used from this many observations on
 REACH_SAMPLES = 200  # catch times at which an unreachable ball is confirmed out of the arm's reach
 NOISE_FLOOR = 1e-6  # [m] the fit's σ for noise-free observations (their weight stays finite)
+GATE = 2.0  # no update while the estimate's σ of a coordinate of the ball at the catch exceeds this × the noise σ
 SAMPLES_PER_CYCLE = 4  # executed states recorded per cycle (closest approach, the MCAP's /tf)
 
 
@@ -79,8 +87,12 @@ class Observer:
 @dataclass(frozen=True)
 class Cycle:
     """The control cycle: ``rate`` [Hz], ``budget`` [s] of wall time per update, ``steps`` SQP steps per update at
-    most, ``commit`` [s]: no update once less than this would remain to the catch; ``fix`` [s]: once less than this
-    remains, the updates keep the catch time (a fixed T: steps in T are far from linear on a short remaining time).
+    most, ``delay`` the cycles from an update's start (its observations) to its plan's start (the update computes
+    while the arm executes the plan in force: budget ≤ delay/rate), ``commit`` [s]: no update once less than this
+    would remain to the catch; ``fix`` [s]: once less than this remains, the updates keep the catch time (a fixed
+    T: steps in T are far from linear on a short remaining time); ``feedback`` [s]: when > 0, the updates of that
+    last phase are feedback corrections (``feedback.correct``, a few ms) instead of SQP steps, one every cycle,
+    each with this budget and its plan starting this long after its observations.
     """
 
     rate: float = 100.0
@@ -88,13 +100,18 @@ class Cycle:
     steps: int = 2
     commit: float = 0.01
     fix: float = 0.1
+    delay: int = 1
+    feedback: float = 0.0
 
 
 @dataclass(frozen=True)
 class CycleRecord:
     """One update: the cycle's time t [s] and the plan's start t_start [s], the plan (``CyclePlan``, with steps,
     status, residuals, wall time), the thread CPU time [s] of the update, the estimate (position (3,) [m],
-    velocity (3,) [m/s] at t_start, acceleration (3,) [m/s²]) and its error against the true ball [m, m/s], observations used.
+    velocity (3,) [m/s] at t_start, acceleration (3,) [m/s²]) and its error against the true ball [m, m/s], observations used;
+    ``budget`` [s] the update's; ``late``: its wall time exceeded it, so its plan was not ready at t_start and was
+    discarded (the arm kept the plan in force); ``kind`` "step" (the replanner's SQP update) or "feedback" (a
+    ``feedback.correct`` correction).
     """
 
     t: float
@@ -107,6 +124,9 @@ class CycleRecord:
     position_error: float
     velocity_error: float
     observations: int
+    budget: float = math.inf
+    late: bool = False
+    kind: str = "step"
 
 
 @dataclass(eq=False)
@@ -153,8 +173,17 @@ class CatchRun:
 
     @property
     def overruns(self) -> int:
-        """Updates whose wall time exceeded the budget."""
-        return sum(r.plan.wall_time_s > self.budget for r in self.records)
+        """Updates whose wall time exceeded their budget (their plans discarded: ``CycleRecord.late``)."""
+        return sum(r.late for r in self.records)
+
+    @property
+    def skipped(self) -> int:
+        """Updates that took no step because the predicted step time did not fit in the budget."""
+        return sum(r.plan.status == "skipped" for r in self.records)
+
+    def applied(self) -> list:
+        """The records whose plans the arm executed (not late, not held or skipped)."""
+        return [r for r in self.records if not r.late and r.plan.status not in ("held", "skipped")]
 
     @property
     def final(self) -> CyclePlan:
@@ -210,9 +239,10 @@ def observations(throw: Throw, observer: Observer, t_max: float) -> tuple[np.nda
 
 
 def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
-              on_cycle=None, replanner: Replanner | None = None) -> CatchRun:
+              on_cycle=None, replanner: Replanner | None = None, timed: bool = True) -> CatchRun:
     """Simulate the closed loop (module docstring) from ``plan`` (``hoc_cli.solve`` of ``problem``: the task's
-    nominal target) for the true ``throw``. ``on_cycle`` is called with each ``CycleRecord``.
+    nominal target) for the true ``throw``. ``on_cycle`` is called with each ``CycleRecord``. ``timed`` False: no
+    update is judged late on its wall time (a reproducible run; give a large ``cycle.budget`` too).
     """
     rp = replanner if replanner is not None else Replanner(problem, plan, max_steps=cycle.steps)
     goal = problem.link_goal
@@ -232,8 +262,11 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
     k = 0
     while True:
         t_k = k * dt
-        t_next = t_k + dt
         cur = rp.current
+        fixed = cur.t_end - (t_k + cycle.delay * dt) < cycle.fix
+        feedback = fixed and cycle.feedback > 0.0
+        t_next = t_k + (cycle.feedback if feedback else cycle.delay * dt)
+        budget = cycle.feedback if feedback else cycle.budget
         if cur.t_end - t_next < cycle.commit:
             break
         while used < t_obs.size and arrived[used] <= t_k + 1e-12:
@@ -242,24 +275,39 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         if prior is not None or used >= MIN_OBSERVATIONS:
             est = fit.estimate(t_next)
             p, v = est.position, est.velocity
+            if math.sqrt(np.max(np.diag(est.at(cur.t_end).covariance)[:3])) > GATE * max(observer.noise, NOISE_FLOOR):
+                k += 1  # the estimate does not know the ball at the catch better than this yet: no update
+                continue
         else:
             p, v = p_nom + v_nom * t_next + 0.5 * g * t_next**2, v_nom + g * t_next
-        target = Target(p, v, g)
         x = (cur.state(t_next)[0], cur.state(t_next, 1)[0])
-        start = (t_next, x[0], x[1])
+        saved = rp.state()
         c0 = time.thread_time()
-        new = rp.update(t_next, x, target, cycle.budget, free_time=cur.t_end - t_next >= cycle.fix)
+        if feedback:
+            w0, tau = time.perf_counter(), cur.t_end - t_next
+            new = correct(problem.system, problem.limits, goal.link, cur, t_next, p + v * tau + 0.5 * g * tau**2, v + g * tau)
+            new = dataclasses.replace(cur if new is None else new, wall_time_s=time.perf_counter() - w0,
+                                      **({"steps": 0, "status": "held"} if new is None else {}))
+        else:
+            new = rp.update(t_next, x, Target(p, v, g), budget, free_time=not fixed)
         cpu = time.thread_time() - c0
+        late = timed and new.status not in ("held", "skipped") and new.wall_time_s > budget
+        if late:  # not ready at t_next: the arm keeps the plan in force
+            rp.restore(saved)
+        elif new.status not in ("held", "skipped"):
+            if feedback:
+                rp.current = new
+            segments.append((t_next, new))
+            target, start = Target(p, v, g), (t_next, x[0], x[1])
         p_true, v_true = throw.states(t_next)
         rec = CycleRecord(t=t_k, t_start=t_next, plan=new, cpu_s=cpu, position=p, velocity=v, acceleration=g,
                           position_error=float(np.linalg.norm(p - p_true[0])),
-                          velocity_error=float(np.linalg.norm(v - v_true[0])), observations=used)
+                          velocity_error=float(np.linalg.norm(v - v_true[0])), observations=used, budget=budget,
+                          late=late, kind="feedback" if feedback else "step")
         records.append(rec)
-        if new.status != "held":
-            segments.append((t_next, new))
         if on_cycle is not None:
             on_cycle(rec)
-        k += 1
+        k += 1 if feedback else cycle.delay
     return _outcome(problem, throw, records, segments, target, start, cycle.budget)
 
 

@@ -13,9 +13,9 @@ converges. ``Replanner.update(t, x, target, budget_s)``:
 3. takes the warm replan's SQP steps (``hoc_cli.goals.replan_qp.qp_steps``: exact Newton matrix, the goal
    rows linearised, the kinematic Bernstein rows near their bound as inequalities, T with them) from the
    shifted plan, the goal rows' and the limits' multipliers carried from the last cycle, until the
-   programme's convergence test holds or the budget would be overrun: the first step is always taken (the
-   real-time iteration's step; a cycle whose first step alone exceeds the budget is an overrun), a further one
-   only when the time spent plus the largest of the last measured step times (and of the wrap-up) fits in it;
+   programme's convergence test holds or the budget would be overrun: the first step unless the median of the
+   measured first steps would not fit (then none, "skipped"), a further one only when the time spent plus the largest of the last measured step times
+   (and of the wrap-up) fits in it;
 4. returns a plan that passes ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the torque at 32 points
    per element): its kinematic Bernstein rows are made to hold (``limits_guard.guard``), which bounds the
    kinematic kinds on the whole plan, and ``limits_guard.within_limits`` checks it (the extrema only where a row
@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
@@ -58,6 +59,8 @@ from hoc_cli.realtime.shift import shift_plan
 
 MIN_REMAINING = 1e-3  # [s] a plan shorter than this is not replanned (held)
 HISTORY = 16  # step times remembered for the budget's prediction
+GUARD_VIOLATION = 0.01  # [m, m/s] a projected plan farther than this from its goal rows, and farther than the
+# shifted plan it started from, is not returned (held)
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,8 @@ class CyclePlan:
 
     Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
     replanner's ``max_steps``) |
-    "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "held" (no
+    "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "skipped" (the
+    predicted first step did not fit in the budget: no step started, the plan in force kept) | "held" (no
     time left, the start could not be evaluated, or the result failed the limits' check: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
@@ -157,6 +161,14 @@ class Replanner:
         for times in (self.step_times, self.first_times, self.wrap_times):
             times.clear()
 
+    def state(self) -> tuple:
+        """What an update changes (the plan in force, the multipliers, the working set): for ``restore``."""
+        return self.current, self.lam, self.active, self.mu
+
+    def restore(self, saved: tuple) -> None:
+        """Back to ``saved`` (``state()``): an update whose plan came too late to be applied is forgotten."""
+        self.current, self.lam, self.active, self.mu = saved
+
     # -- the problem of an update -------------------------------------------------------------------------
     def time_range(self, t: float) -> TimeRange | None:
         """The remaining duration's range [s] at absolute time t (None when it is empty)."""
@@ -170,9 +182,9 @@ class Replanner:
     # -- the update ---------------------------------------------------------------------------------------
     def update(self, t: float, x, target: Target, budget_s: float, *, free_time: bool = True) -> CyclePlan:
         """The plan from the state x = (q (n,), q̇ (n,)) at absolute time t [s] towards ``target`` (its estimate
-        at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict (the first
-        step is always taken). ``free_time`` False keeps the catch time of the plan in force (T = its remaining
-        time): near the catch, where a step in T is far from linear.
+        at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict (the
+        first step unless the median of the measured first steps does not fit: "skipped"). ``free_time`` False keeps the catch time of the plan in force
+        (T = its remaining time): near the catch, where a step in T is far from linear.
         """
         start = time.perf_counter()
         deadline = start + budget_s
@@ -181,6 +193,8 @@ class Replanner:
         remaining = cur.t_end - t
         if span is None or remaining < MIN_REMAINING:
             return self._hold(start)
+        if self._first_late(start, deadline):
+            return self._hold(start, "skipped")
         shifted = shift_plan(cur.mesh, cur.coeffs, cur.t0, t, min(max(remaining, span.min), span.max) if free_time else None)
         mesh, C = shifted.mesh, shifted.coeffs
         q, dq = (np.asarray(v, float) for v in x[:2])
@@ -228,6 +242,8 @@ class Replanner:
             J = float(pt.problem.value(pt.problem.layout.pack(safe)))
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
                                   pt.where).violation(safe)
+        if guarded and violation > max(GUARD_VIOLATION, self._miss(mesh, C, goals)):
+            return self._hold(start)  # the projection gave up the goal for a plan no closer to it than the shifted one
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
@@ -249,8 +265,30 @@ class Replanner:
         wrap = max(self.wrap_times) if self.wrap_times else 0.0
         return now + max(times) + wrap > deadline
 
-    def _hold(self, start: float) -> CyclePlan:
-        self.current = dataclasses.replace(self.current, steps=0, status="held",
+    def _miss(self, mesh: HermiteMesh, C: np.ndarray, goals: Goals) -> float:
+        """The largest |c| [m, m/s] of the link goal's position and velocity rows for the plan (mesh, C) at its end."""
+        final, link = goals.final, self.problem.link_goal.link
+        q, dq = C[-1, :1], C[-1, 1:2]
+        p = link_poses(self.system.model, q)[link][0, :3, 3]
+        v = frame_jacobian(self.system.model, q, link)[0, :3] @ dq[0]
+        pt, vt = final.target(mesh.T)
+        return float(np.max(np.abs(np.concatenate([p - pt, v - vt]))))
+
+    def _first_late(self, now: float, deadline: float) -> bool:
+        """Whether the first step started now would end after the deadline, by the median of the measured first
+        steps (with the shift) plus the largest wrap-up. A skipped update forgets the largest measured first step,
+        so that one slow step cannot stop every later update.
+        """
+        if not self.first_times:
+            return False
+        wrap = max(self.wrap_times) if self.wrap_times else 0.0
+        if now + float(np.median(self.first_times)) + wrap <= deadline:
+            return False
+        self.first_times.remove(max(self.first_times))
+        return True
+
+    def _hold(self, start: float, status: str = "held") -> CyclePlan:
+        self.current = dataclasses.replace(self.current, steps=0, status=status,
                                            wall_time_s=time.perf_counter() - start)
         return self.current
 
