@@ -50,6 +50,7 @@ from hoc_cli.goals.qp_step import bordered_factor, solve_qp
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, point_problem, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
+from hoc_cli.optimize.modify import gauss_newton_shift
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
@@ -64,29 +65,52 @@ CORRECTION = True  # a step the goal rows' violation floor or the merit test wou
 LAG_RTOL = 1e-10  # after a step whose model decrease was within ±this·|J|, the next QP keeps the step's Newton matrix
 
 
-def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool):
+def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool,
+            weights: dict | None = None):
     """The Newton matrix (``BandedSPD``) of the cost plus the element blocks ``extra_of(indefinite)`` at ``ev``: with
-    the goal rows' full curvature (``indefinite`` True) made positive definite by ``problem.newton``, else (its
-    ``NumericalError``) without the curvature's negative part. ``quick``: the first is factored once as it is,
-    without ``problem.newton``'s shifts by the cost's positive semi-definite part (up to 13 more factorisations,
-    which do not help where the rows' own negative curvature is the cause), and both share one Hessian sweep.
-    Raises ``NumericalError`` when neither is positive definite.
+    the goal rows' full curvature (``indefinite`` True), else without the curvature's negative part; each factored
+    as it is, then (not ``quick``) made positive definite by adding μ times the cost's positive semi-definite part
+    plus the same blocks (``gauss_newton_shift``), and both share one Hessian sweep. The shift of the first is only
+    searched when that part plus the blocks factors (else no μ can help: the rows' own negative curvature is the
+    cause); ``weights`` keeps the last μ accepted for each, and the next search starts a decade below it. ``quick``
+    (the real-time replanner's steps, where time counts): the first is not shifted. Raises ``NumericalError`` when
+    neither is positive definite.
     """
-    if not quick or problem.terms:
+    if problem.terms:
         try:
             return problem.newton(ev, extra=extra_of(True), shift=shift)
         except NumericalError:
             return problem.newton(ev, extra=extra_of(False), shift=shift)
+    weights = {} if weights is None else weights
     Hs, GNs = problem.hessian_samples(ev)
     Hb = element_blocks(problem.op_h, Hs)
-    extra = extra_of(True)
-    try:
-        return problem.banded(Hb if extra is None else Hb + extra, shift)
-    except NumericalError:
-        extra = extra_of(False)
-        if extra is None:
+    GNb = None
+    for indefinite in (True, False):
+        extra = extra_of(indefinite)
+        if not indefinite and extra is None:
+            raise NumericalError("the Newton matrix is not positive definite")
+        H = Hb if extra is None else Hb + extra
+        try:
+            return problem.banded(H, shift)
+        except NumericalError:
+            if quick and indefinite:
+                continue
+        GNb = element_blocks(problem.op_h, GNs) if GNb is None else GNb
+        GN = GNb if extra is None else GNb + extra
+        try:
+            limit = problem.banded(GN, shift)  # the shift's limit: no μ helps when it does not factor
+        except NumericalError:
+            if indefinite:
+                continue
             raise
-        return problem.positive_definite(Hb + extra, lambda: element_blocks(problem.op_h, GNs) + extra, shift)
+        last = weights.get(indefinite)
+        mu, factored = gauss_newton_shift(H, GN, lambda M: problem.banded(M, shift),
+                                          start=None if last is None else 0.1 * last)
+        if factored is not None:
+            weights[indefinite] = mu
+            return factored
+        return limit
+    raise NumericalError("the Newton matrix is not positive definite")
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
@@ -164,6 +188,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
+    weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
     lm = 0.0  # with the merit test: a Levenberg-Marquardt shift of the Newton matrix (relative, as BandedSPD's)
     while True:
         if stop is not None and steps and stop(steps):
@@ -186,7 +211,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
 
             try:
-                W = _newton(problem, pt.ev, extra_of, lm, quick)
+                W = _newton(problem, pt.ev, extra_of, lm, quick, weights)
             except NumericalError:
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
