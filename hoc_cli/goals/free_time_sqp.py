@@ -15,7 +15,7 @@ same first-order conditions as the search's end.
    relative, G grows by 4 and the steps go on from the plan (its multipliers by least squares,
    ``hoc_cli.goals.warm.previous_plan``). When those steps do not converge within
    ``COLD_STEPS``, and without limits, one fixed-T solve (``plan_goals``: continuation, the goal rows' and
-   the limits' augmented-Lagrangian loops). The lbr7 catch: 45 steps; a two-link link goal: 4.
+   the limits' augmented-Lagrangian loops). The lbr7 catch: 25 steps; a two-link link goal: 4.
    When the initial trajectory at the guess breaks a kinematic limit, a restoration first minimises the
    violation of the goal rows and the (tightened) limit rows over x and T (``hoc_cli.goals.restoration``): at a
    guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
@@ -26,11 +26,11 @@ same first-order conditions as the search's end.
 On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. resampled to
 ``COARSE_N`` elements keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
 of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
-steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 45 + 17 steps on 4 elements and
-5 to 7 on the mesh, where 1. and 2. on the mesh take ~47 + 27 (each a programme of up to ~700 unknowns at
-N = 32). Under the torque cost the coarse optimum is farther from the mesh's (J 438.2 against 435.4 at N = 8):
-the steps in x and T from it stop after ``FINE_STEPS``, and 23 steps at the coarse T (merit test) and 6 in x
-and T follow, where 1. and 2. on the mesh take 183 + 53. The optimum reached is the one the steps on the mesh
+steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 21 + 15 steps on 4 elements and
+5 to 6 on the mesh, where 1. and 2. on the mesh take 25 + 22 (each a programme of up to ~700 unknowns at
+N = 32). Under the torque cost: 98 + 22 steps on 4 elements and 7 + 1 on the mesh, where 1. and 2. on the mesh
+take 86 + 37; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
+``FINE_STEPS`` and steps at the coarse T (merit test) and in x and T follow. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
 1e-10 to 5e-9 relative on the catch, measured). Its limit multipliers are then re-estimated by least squares
 (``_canonical_multipliers``: those of a limit held along whole elements are not unique, and the programme's pick
@@ -60,9 +60,9 @@ from hoc_cli.optimize.blas import one_thread
 from hoc_cli.planner import QUADRATURE_RTOL, resample
 
 MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the search takes over (the lbr7 catch
-# under the torque cost takes 55, zigzagging in T; the search after them costs minutes there)
+# under the torque cost takes 37; the search after them costs minutes there)
 COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
-# catch under the torque cost takes 183, 9 s, where ``plan_goals`` takes 50 s)
+# catch under the torque cost takes 86, where ``plan_goals`` takes 50 s)
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped

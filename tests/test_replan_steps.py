@@ -1,0 +1,105 @@
+"""The dense SQP's steps (``hoc_cli.goals.replan_qp``): its stopping test and what keeps far steps long.
+
+The lbr7 catch's steps from scratch at its guess T on 4 elements (``minimize_time_sqp``'s first phase on its coarse
+mesh): the step re-solved with the limit rows it would break and the second-order correction of a step the merit
+test or the violation floor would cut each save steps, to the same optimum.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import hoc_cli.goals.replan_qp as replan_qp
+from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
+from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
+from hoc_cli.goals.qp_step import QPStep
+from hoc_cli.goals.replan import replan
+from hoc_cli.goals.time_solver import goal_solver
+from tests._robots import ROBOTS
+
+
+@pytest.fixture(scope="module")
+def catch():
+    """(system, limits, goals, the initial trajectory at T = 0.35 s on 4 elements) of configs/catch_ball.yaml."""
+    lbr = load_robot(ROBOTS / "lbr7.urdf")
+    arm, limits = RobotSystem(lbr), JointLimits.from_model(lbr)
+    ball = link_goal(arm, "lbr_flange", position=[0.6725, -0.0375, 0.1246], velocity=[-0.15, 0.25, 3.13],
+                     acceleration=[0.0, 0.0, -9.81], match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
+                                    time=Free(0.3, 0.5, guess=0.35), N=4, limits=limits)
+    goals = problem.goals()
+    start = goal_solver(arm, "quintic", 4, problem.q0, problem.dq0, goals, limits=limits).initial(0.35)
+    return arm, limits, goals, start
+
+
+def _cold(catch, **kw):
+    arm, limits, goals, start = catch
+    return replan(arm, start, goals, limits=limits, fallback=False, max_steps=COLD_STEPS, violation_floor=COLD_FLOOR,
+                  merit=True, **kw)
+
+
+def test_rows_added_and_corrected_steps_save_steps_to_the_same_optimum(catch, monkeypatch):
+    best = _cold(catch)
+    assert best.converged and best.steps <= 30  # 21 measured
+    for name, off in (("EXPAND_ROUNDS", 0), ("CORRECTION", False)):
+        with monkeypatch.context() as m:
+            m.setattr(replan_qp, name, off)
+            other = _cold(catch)
+        assert other.converged and other.steps > best.steps + 10, name  # 41 and 56 steps measured
+        assert abs(other.plan.J - best.plan.J) <= 1e-11 * best.plan.J, name
+    assert best.plan.violation <= 1e-9
+
+
+def test_a_negative_model_decrease_is_not_an_optimum(catch, monkeypatch):
+    """A converged plan whose programme is made to report a decrease of −1 (a step that raises the model to reach
+    its rows) is not taken as converged by zero steps; with the true decrease it is."""
+    arm, limits, goals, _ = catch
+    done = _cold(catch)
+    again = replan(arm, done, goals, limits=limits, fallback=False, max_steps=0)
+    assert again.converged and again.steps == 0
+    solve = replan_qp.solve_qp
+
+    def raising(*args):
+        s = solve(*args)
+        return QPStep(d=s.d, nu=s.nu, mu=s.mu, decrease=-1.0)
+
+    monkeypatch.setattr(replan_qp, "solve_qp", raising)
+    assert not replan(arm, done, goals, limits=limits, fallback=False, max_steps=0).converged
+
+
+def test_a_newton_matrix_costs_few_factorisations(catch, monkeypatch):
+    """Where the goal rows' negative curvature makes the Newton matrix indefinite, no multiple of the cost's positive
+    semi-definite part is searched for it (the matrix without the negative part follows at once), and the weights'
+    search starts near the last one accepted."""
+    from hoc_cli.banded import BandedSPD
+
+    calls = []
+    assemble = BandedSPD.assemble.__func__
+
+    def counted(cls, *args, **kw):
+        calls.append(1)
+        return assemble(cls, *args, **kw)
+
+    monkeypatch.setattr(BandedSPD, "assemble", classmethod(counted))
+    r = _cold(catch)
+    assert r.converged and len(calls) <= 2 * r.steps + 5  # 1.6 per step measured, 5.3 with searches from scratch
+
+
+def test_the_weights_search_starts_where_asked():
+    from hoc_cli.errors import NumericalError
+    from hoc_cli.optimize.modify import gauss_newton_shift
+
+    H, GN = -np.eye(2)[None] * 50.0, np.eye(2)[None]  # H + μ·GN factors for μ > 50; the first weight is 0.05
+    tried = []
+
+    def factor(M):
+        tried.append(M[0, 0, 0])
+        if M[0, 0, 0] <= 0:
+            raise NumericalError("no")
+        return M
+
+    mu, _ = gauss_newton_shift(H, GN, factor)
+    assert mu == pytest.approx(500.0) and len(tried) == 5  # 0.05, 0.5, 5, 50, 500
+    tried.clear()
+    mu, _ = gauss_newton_shift(H, GN, factor, start=10.0)
+    assert mu == pytest.approx(100.0) and len(tried) == 2
