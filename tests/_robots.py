@@ -19,6 +19,25 @@ def task_configs() -> list[Path]:
     """The shipped task files, configs/*.yaml, without the ``hoc catch`` scenarios (a top-level ``throw:``)."""
     return sorted(p for p in (ROOT / "configs").glob("*.yaml")
                   if not any(line.startswith("throw:") for line in p.read_text(encoding="utf-8").splitlines()))
+
+#: the lbr7 catch of the real-time tests: gravity, the ball's start and velocity (m, m/s; URDF root frame)
+CATCH_G = np.array([0.0, 0.0, -9.81])
+CATCH_P0 = np.array([0.6725, -0.0375, 0.1246])
+CATCH_V0 = np.array([-0.15, 0.25, 3.13])
+
+
+def lbr7_catch_problem(N: int = 8):
+    """The lbr7's flange catching the ball (CATCH_P0, CATCH_V0), free T in [0.3, 0.5] s, N elements, URDF limits."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
+
+    lbr = load_robot(str(ROBOTS / "lbr7.urdf"))
+    arm = RobotSystem(lbr)
+    ball = link_goal(arm, "lbr_flange", position=CATCH_P0, velocity=CATCH_V0, acceleration=CATCH_G,
+                     match_velocity=True)
+    return OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
+                                 time=Free(0.3, 0.5, guess=0.35), N=N, limits=JointLimits.from_model(lbr))
+
+
 SHIPPED = ["pendulum.urdf", "two_link.urdf", "lbr7.urdf", "dual_arm.urdf"]
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 

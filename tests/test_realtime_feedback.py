@@ -3,27 +3,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _robots import CATCH_G, CATCH_P0, CATCH_V0, lbr7_catch_problem
 from scipy.optimize import minimize
 
 import hoc_cli
-from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.realtime.feedback import correct
 from hoc_cli.realtime.loop import flange_states
 from hoc_cli.realtime.replanner import CyclePlan
 
-G = np.array([0.0, 0.0, -9.81])
-P0 = np.array([0.6725, -0.0375, 0.1246])
-V0 = np.array([-0.15, 0.25, 3.13])
+G, P0, V0 = CATCH_G, CATCH_P0, CATCH_V0
 
 
 @pytest.fixture(scope="module")
 def catch():
-    lbr = load_robot("robots/lbr7.urdf")
-    arm = RobotSystem(lbr)
-    ball = link_goal(arm, "lbr_flange", position=P0, velocity=V0, acceleration=G, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
-                                    time=Free(0.3, 0.5, guess=0.35), N=8, limits=JointLimits.from_model(lbr))
+    problem = lbr7_catch_problem()
     plan = hoc_cli.solve(problem)
     res = plan.result
     return problem, CyclePlan(t0=0.0, mesh=res.mesh, coeffs=np.array(res.coeffs), J=float(res.J))

@@ -35,18 +35,13 @@ def test_a_replan_whose_programme_hits_its_cap_ends_not_converged(monkeypatch):
     """The lbr7 catch's steps at its guess T from the initial trajectory (``minimize_time_sqp``'s first phase,
     URDF limits binding): with the cap at one iteration the first programme needing more fails, and ``replan``
     returns its last point, not converged, instead of raising."""
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
     from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
     from hoc_cli.goals.replan import replan
     from hoc_cli.goals.time_solver import goal_solver
-    from tests._robots import ROBOTS
+    from tests._robots import lbr7_catch_problem
 
-    lbr = load_robot(ROBOTS / "lbr7.urdf")
-    arm, limits = RobotSystem(lbr), JointLimits.from_model(lbr)
-    ball = link_goal(arm, "lbr_flange", position=[0.6725, -0.0375, 0.1246], velocity=[-0.15, 0.25, 3.13],
-                     acceleration=[0.0, 0.0, -9.81], match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
-                                    time=Free(0.3, 0.5, guess=0.35), N=8, limits=limits)
+    problem = lbr7_catch_problem(N=8)
+    arm, limits = problem.system, problem.limits
     goals = problem.goals()
     start = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits).initial(0.35)
     monkeypatch.setattr(qp_step, "NNLS_ITER", 0)

@@ -10,23 +10,18 @@ import numpy as np
 import pytest
 
 import hoc_cli.goals.replan_qp as replan_qp
-from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
 from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
 from hoc_cli.goals.qp_step import QPStep
 from hoc_cli.goals.replan import replan
 from hoc_cli.goals.time_solver import goal_solver
-from tests._robots import ROBOTS
+from tests._robots import lbr7_catch_problem
 
 
 @pytest.fixture(scope="module")
 def catch():
     """(system, limits, goals, the initial trajectory at T = 0.35 s on 4 elements) of configs/catch_ball.yaml."""
-    lbr = load_robot(ROBOTS / "lbr7.urdf")
-    arm, limits = RobotSystem(lbr), JointLimits.from_model(lbr)
-    ball = link_goal(arm, "lbr_flange", position=[0.6725, -0.0375, 0.1246], velocity=[-0.15, 0.25, 3.13],
-                     acceleration=[0.0, 0.0, -9.81], match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
-                                    time=Free(0.3, 0.5, guess=0.35), N=4, limits=limits)
+    problem = lbr7_catch_problem(N=4)
+    arm, limits = problem.system, problem.limits
     goals = problem.goals()
     start = goal_solver(arm, "quintic", 4, problem.q0, problem.dq0, goals, limits=limits).initial(0.35)
     return arm, limits, goals, start
