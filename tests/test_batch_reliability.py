@@ -411,12 +411,12 @@ def test_sigint_while_the_local_cluster_starts_stops_it_and_leaves_nothing(tmp_p
 
 
 def test_sighup_while_multi_start_runs_on_a_local_cluster_exits_129_quietly_and_writes_nothing(tmp_path):
-    base = write_base(tmp_path, N=30)
+    base = write_base(tmp_path, N=60)  # serially far above PARALLEL_STARTS_MIN_S even on a fast idle machine
     # the resource tracker and 2 workers, then the starts running on them
-    returncode, err, kids = _signal_when_children(["plan", str(base), "-o", str(tmp_path / "p.csv"), "--starts", "300"],
+    returncode, err, kids = _signal_when_children(["plan", str(base), "-o", str(tmp_path / "p.csv"), "--starts", "1000"],
                                                   signal.SIGHUP, 3, after=4.0)
     lines = [line for line in err.splitlines() if line.strip()]
-    assert kids and returncode == 129 and lines[-1] == "hoc: error: hung up (SIGHUP); no output was changed"
+    assert kids and returncode == 129 and lines[-1] == "hoc: error: hung up (SIGHUP); no output was changed", err
     assert all(line.startswith("hoc: ") for line in lines), err  # no Dask log from the cluster's shutdown
     assert not _alive(kids) and not (tmp_path / "p.csv").exists()
 
@@ -445,7 +445,7 @@ def test_a_batch_that_outlasts_an_estimate_under_the_threshold_says_so_while_it_
     from hoc_cli.errors import HocWarning
     from hoc_cli.report.workload import BatchWorkload
 
-    monkeypatch.setattr("hoc_cli.report.workload.WARN_SECONDS", 0.5)  # the cluster's start alone is longer
+    monkeypatch.setattr("hoc_cli.report.workload.WARN_SECONDS", 1e-3)  # the cluster's start alone is longer
     monkeypatch.setattr("hoc_cli.report.workload.plan_workloads", lambda jobs: BatchWorkload(len(jobs), 0.0, 0.0))
     monkeypatch.setattr("hoc_cli.report.workload.CLUSTER_START_S", (0.0, 0.0))  # an estimate of nothing
     with pytest.warns(HocWarning) as caught:
