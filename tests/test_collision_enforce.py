@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from hoc_cli.cli import app
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
-from hoc_cli.collision.enforce import base_points
+from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
@@ -104,6 +104,9 @@ def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workd
     assert "no collision-free trajectory was found:" in s["message"] and "and wall overlap by" in s["message"]
     assert "hoc: infeasible: no collision-free trajectory" in r.stderr
     assert (workdir / "out.csv").exists()  # the closest attempt is written, as for infeasible limits
+    # declared once ρ has grown RHO_RANGE-fold with the violation stalled: the first outer iteration, then one per
+    # growth by RHO_GROWTH (not one more at 10·RHO_RANGE, where the inner solves crawl)
+    assert s["collision_enforce"]["outer_iterations"] <= 1 + RHO_RANGE_STEPS + 1
 
 
 def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_check(workdir):
