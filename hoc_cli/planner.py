@@ -210,13 +210,7 @@ class _Session:
             return self._limited(problem, x0, tol_level, max_outer)
         def inner(p, x, t):
             self.spent = self.totals["it"]
-            got = self._limited(p, x, t, max_outer)
-            er = got[2]
-            if er is not None and er.status != "infeasible":
-                # the constraint's next inner solve moves the plan a little: the limits' multipliers, converged
-                # or not, start its augmented Lagrangian (on this mesh; ``enforce`` drops another mesh's)
-                self.duals = er.duals()
-            return got
+            return self._limited(p, x, t, max_outer)
 
         res, J, er, self.outcome = self.constraint.solve(problem, x0, tol_level, inner, warm=self.constraint_warm,
                                                          full=full)
