@@ -16,7 +16,9 @@ Per problem: the minimum-jerk guess's clearance (hoc's distances at 1 kHz), ``ho
 in a subprocess stopped after ``--timeout`` s (status, J, wall time, certified lower bound), and the
 clearance of the written plan at 1 kHz by coal with Pinocchio's kinematics (the same capsules,
 coal's distances: independent of hoc's distance and certificate code; skipped without coal).
-Summary: success rate (converged and certified), plan time median and 98th percentile, how many
+Summary: success rate (converged and certified), plan time median and 98th percentile (the summary's
+``wall_time_s``; beside it the median CPU time of the ``hoc plan`` subprocess, start included: the
+machine is shared), how many
 successes come below the margin between samples by coal (0 when the certificate holds).
 
 ``--drake`` (benchmark-only: ``pip install drake``): beside it, Drake's KinematicTrajectoryOptimization
@@ -33,6 +35,7 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import json
+import resource
 import subprocess
 import sys
 import sysconfig
@@ -295,17 +298,21 @@ def run(doc: dict, workdir: Path, timeout: float) -> dict:
     out = workdir / "out.csv"
     out.unlink(missing_ok=True)
     hoc = Path(sys.executable).with_name("hoc")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     try:
         r = subprocess.run([str(hoc), "plan", str(path), "--json", "-q", "-o", str(out)], capture_output=True,
                            text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"guess_clearance": guess, "exit": None, "status": "timeout", "converged": False, "certified": False,
-                "J": None, "time_s": timeout, "lower_bound": None, "start": None, "success": False, "coal_1khz": None}
+                "J": None, "time_s": timeout, "cpu_s": None, "lower_bound": None, "start": None, "success": False, "coal_1khz": None}
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime  # the subprocess's, its start included
     s = json.loads(r.stdout)
     c = s["min_clearance"]
     ok = r.returncode == 0 and s["converged"] and c["certified"]
     return {"guess_clearance": guess, "exit": r.returncode, "status": s["status"], "converged": s["converged"],
-            "certified": c["certified"], "J": s["cost"], "time_s": s["wall_time_s"], "lower_bound": c["lower_bound"],
+            "certified": c["certified"], "J": s["cost"], "time_s": s["wall_time_s"], "cpu_s": cpu,
+            "lower_bound": c["lower_bound"],
             "start": (s.get("collision_enforce") or {}).get("start"), "success": ok,
             "coal_1khz": _coal_clearance(doc, _csv_q(out), workdir) if out.exists() else None}
 
@@ -369,7 +376,8 @@ def main() -> None:
     between = sum(c < MARGIN - 1e-9 for c in coal)
     print(f"hoc: success {len(ok)}/{n} = {100 * len(ok) / n:.0f} % (converged and certified); guesses in collision "
           f"{sum(r['guess_clearance'] < 0 for r in results)}/{n}; plan time median {np.median(times):.2f} s, 98th "
-          f"percentile {np.percentile(times, 98):.2f} s; of its successes below the margin between samples (coal, "
+          f"percentile {np.percentile(times, 98):.2f} s (CPU time of hoc plan, its start included: median "
+          f"{np.nanmedian([np.nan if r['cpu_s'] is None else r['cpu_s'] for r in results]):.2f} s); of its successes below the margin between samples (coal, "
           f"1 kHz) {between}, smallest clearance {min(coal) if coal else float('nan'):.5f} m (margin {MARGIN} m)")
     if args.drake:
         dr = [r["drake"] for r in results]

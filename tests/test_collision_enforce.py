@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from hoc_cli.cli import app
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
-from hoc_cli.collision.enforce import base_points
-from hoc_cli.collision.evaluate import distances
+from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
+from hoc_cli.collision.evaluate import distances, pair_gradient, row_contacts
 from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
 from hoc_cli.collision.scene import Obstacle, collision_scene
@@ -104,6 +104,9 @@ def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workd
     assert "no collision-free trajectory was found:" in s["message"] and "and wall overlap by" in s["message"]
     assert "hoc: infeasible: no collision-free trajectory" in r.stderr
     assert (workdir / "out.csv").exists()  # the closest attempt is written, as for infeasible limits
+    # declared once ρ has grown RHO_RANGE-fold with the violation stalled: the first outer iteration, then one per
+    # growth by RHO_GROWTH (not one more at 10·RHO_RANGE, where the inner solves crawl)
+    assert s["collision_enforce"]["outer_iterations"] <= 1 + RHO_RANGE_STEPS + 1
 
 
 def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_check(workdir):
@@ -144,6 +147,20 @@ def test_the_spheres_standing_for_a_capsule_keep_within_the_padding_of_its_dista
     assert spheres == 14  # 7 links against the ball and the box: spheres; the self pairs as they are
     self_pairs = scene.kind == 0
     assert np.array_equal(D[:, self_pairs], Ds[:, rows.kind == 0])
+
+
+def test_row_contacts_place_only_the_rows_primitives_and_agree_with_every_pair_at_every_sample(lbr7_scene):
+    model, scene = lbr7_scene
+    rows_scene = sphere_rows_scene(scene)
+    q = np.random.default_rng(5).uniform(-1.5, 1.5, (12, model.n))
+    for sc in (scene, rows_scene):  # self pairs (both ends on the robot) and obstacle pairs
+        every = distances(model, sc, q)                                           # (K, Q)
+        rng = np.random.default_rng(6)
+        rows, pairs = rng.integers(0, len(q), 300), rng.integers(0, sc.size, 300)
+        got = row_contacts(model, sc, q, rows, pairs)
+        assert np.array_equal(got.distance, every[rows, pairs])
+        d, _ = pair_gradient(model, sc, q, rows, pairs)
+        assert np.array_equal(d, every[rows, pairs])
 
 
 def _terms(model, scene, mesh, C, rho=50.0):

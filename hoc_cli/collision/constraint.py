@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import pair_contacts, pair_gradient, world_capsules
+from hoc_cli.collision.evaluate import pair_gradient, row_contacts
 from hoc_cli.collision.robot import RobotGeometry
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
@@ -92,8 +92,7 @@ def point_distances(model: RobotModel, scene: CollisionScene, q: np.ndarray, row
                     pairs: np.ndarray) -> np.ndarray:
     """Signed distances (M,) m of pair ``pairs[r]`` at configuration ``q[rows[r]]`` (q (K, n))."""
     used, inverse = np.unique(rows, return_inverse=True)
-    a, b = world_capsules(model, scene, q[used])
-    return pair_contacts(scene, a, b, inverse, pairs).distance
+    return row_contacts(model, scene, q[used], inverse, pairs).distance
 
 
 @dataclass(frozen=True, eq=False)

@@ -126,6 +126,44 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
                              for x, k in ((a, 1), (b, 1), (r, 0), (center, 1), (R, 2), (h, 1))))
         return Contact(*(getattr(flat, f).reshape(lead + getattr(flat, f).shape[1:])
                          for f in ("distance", "normal", "point_a", "point_b")))
+    M = lead[0]
+    a, b, center, h = (np.broadcast_to(x, (M, 3)) for x in (a, b, center, h))
+    R, r = np.broadcast_to(R, (M, 3, 3)), np.broadcast_to(r, (M,))
+    ball = np.flatnonzero(np.all(a == b, axis=-1))  # spheres (the rows standing for capsules against obstacles)
+    if ball.size == 0:
+        return _capsule_box_rows(a, b, r, center, R, h)
+    got, done = _sphere_box(a[ball], r[ball], center[ball], R[ball], h[ball])
+    out = Contact(distance=np.empty(M), normal=np.empty((M, 3)), point_a=np.empty((M, 3)), point_b=np.empty((M, 3)))
+    fields = ("distance", "normal", "point_a", "point_b")
+    for f, v in zip(fields, got):
+        getattr(out, f)[ball[done]] = v[done]
+    rest = np.setdiff1d(np.arange(M), ball[done])  # capsules, and spheres whose centre is in the box
+    if rest.size:
+        c = _capsule_box_rows(a[rest], b[rest], r[rest], center[rest], R[rest], h[rest])
+        for f in fields:
+            getattr(out, f)[rest] = getattr(c, f)
+    return out
+
+
+def _sphere_box(c, r, center, R, h):
+    """``capsule_box`` for spheres (a = b = c, (S, 3)) outside the box: ((distance, normal, point_a, point_b), done
+    (S,) bool); rows not done (the centre within rounding of the box) take the capsule path. The same operations as
+    the capsule path with a zero direction (its segment parameter is 0), so the same numbers.
+    """
+    p = np.matmul((c - center)[..., None, :], R)[..., 0, :]
+    h, _ = np.broadcast_arrays(h, p)
+    y = np.clip(p, -h, h)
+    n_box, gap = _unit(p - y, np.zeros(3))
+    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1) + np.linalg.norm(np.zeros_like(p), axis=-1)
+    done = ~(gap <= 1e-12 * scale)
+    normal = np.matmul(R, n_box[..., None])[..., 0]
+    point_a = np.matmul(R, p[..., None])[..., 0] + center - r[..., None] * normal
+    distance = gap - r
+    return (distance, normal, point_a, point_a - distance[..., None] * normal), done
+
+
+def _capsule_box_rows(a, b, r, center, R, h) -> Contact:
+    """``capsule_box`` on rows (M,) of arrays broadcast to (M, 3), (M,), (M, 3, 3)."""
     p = np.matmul((a - center)[..., None, :], R)[..., 0, :]  # segment start in the box frame (Rᵀ x)
     d = np.matmul((b - a)[..., None, :], R)[..., 0, :]       # segment direction in the box frame
     h, _ = np.broadcast_arrays(h, p)

@@ -63,6 +63,7 @@ RHO_START = 1.0       # ρ0 = RHO_START·max(|J|, 1e-6)/(T·c0²): the start's w
 MIN_VIOLATION = 0.01  # MIN_VIOLATION m) costs about J; cost units per m² per s
 RHO_GROWTH = 10.0
 RHO_RANGE = 1e4       # infeasible once ρ has grown this much and the violation no longer falls
+RHO_RANGE_STEPS = round(math.log(RHO_RANGE) / math.log(RHO_GROWTH))  # ... that is, after this many growths by RHO_GROWTH
 STALL_RATIO = 0.9
 RHO_MAX = 1e7         # ρ stays below RHO_MAX·ρ0 (the inner problems' conditioning)
 MAX_OUTER = 30
@@ -218,6 +219,7 @@ class CollisionConstraint:
         rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
         prev = math.inf
+        grown = 0  # how many times ρ has grown (counted: ρ0·10⁴ computed by products is not ρ0·1e4 exactly)
         refinements = 0
         tight = float(np.max(bound - D, initial=0.0)) <= VIOLATION_TOL  # the start is clear at the points already
         status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
@@ -269,10 +271,11 @@ class CollisionConstraint:
                     break
                 cert = None
                 if excess > 0.25 * prev and excess > INFLATION:  # within the inflation the multipliers finish
-                    if rho >= rho0 * RHO_RANGE and excess > STALL_RATIO * prev and excess > INFLATION:
+                    if grown >= RHO_RANGE_STEPS and excess > STALL_RATIO * prev and excess > INFLATION:
                         status = "infeasible"  # still in collision (beyond the margin) and no longer improving
                         break
                     rho = min(rho * RHO_GROWTH, rho0 * RHO_MAX)
+                    grown += 1
                 prev = min(prev, excess) if math.isfinite(prev) else excess
             else:
                 message = f"not clear after {max_outer} outer iterations"

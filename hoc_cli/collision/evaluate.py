@@ -40,24 +40,61 @@ def _primitive_frames(model: RobotModel, scene: CollisionScene) -> tuple[np.ndar
     return body, a, b
 
 
+def _poses(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Body poses T (K, n+1, 4, 4) at q (K, n), root frame; the last, the identity, stands for the fixed base."""
+    K, n = len(q), model.n
+    if not n:
+        return np.broadcast_to(np.eye(4), (K, 1, 4, 4))
+    poses = body_poses(model, q.T, model.order)
+    return np.stack([poses[j] for j in range(n)] + [np.broadcast_to(np.eye(4), (K, 4, 4))], axis=1)
+
+
 def _kinematics(model: RobotModel, scene: CollisionScene, q: np.ndarray, axes: bool = False):
     """(a, b) segment ends (K, P, 3) of every primitive at q (K, n), root frame; with ``axes`` also the joint axes
     Z and points on them O, each (K, 3, n): one pass of the body poses.
     """
-    K, n = len(q), model.n
+    n = model.n
     body, la, lb = _cached("frames", scene, lambda: _primitive_frames(model, scene))
-    poses = body_poses(model, q.T, model.order) if n else {}
-    if n:
-        T = np.stack([poses[j] for j in range(n)] + [np.broadcast_to(np.eye(4), (K, 4, 4))], axis=1)  # (K, n+1, 4, 4)
-    else:
-        T = np.broadcast_to(np.eye(4), (K, 1, 4, 4))
+    T = _poses(model, q)
     Tp = T[:, np.where(body < 0, n, body)]                               # (K, P, 4, 4); body −1: the root frame
     R, t = Tp[..., :3, :3], Tp[..., :3, 3]
     a = np.einsum("kpij,pj->kpi", R, la) + t
     b = np.einsum("kpij,pj->kpi", R, lb) + t
     if not axes:
         return a, b
-    return a, b, np.swapaxes(T[:, :n, :3, 2], 1, 2), np.swapaxes(T[:, :n, :3, 3], 1, 2)
+    return a, b, _axes(T, n)
+
+
+def _axes(T: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The joint axes Z and points on them O, each (K, 3, n), from body poses T (K, n+1, 4, 4)."""
+    return np.swapaxes(T[:, :n, :3, 2], 1, 2), np.swapaxes(T[:, :n, :3, 3], 1, 2)
+
+
+def _row_ends(model: RobotModel, scene: CollisionScene, T: np.ndarray, rows: np.ndarray,
+              prims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segment ends (a, b), each (M, 3), of primitive ``prims[m]`` at sample ``rows[m]`` from body poses T
+    (K, n+1, 4, 4): only the (sample, primitive) combinations the rows use.
+    """
+    body, la, lb = _cached("frames", scene, lambda: _primitive_frames(model, scene))
+    Tm = T[rows, np.where(body < 0, model.n, body)[prims]]               # (M, 4, 4)
+    R, t = Tm[:, :3, :3], Tm[:, :3, 3]
+    return np.einsum("mij,mj->mi", R, la[prims]) + t, np.einsum("mij,mj->mi", R, lb[prims]) + t
+
+
+def row_contacts(model: RobotModel, scene: CollisionScene, q, rows, pairs, axes: bool = False):
+    """The contact (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q (K, n)), as ``pair_contacts`` but
+    with the primitives placed only where the rows need them; with ``axes`` also (Z, O) of ``_axes``.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    T = _poses(model, q)
+    a1, b1 = _row_ends(model, scene, T, rows, scene.prim[pairs])
+    self_rows = scene.kind[pairs] == KIND_SELF
+    a2, b2 = np.zeros_like(a1), np.zeros_like(b1)
+    if self_rows.any():
+        a2[self_rows], b2[self_rows] = _row_ends(model, scene, T, rows[self_rows], scene.other[pairs[self_rows]])
+    c = _contacts(scene, a1, b1, a2, b2, pairs)
+    return (c, _axes(T, model.n)) if axes else c
 
 
 def world_capsules(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
@@ -88,9 +125,25 @@ def pair_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.
     out = Contact(distance=np.empty(M), normal=np.empty((M, 3)), point_a=np.empty((M, 3)), point_b=np.empty((M, 3)))
     if M == 0:
         return out
+    prim, other = scene.prim[pairs], scene.other[pairs]
+    self_rows = scene.kind[pairs] == KIND_SELF
+    a2, b2 = np.zeros((M, 3)), np.zeros((M, 3))
+    a2[self_rows], b2[self_rows] = a[rows[self_rows], other[self_rows]], b[rows[self_rows], other[self_rows]]
+    return _contacts(scene, a[rows, prim], b[rows, prim], a2, b2, pairs)
+
+
+def _contacts(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndarray, b2: np.ndarray,
+              pairs: np.ndarray) -> Contact:
+    """The contact (M,) of pair ``pairs[m]``, its robot primitive's ends a1, b1 (M, 3), the other primitive's
+    a2, b2 (M, 3) (read on self pairs only), root frame.
+    """
+    M = pairs.size
+    out = Contact(distance=np.empty(M), normal=np.empty((M, 3)), point_a=np.empty((M, 3)), point_b=np.empty((M, 3)))
+    if M == 0:
+        return out
     robot = scene.robot
     prim, other, kind = scene.prim[pairs], scene.other[pairs], scene.kind[pairs]
-    a1, b1, r1 = a[rows, prim], b[rows, prim], robot.radius[prim]
+    r1 = robot.radius[prim]
     obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
     for k in (KIND_SELF, KIND_CAPSULE, KIND_BOX, KIND_HALFSPACE):
         m = kind == k
@@ -98,7 +151,7 @@ def pair_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.
             continue
         o = other[m]
         if k == KIND_SELF:
-            c = capsule_capsule(a1[m], b1[m], r1[m], a[rows[m], o], b[rows[m], o], robot.radius[o])
+            c = capsule_capsule(a1[m], b1[m], r1[m], a2[m], b2[m], robot.radius[o])
         elif k == KIND_CAPSULE:
             c = capsule_capsule(a1[m], b1[m], r1[m], obs["ca"][o], obs["cb"][o], obs["cr"][o])
         elif k == KIND_BOX:
@@ -156,8 +209,7 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
         a, b = world_capsules(model, scene, q)
         c = pair_contacts(scene, a, b, rows, pairs)
         return c.distance, np.zeros((rows.size, n))
-    a, b, Z, O = _kinematics(model, scene, q, axes=True)             # Z, O (K, 3, n): joint axes, points on them
-    c = pair_contacts(scene, a, b, rows, pairs)
+    c, (Z, O) = row_contacts(model, scene, q, rows, pairs, axes=True)  # Z, O (K, 3, n): joint axes, points on them
     robot = scene.robot
     grad = np.zeros((rows.size, n))
     if rows.size == 0:
