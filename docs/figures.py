@@ -387,7 +387,7 @@ def _plot_catch_loop() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hoc_cli.commands.common import load_model
+    from hoc_cli.io.robot import load_model
     from hoc_cli.io.scenario import load_scenario
     from hoc_cli.io.task import resolve
     from hoc_cli.io.task.problem import problem_from_task, task_limits
