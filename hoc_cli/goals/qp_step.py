@@ -121,3 +121,31 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
     decrease = -float(g @ d + 0.5 * y @ y)
     return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
+
+
+def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
+                    rows: np.ndarray) -> QPStep:
+    """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then again with every left-out
+    row the step breaks (A d > b) added, until it breaks none: the step of ``solve_qp`` over all k rows (H is
+    positive definite, so the programme's minimiser is unique; a left-out row the minimiser over the others keeps
+    changes nothing). The least-distance programme's cost grows with its rows, not its active ones, so a mask
+    holding the active rows of a programme nearby (the last one, before rows were added) makes the step cheaper.
+    μ (k,) is zero at the rows left out; rows that are linearly dependent may share their multipliers differently
+    from ``solve_qp``'s (they are not unique there).
+
+    Parameters as ``solve_qp``'s, with ``rows`` (k,) bool.
+    """
+    rows = np.asarray(rows, bool).copy()
+    while True:
+        step = solve_qp(U, g, E, e, A[rows], b[rows])
+        out = ~rows
+        if not out.any():
+            break
+        Ad = A[out] @ step.d
+        broken = Ad - b[out] > 1e-12 * (np.abs(A[out]) @ np.abs(step.d) + np.abs(b[out]) + 1.0)
+        if not broken.any():
+            break
+        rows[np.flatnonzero(out)[broken]] = True
+    mu = np.zeros(A.shape[0])
+    mu[rows] = step.mu
+    return QPStep(d=step.d, nu=step.nu, mu=mu, decrease=step.decrease)

@@ -46,7 +46,7 @@ from hoc_cli.free_time import rescale
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
-from hoc_cli.goals.qp_step import bordered_factor, solve_qp
+from hoc_cli.goals.qp_step import QPStep, bordered_factor, solve_qp, solve_qp_within
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, point_problem, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
@@ -258,7 +258,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
                 rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
             try:
-                step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
+                if quick and kept is not None:  # the last programme's active rows and the rows added first
+                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]))
+                else:
+                    step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
             except NumericalError as exc:
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"qp step {steps}: {exc}")
@@ -333,6 +336,23 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
+
+
+def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int) -> np.ndarray:
+    """The rows (k,) bool of the programme over ``cand`` (then k − cand.size rows of T's bounds, always kept) to
+    solve first after the programme over ``last_cand`` (a subset of ``cand``) gave the step ``last``: its rows
+    with μ > 0 and the rows ``cand`` added (``solve_qp_within`` then adds any other row the step breaks).
+    """
+    def keys(a: ActiveRows) -> np.ndarray:  # one integer per row (kind, element, row, joint, side)
+        return np.ravel_multi_index((a.kind, a.elem, a.row, a.joint, (a.side > 0).astype(int)), dims)
+
+    dims = tuple(int(max(getattr(cand, f).max(initial=0), getattr(last_cand, f).max(initial=0))) + 1
+                 for f in ("kind", "elem", "row", "joint")) + (2,)
+    old = keys(last_cand)
+    dropped = old[last.mu[:last_cand.size] <= 0.0]
+    out = np.ones(k, bool)
+    out[:cand.size] = ~np.isin(keys(cand), dropped)
+    return out
 
 
 def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask):
