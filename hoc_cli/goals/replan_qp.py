@@ -320,7 +320,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
         corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
                                                                 violation, floor, accept, U, grad, E, A, rhs_A, cand,
-                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at)
+                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick)
         if corrected is not None:
             trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
         else:
@@ -373,7 +373,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
-                    cg, lam_goal, at_full):
+                    cg, lam_goal, at_full, quick: bool = False):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -381,7 +381,8 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     The correction (Nocedal & Wright, Numerical Optimization, §18.3, the Maratos effect's remedy) re-solves the step's
     programme (the same factor ``U``, gradient and rows) with the goal rows' and candidate limit rows' values at the
     trial point: E d' = E d − c(x + d), A d' ≤ A d − g(x + d). Where the rows curve (the flange's pose along a long
-    step) it brings the step back onto them at the cost of one more programme and one more evaluation.
+    step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
+    (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -401,7 +402,12 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     rhs_A2 = rhs_A.copy()
     rhs_A2[:k] = A[:k] @ step.d - g1
     try:
-        step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2)
+        if quick:  # the step's active rows (and T's bounds) first: the same step, as in ``qp_steps``
+            held_rows = step.mu > 0.0
+            held_rows[k:] = True
+            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows)
+        else:
+            step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2)
     except NumericalError:
         return None
     dx2, dT2 = step2.d[:P], (float(step2.d[P]) if free is not None else 0.0)
