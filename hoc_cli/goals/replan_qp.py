@@ -18,6 +18,9 @@ next working set (their μ·g_A enters ℒ's T derivatives). Since every step's 
 own programme, a change of the active limits costs no extra rounds. A step that would break a Bernstein row
 outside the programme (g > 0 at the step's end; far from the optimum, steps are long) is re-solved with those rows
 added (at most ``EXPAND_ROUNDS`` times): the rows are linear in x, so at a fixed T the step then keeps every one.
+On the real-time path (``quick``) that programme, whose least-distance solve costs in proportion to its rows, not
+its active ones, is solved over the last programme's active rows and the rows added first, then with any left-out
+row its step breaks (``solve_qp_within``): the same step (multipliers of dependent rows may be shared otherwise).
 When the goal rows' violation floor (the step may not raise the violation above max(violation, 1e-3)) or the
 merit test would cut the full step, its second-order correction is tried first (``_corrected_step``); when that
 too is cut, the step is halved (``damped_trial``). On the lbr7 catch's steps from scratch (4 elements) the two
