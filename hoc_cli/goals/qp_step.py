@@ -24,6 +24,7 @@ from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
 
 from hoc_cli.errors import NumericalError
 
+SHRINK_ROUNDS = 2  # solve_qp_within's first rounds drop the inactive rows (then the rows only grow: it ends)
 NNLS_ITER = 50  # Lawson-Hanson iterations per row of the least-distance programme before it is given up
 
 
@@ -121,3 +122,36 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
     decrease = -float(g @ d + 0.5 * y @ y)
     return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
+
+
+def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
+                    rows: np.ndarray) -> QPStep:
+    """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then again with every left-out
+    row the step breaks (A d > b) added, until it breaks none: the step of ``solve_qp`` over all k rows (H is
+    positive definite, so the programme's minimiser is unique; a left-out row the minimiser over the others keeps
+    changes nothing; the first ``SHRINK_ROUNDS`` rounds keep only the active rows of the last, then rows are only
+    added, so it ends). The least-distance programme's cost grows with its rows, not its active ones, so a mask
+    holding the active rows of a programme nearby (the last one, before rows were added) makes the step cheaper.
+    μ (k,) is zero at the rows left out; rows that are linearly dependent may share their multipliers differently
+    from ``solve_qp``'s (they are not unique there).
+
+    Parameters as ``solve_qp``'s, with ``rows`` (k,) bool.
+    """
+    rows = np.asarray(rows, bool).copy()
+    rounds = 0
+    while True:
+        step = solve_qp(U, g, E, e, A[rows], b[rows])
+        out = ~rows
+        if not out.any():
+            break
+        Ad = A[out] @ step.d
+        broken = Ad - b[out] > 1e-12 * (np.abs(A[out]) @ np.abs(step.d) + np.abs(b[out]) + 1.0)
+        if not broken.any():
+            break
+        if rounds < SHRINK_ROUNDS:  # the next programme over this one's active rows and the broken ones
+            rows[np.flatnonzero(rows)[step.mu <= 0.0]] = False
+        rows[np.flatnonzero(out)[broken]] = True
+        rounds += 1
+    mu = np.zeros(A.shape[0])
+    mu[rows] = step.mu
+    return QPStep(d=step.d, nu=step.nu, mu=mu, decrease=step.decrease)

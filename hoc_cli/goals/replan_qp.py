@@ -18,6 +18,9 @@ next working set (their μ·g_A enters ℒ's T derivatives). Since every step's 
 own programme, a change of the active limits costs no extra rounds. A step that would break a Bernstein row
 outside the programme (g > 0 at the step's end; far from the optimum, steps are long) is re-solved with those rows
 added (at most ``EXPAND_ROUNDS`` times): the rows are linear in x, so at a fixed T the step then keeps every one.
+On the real-time path (``quick``) that programme, whose least-distance solve costs in proportion to its rows, not
+its active ones, is solved over the last programme's active rows and the rows added first, then with any left-out
+row its step breaks (``solve_qp_within``): the same step (multipliers of dependent rows may be shared otherwise).
 When the goal rows' violation floor (the step may not raise the violation above max(violation, 1e-3)) or the
 merit test would cut the full step, its second-order correction is tried first (``_corrected_step``); when that
 too is cut, the step is halved (``damped_trial``). On the lbr7 catch's steps from scratch (4 elements) the two
@@ -46,7 +49,7 @@ from hoc_cli.free_time import rescale
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
-from hoc_cli.goals.qp_step import bordered_factor, solve_qp
+from hoc_cli.goals.qp_step import QPStep, bordered_factor, solve_qp, solve_qp_within
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, point_problem, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
@@ -258,7 +261,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
                 rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
             try:
-                step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
+                if quick and kept is not None:  # the last programme's active rows and the rows added first
+                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]))
+                else:
+                    step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
             except NumericalError as exc:
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"qp step {steps}: {exc}")
@@ -317,7 +323,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
         corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
                                                                 violation, floor, accept, U, grad, E, A, rhs_A, cand,
-                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at)
+                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick)
         if corrected is not None:
             trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
         else:
@@ -333,6 +339,23 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
+
+
+def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int) -> np.ndarray:
+    """The rows (k,) bool of the programme over ``cand`` (then k − cand.size rows of T's bounds, always kept) to
+    solve first after the programme over ``last_cand`` (a subset of ``cand``) gave the step ``last``: its rows
+    with μ > 0 and the rows ``cand`` added (``solve_qp_within`` then adds any other row the step breaks).
+    """
+    def keys(a: ActiveRows) -> np.ndarray:  # one integer per row (kind, element, row, joint, side)
+        return np.ravel_multi_index((a.kind, a.elem, a.row, a.joint, (a.side > 0).astype(int)), dims)
+
+    dims = tuple(int(max(getattr(cand, f).max(initial=0), getattr(last_cand, f).max(initial=0))) + 1
+                 for f in ("kind", "elem", "row", "joint")) + (2,)
+    old = keys(last_cand)
+    dropped = old[last.mu[:last_cand.size] <= 0.0]
+    out = np.ones(k, bool)
+    out[:cand.size] = ~np.isin(keys(cand), dropped)
+    return out
 
 
 def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask):
@@ -353,7 +376,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
-                    cg, lam_goal, at_full):
+                    cg, lam_goal, at_full, quick: bool = False):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -361,7 +384,8 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     The correction (Nocedal & Wright, Numerical Optimization, §18.3, the Maratos effect's remedy) re-solves the step's
     programme (the same factor ``U``, gradient and rows) with the goal rows' and candidate limit rows' values at the
     trial point: E d' = E d − c(x + d), A d' ≤ A d − g(x + d). Where the rows curve (the flange's pose along a long
-    step) it brings the step back onto them at the cost of one more programme and one more evaluation.
+    step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
+    (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -381,7 +405,12 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     rhs_A2 = rhs_A.copy()
     rhs_A2[:k] = A[:k] @ step.d - g1
     try:
-        step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2)
+        if quick:  # the step's active rows (and T's bounds) first: the same step, as in ``qp_steps``
+            held_rows = step.mu > 0.0
+            held_rows[k:] = True
+            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows)
+        else:
+            step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2)
     except NumericalError:
         return None
     dx2, dT2 = step2.d[:P], (float(step2.d[P]) if free is not None else 0.0)
