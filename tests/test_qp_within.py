@@ -10,14 +10,13 @@ import inspect
 
 import numpy as np
 import pytest
+from _robots import CATCH_G, CATCH_P0, CATCH_V0, lbr7_catch_problem
 
 import hoc_cli.goals.replan_qp as replan_qp
 from hoc_cli.goals.qp_step import solve_qp, solve_qp_within, upper_factor
 from hoc_cli.realtime import Replanner, Target
 
-G = np.array([0.0, 0.0, -9.81])
-P0 = np.array([0.6725, -0.0375, 0.1246])  # configs/catch_ball.yaml's target
-V0 = np.array([-0.15, 0.25, 3.13])
+G, P0, V0 = CATCH_G, CATCH_P0, CATCH_V0  # configs/catch_ball.yaml's target
 
 
 def _programme(seed: int, P: int = 30, r: int = 4, k: int = 120):
@@ -56,14 +55,9 @@ def test_a_real_time_updates_reduced_programmes_take_the_full_programmes_steps(m
     """The catch on 8 elements, its target moved 4 cm: the updates' steps break rows outside their candidates and
     one is corrected (the second-order correction's programme over the step's active rows first).
     """
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot, solve
+    from hoc_cli import solve
 
-    lbr = load_robot("robots/lbr7.urdf")
-    arm = RobotSystem(lbr)
-    limits = JointLimits.from_model(lbr)
-    ball = link_goal(arm, "lbr_flange", position=P0, velocity=V0, acceleration=G, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
-                                    time=Free(0.3, 0.5, guess=0.35), N=8, limits=limits)
+    problem = lbr7_catch_problem()
     seen = []
 
     def spy(U, g, E, e, A, b, rows):

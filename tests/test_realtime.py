@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _robots import lbr7_catch_problem
 
 import hoc_cli
-from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.problem import Layout
@@ -65,12 +65,7 @@ def test_a_prior_alone_is_the_estimate_and_it_is_not_ready_without_one():
 
 @pytest.fixture(scope="module")
 def catch():
-    lbr = load_robot("robots/lbr7.urdf")
-    arm = RobotSystem(lbr)
-    limits = JointLimits.from_model(lbr)
-    ball = link_goal(arm, "lbr_flange", position=P0, velocity=V0, acceleration=G, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0], dq0=np.zeros(7), link_goal=ball,
-                                    time=Free(0.3, 0.5, guess=0.35), N=8, limits=limits)
+    problem = lbr7_catch_problem()
     return problem, hoc_cli.solve(problem)
 
 
