@@ -357,8 +357,9 @@ def goals() -> str:
         if catch:
             gap = _plot_catch(tmp / "catch.csv", s["T"])
     shutil.rmtree(tmp)
-    rows += ["", f"The catch's flange (solid) and the ball (dashed) meet at T, {gap:.1e} m apart in the written plan:",
-             "", f"![the flange's and the ball's x, y, z against t; they meet at T](docs/{CATCH_PLOT.name})"]
+    rows += ["", f"The catch's flange and the ball meet at T, {gap:.1e} m apart in the written plan "
+             f"([plot](docs/{CATCH_PLOT.name})). After the target moves, `hoc plan --init old.mcap` re-solves in a few "
+             "Newton steps; the MCAP's `/goal_marker` shows the target in Foxglove."]
     return "\n".join(rows)
 
 
