@@ -36,13 +36,18 @@ def lbr7():
     return model, robot_geometry(model, {}, shapes)
 
 
-def test_a_thin_plate_crossed_between_samples_is_caught(lbr7):
-    model, robot = lbr7
+def base_swing() -> tuple[HermiteMesh, np.ndarray]:
+    """The lbr7's base joint from −1.2 to 1.2 rad at rest to rest in 1 s, on 2 quintic elements."""
     q0 = np.array([-1.2, 0.8, 0, -0.6, 0, 0.5, 0])
     q1 = q0.copy()
     q1[0] = 1.2
     mesh = HermiteMesh("quintic", 1.0, 2)
-    C = rest_to_rest(mesh, q0, q1)
+    return mesh, rest_to_rest(mesh, q0, q1)
+
+
+def test_a_thin_plate_crossed_between_samples_is_caught(lbr7):
+    model, robot = lbr7
+    mesh, C = base_swing()
     # a 2 mm plate across the wrist's path at t = 0.45 s, between two 10 Hz samples
     poses = link_poses(model, mesh.evaluate(C, np.array([0.449, 0.45, 0.451])))["lbr_link_7"][:, :3, 3]
     normal = (poses[2] - poses[0]) / np.linalg.norm(poses[2] - poses[0])
@@ -66,11 +71,7 @@ def test_a_thin_plate_crossed_between_samples_is_caught(lbr7):
 
 def test_a_clear_motion_is_certified(lbr7):
     model, robot = lbr7
-    q0 = np.array([-1.2, 0.8, 0, -0.6, 0, 0.5, 0])
-    q1 = q0.copy()
-    q1[0] = 1.2
-    mesh = HermiteMesh("quintic", 1.0, 2)
-    C = rest_to_rest(mesh, q0, q1)
+    mesh, C = base_swing()
     wall = Obstacle("wall", Box(np.array([0.0, 0.0, 1.6]), np.eye(3), np.array([1.0, 1.0, 0.05])))
     floor = Obstacle("floor", HalfSpace(np.array([0, 0, -0.05]), np.array([0, 0, 1.0])))
     scene = collision_scene(model, robot, [wall, floor], margin=0.01)

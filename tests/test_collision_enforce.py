@@ -3,16 +3,12 @@ J against the margin, an infeasible task, and goal tasks refused."""
 from __future__ import annotations
 
 import csv
-import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-from typer.testing import CliRunner
+from _collision_tasks import plan, task_folder
 
-from hoc_cli.cli import app
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
 from hoc_cli.collision.evaluate import distances, pair_gradient, row_contacts
@@ -38,18 +34,7 @@ def two_link(obstacles: list, margin: float = 0.01, N: int = 8) -> dict:
 
 @pytest.fixture
 def workdir(tmp_path, monkeypatch):
-    (tmp_path / "configs").mkdir()
-    (tmp_path / "robots").mkdir()
-    for urdf in ("two_link.urdf", "lbr7.urdf"):
-        shutil.copy(ROOT / "robots" / urdf, tmp_path / "robots" / urdf)
-    monkeypatch.chdir(tmp_path / "configs")
-    return tmp_path / "configs"
-
-
-def plan(d: Path, doc: dict, *extra: str):
-    (d / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    r = CliRunner().invoke(app, ["plan", "task.yaml", "--json", "-o", "out.csv", *extra])
-    return r, (json.loads(r.stdout) if r.stdout.strip().startswith("{") else None)
+    return task_folder(tmp_path, monkeypatch, ("two_link.urdf", "lbr7.urdf"))
 
 
 def _coal_two_link(csv_path: Path, obstacle: dict) -> float:

@@ -3,13 +3,12 @@ x0/x1 in collision refused (exit 2), ``--collision check|off``, and bad names on
 from __future__ import annotations
 
 import csv
-import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from _collision_tasks import plan, task_folder
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
@@ -21,17 +20,7 @@ TABLE = ROOT / "configs" / "lbr7_table.yaml"
 
 @pytest.fixture
 def workdir(tmp_path, monkeypatch):
-    (tmp_path / "configs").mkdir()
-    (tmp_path / "robots").mkdir()
-    shutil.copy(ROOT / "robots" / "lbr7.urdf", tmp_path / "robots" / "lbr7.urdf")
-    monkeypatch.chdir(tmp_path / "configs")
-    return tmp_path / "configs"
-
-
-def plan(d: Path, doc: dict, *extra: str):
-    (d / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    r = CliRunner().invoke(app, ["plan", "task.yaml", "--json", "-o", "out.csv", *extra])
-    return r, (json.loads(r.stdout) if r.stdout.strip().startswith("{") else None)
+    return task_folder(tmp_path, monkeypatch, ("lbr7.urdf",))
 
 
 def table_task() -> dict:
