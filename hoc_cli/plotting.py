@@ -11,6 +11,10 @@ Two layouts:
   ±1 (dashed) is every limit: q as 2(q − mid)/(upper − lower), q̇ / velocity limit, u / effort
   limit. Joints without that limit are left out of that panel, and the panel says which.
 
+A plan checked for collisions (an MCAP with /collision_clearance) adds a bottom panel across the figure:
+the smallest signed distance of any checked pair against t [m], with the task's margin (black, dashed)
+and the region below zero shaded.
+
 Several trajectories (e.g. two plans of the same task) are overlaid, one colour (per-joint layout)
 or line style (normalised layout) per trajectory, with a legend naming each. When no limits are
 known (a CSV carries no URDF) the figure says so.
@@ -32,6 +36,8 @@ LIMIT_STYLE = dict(color="tab:red", ls="--", lw=1.0, alpha=0.9)
 FILE_STYLES = ("-", "--", ":", "-.")
 #: one colour per overlaid file in the per-joint layout: matplotlib's cycle without red (the limits' colour)
 FILE_COLOURS = ("C0", "C1", "C2", "C4", "C5", "C6", "C8", "C9")
+CLEARANCE_HEIGHT = 2.2  # inches of the clearance panel
+
 NO_LIMITS_NOTE = "limits unknown: a CSV carries no URDF (give --robot ROBOT.urdf to draw them)"
 
 
@@ -142,11 +148,15 @@ def plot_trajectories(
     normalized: bool = False,
     title: str = "",
     dpi: int = 110,
+    clearance: Mapping[str, np.ndarray] | None = None,
+    margin: float | None = None,
 ) -> None:
     """Draw one or more trajectories (label, Trajectory with t (K,) s; q, dq, u (K, n)) and save to ``out``.
 
     Every trajectory must have the same joints. ``limits`` maps joint → JointLimits (missing:
-    unknown). ``limits_note`` is written under the title (e.g. why no limits are drawn). Raises
+    unknown). ``limits_note`` is written under the title (e.g. why no limits are drawn).
+    ``clearance`` maps a run's label to its smallest pair distance (K,) m at its samples: a panel of
+    those runs under the others, with ``margin`` (m) drawn when given. Raises
     MatplotlibMissing if matplotlib is not installed, ValueError for an unknown ``fmt`` or
     trajectories whose joints differ.
     """
@@ -160,8 +170,11 @@ def plot_trajectories(
             raise ValueError(f"{label} has joints {list(traj.joints)}, the first file {joints}")
     Figure, FigureCanvasAgg = _matplotlib()
     limits = dict(limits or {})
+    clearance = {label: np.asarray(d, dtype=float) for label, d in (clearance or {}).items()}
     draw = _draw_normalised if normalized else _draw_per_joint
-    fig = draw(Figure, runs, joints, limits)
+    fig = draw(Figure, runs, joints, limits, extra=bool(clearance))
+    if clearance:
+        _draw_clearance(fig.axes[-1], runs, clearance, margin)  # the extra axis is the last one made
     FigureCanvasAgg(fig)
     heading = title
     if limits_note:
@@ -175,11 +188,49 @@ def plot_trajectories(
     fig.savefig(out, format=fmt, dpi=dpi, metadata={"Software": "hoc"} if fmt == "png" else None)
 
 
-def _draw_per_joint(Figure, runs, joints, limits):
+def _grid(fig, rows: int, cols: int, heights: list[float], extra: bool):
+    """Axes (rows, cols) sharing x, and (``extra``) one more axis across the bottom (else None)."""
+    grid = fig.add_gridspec(rows + extra, cols, height_ratios=heights + ([CLEARANCE_HEIGHT] if extra else []))
+    axes = np.empty((rows, cols), dtype=object)
+    for i in range(rows):
+        for c in range(cols):
+            axes[i, c] = fig.add_subplot(grid[i, c], sharex=axes[0, 0] if (i or c) else None)
+    below = fig.add_subplot(grid[rows, :], sharex=axes[0, 0]) if extra else None
+    for ax in axes[:-1].ravel():
+        ax.tick_params(labelbottom=False)
+    return axes, below
+
+
+def _draw_clearance(ax, runs, clearance: Mapping[str, np.ndarray], margin: float | None) -> None:
+    """The clearance panel: each run's smallest pair distance [m] against t, the margin, the region below 0."""
+    shown = []
+    for r, (label, traj) in enumerate(runs):
+        if label in clearance:
+            d = clearance[label]
+            ax.plot(traj.t, d, color=FILE_COLOURS[r % len(FILE_COLOURS)], lw=1.3, label=label)
+            shown.append(d)
+    d = np.concatenate(shown)
+    lo, hi = min(0.0, float(d.min())), max(float(d.max()), margin or 0.0)
+    if margin is not None:
+        ax.axhline(margin, color="k", ls="--", lw=0.9, label=f"margin {margin:g} m")
+    ax.axhspan(-1.0e3, 0.0, color="tab:red", alpha=0.08, lw=0)  # in collision (clipped by the view below)
+    pad = 0.05 * (hi - lo or 1.0)
+    ax.set_ylim(lo - pad, hi + pad)
+    ax.set_ylabel("[m]", fontsize="x-small")
+    ax.set_title("clearance: smallest signed distance of any checked pair", fontsize="medium")
+    ax.set_xlabel("t [s]")
+    ax.grid(True, alpha=0.3)
+    ax.tick_params(labelsize="x-small")
+    if margin is not None:
+        ax.legend(handles=[ax.lines[-1]], loc="upper right", fontsize="x-small")
+
+
+def _draw_per_joint(Figure, runs, joints, limits, extra: bool = False):
     n = len(joints)
     panels = quantities(runs, limits)
-    fig = Figure(figsize=(4.0 * len(panels), max(5.5, 1.2 + 1.5 * n)), layout="constrained")
-    axes = np.asarray(fig.subplots(n, len(panels), sharex=True, squeeze=False))
+    height = max(5.5, 1.2 + 1.5 * n)
+    fig = Figure(figsize=(4.0 * len(panels), height + (CLEARANCE_HEIGHT if extra else 0.0)), layout="constrained")
+    axes, _ = _grid(fig, n, len(panels), [1.0] * n, extra)
     many = len(runs) > 1
     for i, joint in enumerate(joints):
         L = limits.get(joint)
@@ -224,10 +275,11 @@ def _draw_per_joint(Figure, runs, joints, limits):
     return fig
 
 
-def _draw_normalised(Figure, runs, joints, limits):
+def _draw_normalised(Figure, runs, joints, limits, extra: bool = False):
     panels = quantities(runs, limits)
-    fig = Figure(figsize=(11.0, 3.0 * len(panels)), layout="constrained")
-    axes = fig.subplots(len(panels), 1, sharex=True)
+    fig = Figure(figsize=(11.0, 3.0 * len(panels) + (CLEARANCE_HEIGHT if extra else 0.0)), layout="constrained")
+    grid, _ = _grid(fig, len(panels), 1, [3.0] * len(panels), extra)
+    axes = grid[:, 0]
     for ax, (quantity, name, _) in zip(axes, panels):
         missing = []
         for i, joint in enumerate(joints):

@@ -30,6 +30,12 @@ def table_task() -> dict:
 def _coal_clearance(doc: dict, csv_path: Path) -> tuple[float, float]:
     """(min over samples of coal's distance over robot–obstacle pairs, the same over self pairs) with Pinocchio's
     kinematics and coal's exact shapes (the post as a cylinder), independent of hoc's collision code."""
+    obstacle, self_ = coal_per_sample(doc, csv_path)
+    return float(obstacle.min()), float(self_.min())
+
+
+def coal_per_sample(doc: dict, csv_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(coal's smallest robot–obstacle distance (K,) m at each sample of the CSV, the same over self pairs)."""
     coal = pytest.importorskip("coal")
     pin = pytest.importorskip("pinocchio")
     model = pin.buildModelFromUrdf(str(ROOT / "robots" / "lbr7.urdf"))
@@ -63,8 +69,8 @@ def _coal_clearance(doc: dict, csv_path: Path) -> tuple[float, float]:
         frozenset(("lbr_link_7", "lbr_flange")), frozenset(("lbr_link_6", "lbr_flange"))}
     req = coal.DistanceRequest()
     req.enable_signed_distance = True
-    worst_obstacle = worst_self = np.inf
-    for q in qs:
+    worst_obstacle, worst_self = np.full(len(qs), np.inf), np.full(len(qs), np.inf)
+    for k, q in enumerate(qs):
         pin.framesForwardKinematics(model, data, q)
         placed = []
         for frame, shape, local, link in prims:
@@ -78,14 +84,14 @@ def _coal_clearance(doc: dict, csv_path: Path) -> tuple[float, float]:
                     continue
                 res = coal.DistanceResult()
                 coal.distance(shape, T, oshape, OT, req, res)
-                worst_obstacle = min(worst_obstacle, res.min_distance)
+                worst_obstacle[k] = min(worst_obstacle[k], res.min_distance)
         for i, (l1, s1, T1) in enumerate(placed):
             for l2, s2, T2 in placed[i + 1:]:
                 if l1 == l2 or frozenset((l1, l2)) in adjacent | ignore:
                     continue
                 res = coal.DistanceResult()
                 coal.distance(s1, T1, s2, T2, req, res)
-                worst_self = min(worst_self, res.min_distance)
+                worst_self[k] = min(worst_self[k], res.min_distance)
     return worst_obstacle, worst_self
 
 
@@ -271,3 +277,31 @@ def test_the_mcap_carries_the_collision_scene_once_latched_and_only_when_checked
     spaces = {m.ns for m in decoded.markers}
     assert {"obstacle/table", "obstacle/post", "obstacle/floor"} <= spaces
     assert {f"robot/{link}" for link in doc["collision"]["robot"]} <= spaces
+
+
+def test_the_mcap_carries_the_clearance_at_every_sample_as_coal_measures_it(workdir):
+    """/collision_clearance is the smallest pair distance at each /joint_states sample: equal to coal's at every
+    sample (the post left out: hoc takes a cylinder as its capsule), absent without a check; ``hoc plot`` draws it."""
+    from hoc_cli.commands.plot import read_plot_inputs
+    from hoc_cli.io.mcap import read_plan
+
+    doc = table_task()
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["collision"]["obstacles"] = [o for o in doc["collision"]["obstacles"] if o["name"] != "post"]
+    (workdir / "task.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "--collision", "check", "-o", "plan.mcap", "-o", "plan.csv"])
+    assert r.exit_code == 0, r.stderr
+    clearance = read_plan(workdir / "plan.mcap").clearance
+    obstacle, self_ = coal_per_sample(doc, workdir / "plan.csv")
+    assert clearance.shape == obstacle.shape and clearance.size > 100
+    assert np.max(np.abs(clearance - np.minimum(obstacle, self_))) < 1e-9
+    traj, _, drawn, margin = read_plot_inputs(workdir / "plan.mcap")
+    assert drawn is not None and np.array_equal(drawn, clearance) and margin == 0.01
+    heights = []
+    for source in ("plan.mcap", "plan.csv"):  # the same joints and panels; the CSV has no clearance panel
+        r = CliRunner().invoke(app, ["plot", source, "-o", "fig.png"])
+        assert r.exit_code == 0, r.stderr
+        heights.append(int.from_bytes((workdir / "fig.png").read_bytes()[20:24], "big"))  # PNG IHDR height
+    assert heights[0] - heights[1] == round(2.2 * 110)  # CLEARANCE_HEIGHT inches at 110 dpi
+    r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "--collision", "off", "-o", "plan.mcap"])
+    assert r.exit_code == 0 and read_plan(workdir / "plan.mcap").clearance is None

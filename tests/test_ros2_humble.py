@@ -38,11 +38,13 @@ TASKS = {
     "plain": "",
     "goal": "x1: {link: tool, position: [1.0, 0.0, 1.2], dq: zero}\n",
     "locked": "joints: [shoulder, elbow]\nlocked: {wrist: 0.4, finger: 0.01}\n",
+    "collision": ("collision: {mode: check, robot: {tool: [{sphere: {radius: 0.05}}]},\n"
+                  "            obstacles: [{name: ball, sphere: {radius: 0.1}, position: [0.0, 1.0, 0.0]}]}\n"),
 }
-NON_FIXED = {"plain": ["shoulder", "elbow"], "goal": ["shoulder", "elbow"],
+NON_FIXED = {"plain": ["shoulder", "elbow"], "goal": ["shoulder", "elbow"], "collision": ["shoulder", "elbow"],
              "locked": ["shoulder", "elbow", "wrist", "finger", "finger_mirror"]}
 HELD = {"locked": {"wrist": 0.4, "finger": 0.01, "finger_mirror": -0.01 + 0.001}}
-STATIC_CHILDREN = {"plain": {"tool"}, "goal": {"tool"}, "locked": {"tool", "hand", "finger_l", "finger_r"}}
+STATIC_CHILDREN = {"plain": {"tool"}, "goal": {"tool"}, "collision": {"tool"}, "locked": {"tool", "hand", "finger_l", "finger_r"}}
 
 
 def test_every_schema_hoc_writes_is_the_humble_and_jazzy_definition_field_by_field():
@@ -92,7 +94,8 @@ def test_every_message_decodes_with_the_humble_and_jazzy_type_stores(plans, kind
     messages, _ = raw_messages(plans[kind])
     topics = {c.topic for _, c, _ in messages}
     expected = {"/robot_description", "/joint_states", "/joint_accelerations", "/joint_trajectory", "/tf", "/tf_static"}
-    assert topics == expected | ({"/goal_marker"} if kind == "goal" else set())
+    assert topics == expected | ({"/goal_marker"} if kind == "goal" else set()) | (
+        {"/collision_scene", "/collision_clearance"} if kind == "collision" else set())
     for store_name, store in STORES.items():
         for schema, channel, message in messages:
             msg = store.deserialize_cdr(message.data, schema.name)
@@ -110,7 +113,7 @@ def test_every_channel_offers_a_qos_profile_rosbags_parses(plans, kind):
     for channel in summary.channels.values():
         text = channel.metadata["offered_qos_profiles"]
         (qos,) = parse_qos(text)
-        latched = channel.topic in ("/robot_description", "/tf_static")
+        latched = channel.topic in ("/robot_description", "/tf_static", "/collision_scene")
         assert qos.reliability.name == "RELIABLE"
         assert qos.durability.name == ("TRANSIENT_LOCAL" if latched else "VOLATILE")
         assert qos.history.name == "KEEP_LAST" and qos.depth == (1 if latched else 10)

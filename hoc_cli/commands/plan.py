@@ -28,6 +28,7 @@ from hoc_cli.optimize import check_gradient
 from hoc_cli.problem import ControlProblem
 from hoc_cli.report.collision import (
     collision_markers,
+    sampled_clearance,
     warn_collisions,
 )
 from hoc_cli.report.jsonio import json_ready
@@ -130,7 +131,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     writing = f"writing {', '.join(t.label for t in targets)} ({traj.t.size} samples)" if targets else None
     with output_transaction(), beat.phase(writing):  # every output is replaced, or none
         summary["outputs"] = ready.write(targets, traj, summary, planned.goals,
-                                         scene=collision_markers(ready.collision, model, targets))
+                                         scene=collision_markers(ready.collision, model, targets),
+                                         clearance=sampled_clearance(ready.collision, model, traj.q, targets))
     warn_limit_violations(summary["limit_violations"])
     warn_collisions(summary.get("collisions") or [])
     if as_json:

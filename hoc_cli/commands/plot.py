@@ -1,5 +1,8 @@
 """``hoc plot FILE… -o fig.png``: q, q̇ and u per joint against t, from plans' CSV or MCAP files.
 
+An MCAP of a plan checked for collisions adds its clearance against t (/collision_clearance) in a panel
+under the joints', with the margin of its summary's ``min_clearance``.
+
 One row of panels per joint, each with that joint's limits and units (``--normalized``: every
 joint divided by its limits in three panels). Several files are overlaid with a legend naming
 each; they must have the same joints. The limits come from ``--robot ROBOT.urdf``, else from the
@@ -38,13 +41,16 @@ def run(files: Path | list[Path], output: Path, *, robot: Path | None = None, no
     except ImportError:
         raise HocError(INSTALL_HINT) from None
 
-    runs, limits = [], None
+    runs, limits, clearance, margins = [], None, {}, []
     for f in files:
-        traj, found = read_for_plot(f)
+        traj, found, clear, margin = read_plot_inputs(f)
         if runs and tuple(traj.joints) != tuple(runs[0][1].joints):
             raise InputFileError(f"has joints {list(traj.joints)}; {files[0]} has {list(runs[0][1].joints)} "
                                  "(expected files of the same robot and joints to overlay)", file=f)
         runs.append((_label(f, files), traj))
+        if clear is not None:
+            clearance[runs[-1][0]] = clear
+            margins += [margin] if margin is not None else []
         if limits is None and found:
             limits = found
     if robot is not None:
@@ -53,7 +59,8 @@ def run(files: Path | list[Path], output: Path, *, robot: Path | None = None, no
     title = " vs ".join(label for label, _ in runs)
     try:
         with atomic_output(output) as fh:
-            plot_trajectories(runs, fh, fmt=fmt, limits=limits, limits_note=note, normalized=normalized, title=title)
+            plot_trajectories(runs, fh, fmt=fmt, limits=limits, limits_note=note, normalized=normalized, title=title,
+                              clearance=clearance, margin=max(margins) if margins else None)
     except MatplotlibMissing:
         raise HocError(INSTALL_HINT) from None
     return EXIT_OK
@@ -79,6 +86,13 @@ def robot_limits(robot: Path, joints) -> dict:
 
 def read_for_plot(file: Path):
     """(Trajectory, {joint: JointLimits}) from a CSV or an MCAP plan; limits only from an MCAP's URDF."""
+    return read_plot_inputs(file)[:2]
+
+
+def read_plot_inputs(file: Path):
+    """(Trajectory, {joint: JointLimits}, clearance (K,) m or None, margin m or None) from a CSV or an MCAP plan;
+    limits only from an MCAP's URDF, the clearance from its /collision_clearance and the margin from its summary.
+    """
     from hoc_cli.io.csv import read_csv
     from hoc_cli.io.mcap import read_plan
 
@@ -88,8 +102,20 @@ def read_for_plot(file: Path):
         head = fh.read(len(MCAP_MAGIC))
     if head == MCAP_MAGIC or file.suffix.lower() == ".mcap":
         plan = read_plan(file)
-        return plan.trajectory, with_task_jerk(urdf_limits(plan.urdf_text, plan.joints, source=file), plan.task_text)
-    return read_csv(file), {}
+        limits = with_task_jerk(urdf_limits(plan.urdf_text, plan.joints, source=file), plan.task_text)
+        return plan.trajectory, limits, plan.clearance, _summary_margin(plan.metadata)
+    return read_csv(file), {}, None, None
+
+
+def _summary_margin(metadata: dict) -> float | None:
+    """The collision margin (m) in an MCAP's summary metadata (``min_clearance.margin``), None without it."""
+    import json
+
+    try:
+        margin = (json.loads(metadata.get("summary") or "{}").get("min_clearance") or {}).get("margin")
+    except (ValueError, AttributeError):
+        return None
+    return float(margin) if isinstance(margin, (int, float)) else None
 
 
 def with_task_jerk(limits: dict, task_text: str) -> dict:

@@ -37,6 +37,9 @@ topic                       schema (ROS 2 ``ros2msg``)              content
                                                                     checked (QoS transient-local): the
                                                                     obstacles and the robot's collision
                                                                     primitives (``hoc_cli.io.mcap_obstacles``)
+``/collision_clearance``    ``std_msgs/msg/Float64``                per sample, when collisions are checked:
+                                                                    the smallest signed distance of any
+                                                                    checked pair [m] at that sample
 =========================== ======================================= ==================================
 
 Every channel carries ``offered_qos_profiles`` metadata as rosbag2 writes it (reliable; the
@@ -81,6 +84,7 @@ TOPIC_ROBOT_DESCRIPTION = "/robot_description"
 TOPIC_TF = "/tf"
 TOPIC_TF_STATIC = "/tf_static"
 TOPIC_COLLISION_SCENE = "/collision_scene"
+TOPIC_CLEARANCE = "/collision_clearance"
 LATCHED_TOPICS = (TOPIC_ROBOT_DESCRIPTION, TOPIC_TF_STATIC, TOPIC_COLLISION_SCENE)
 MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 METADATA_NAME = "hoc"
@@ -291,6 +295,7 @@ def write_mcap(
     markers: Sequence[MarkerTrack] = (),
     locked: Mapping[str, float] | None = None,
     scene: Mapping | None = None,
+    clearance: np.ndarray | None = None,
 ) -> None:
     """Write ``traj`` (t (K,) s; q, dq, ddq, u (K, n)) as an MCAP plan file to the binary stream ``fh``.
 
@@ -312,6 +317,8 @@ def write_mcap(
         missing ones follow :func:`held_joint_values`
     scene : a ``visualization_msgs/msg/MarkerArray`` message (``hoc_cli.io.mcap_obstacles``), written
         once at t = 0 on /collision_scene; None writes no such topic
+    clearance : (K,) m, the smallest signed distance of the checked pairs at each sample, on
+        /collision_clearance; None writes no such topic
 
     The stream is always finished (``finally``), so an exception leaves a truncated file that the
     caller discards (``atomic_output``).
@@ -336,6 +343,10 @@ def write_mcap(
     ns = time_ns(t)
     if K > 1 and not np.all(np.diff(ns) > 0):
         raise ValueError("two samples fall in the same nanosecond (output rate above 1 GHz)")
+    if clearance is not None:
+        clearance = np.asarray(clearance, dtype=float)
+        if clearance.shape != (K,):
+            raise ValueError(f"clearance has shape {clearance.shape}, expected ({K},)")
     hermite = hermite_json(traj) if traj.mesh is not None and traj.coeffs is not None else None
 
     try:
@@ -363,6 +374,7 @@ def write_mcap(
         topics += [(TOPIC_TF, "tf2_msgs/msg/TFMessage")] if moving else []
         topics += [(TOPIC_GOAL_MARKER, MARKER_TYPE)] if markers else []
         topics += [(TOPIC_COLLISION_SCENE, "visualization_msgs/msg/MarkerArray")] if scene is not None else []
+        topics += [(TOPIC_CLEARANCE, "std_msgs/msg/Float64")] if clearance is not None else []
         for topic, type_name in topics:
             writer.channel(topic, type_name)
         writer.write(TOPIC_ROBOT_DESCRIPTION, {"data": urdf_text}, 0)
@@ -386,6 +398,8 @@ def write_mcap(
                 writer.write(TOPIC_TF, _tf_message(moving, k, stamp), **when)
             for i, track in enumerate(markers):
                 writer.write(TOPIC_GOAL_MARKER, marker_message(track, i, k, stamp), **when)
+            if clearance is not None:
+                writer.write(TOPIC_CLEARANCE, {"data": float(clearance[k])}, **when)
         from hoc_cli import __version__
 
         writer.mcap.add_metadata(METADATA_NAME, {"hoc_version": __version__, "task": task_text,
@@ -415,6 +429,7 @@ class PlanFile:
     metadata: dict[str, str]
     trajectory: Trajectory
     attachments: dict[str, bytes] = field(default_factory=dict, repr=False)
+    clearance: np.ndarray | None = None  # (K,) m from /collision_clearance, at the trajectory's samples
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -447,9 +462,10 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
             for name in (ATTACHMENT_URDF, ATTACHMENT_TASK):
                 if name not in attachments:
                     raise InputFileError(f"not a hoc plan (no {name!r} attachment)", file=path)
-            states, accels = [], []
-            for _, channel, message, msg in reader.iter_decoded_messages(topics=[TOPIC_JOINT_STATES, TOPIC_ACCELERATIONS]):
-                (states if channel.topic == TOPIC_JOINT_STATES else accels).append((message.log_time, msg))
+            states, accels, clear = [], [], []
+            by_topic = {TOPIC_JOINT_STATES: states, TOPIC_ACCELERATIONS: accels, TOPIC_CLEARANCE: clear}
+            for _, channel, message, msg in reader.iter_decoded_messages(topics=list(by_topic)):
+                by_topic[channel.topic].append((message.log_time, msg))
     except InputFileError:
         raise
     except (InvalidMagic, EndOfFile):
@@ -467,7 +483,17 @@ def read_plan(path: str | os.PathLike) -> PlanFile:
         traj.mesh, traj.coeffs = _hermite(path, attachments[ATTACHMENT_HERMITE], traj.joints)
     return PlanFile(path=path, task_text=attachments[ATTACHMENT_TASK].decode("utf-8", "replace"),
                     urdf_text=attachments[ATTACHMENT_URDF].decode("utf-8", "replace"),
-                    metadata=metadata, trajectory=traj, attachments=attachments)
+                    metadata=metadata, trajectory=traj, attachments=attachments,
+                    clearance=_clearance(path, clear, states))
+
+
+def _clearance(path: Path, clear: list, states: list) -> np.ndarray | None:
+    """The /collision_clearance samples (K,) m, None without that topic; each must share a /joint_states time."""
+    if not clear:
+        return None
+    if [ns for ns, _ in clear] != [ns for ns, _ in states]:
+        raise InputFileError(f"damaged {TOPIC_CLEARANCE} messages (expected one per /joint_states sample)", file=path)
+    return np.array([float(m.data) for _, m in clear])
 
 
 def _first_line(exc: BaseException) -> str:

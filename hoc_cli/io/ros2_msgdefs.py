@@ -47,6 +47,7 @@ _MARKER_DEPS = (
 
 MSGDEFS: dict[str, str] = {
     "std_msgs/msg/String": "string data\n",
+    "std_msgs/msg/Float64": "float64 data\n",
     "sensor_msgs/msg/JointState": (
         "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n" + _HEADER
     ),

@@ -168,3 +168,15 @@ def collision_markers(scene: CollisionScene | None, model, targets) -> dict | No
     from hoc_cli.io.mcap_obstacles import scene_markers
 
     return scene_markers(scene, model.root_link)
+
+
+def sampled_clearance(scene: CollisionScene | None, model, q, targets) -> np.ndarray | None:
+    """The MCAP's /collision_clearance: the smallest signed distance (K,) m over the checked pairs at each sample
+    q (K, n), when collisions are checked and an MCAP is written; None otherwise.
+    """
+    if scene is None or not any(t.kind == "mcap" for t in targets):
+        return None
+    from hoc_cli.collision.evaluate import distances
+
+    d = distances(model, scene, np.asarray(q, dtype=float))
+    return d.min(axis=1) if d.shape[1] else np.full(d.shape[0], np.inf)

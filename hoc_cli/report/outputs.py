@@ -15,13 +15,14 @@ if TYPE_CHECKING:
 
 
 def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_text: str, task_text: str,
-                  metadata: dict[str, str], goals=None, scene=None) -> list[str]:
+                  metadata: dict[str, str], goals=None, scene=None, clearance=None) -> list[str]:
     """Write ``traj`` to every target; returns the labels written ("-" for stdout).
 
     ``metadata``: the MCAP's ``hoc`` metadata record beside ``task`` and ``joints`` (``summary_metadata``
     of a plan, the ``simulation`` summary of a replay).
     ``goals`` (``hoc_cli.goals.Goals`` or None): link goals shown on an MCAP's /goal_marker.
     ``scene`` (a MarkerArray message, ``hoc_cli.io.mcap_obstacles``, or None): an MCAP's /collision_scene.
+    ``clearance`` ((K,) m or None): an MCAP's /collision_clearance, the smallest pair distance at each sample.
     Each file goes to a temporary file beside its target and is renamed into place only when
     complete, so an interrupted or failed run leaves existing files as they were.
     """
@@ -44,7 +45,7 @@ def write_outputs(targets: list[OutputTarget], traj: Trajectory, *, model, urdf_
             with atomic_output(target.path) as fh:
                 write_mcap(fh, traj, urdf_text=urdf_text, task_text=task_text, metadata=metadata,
                            link_poses=lambda q: dynamics.link_poses(model, q), markers=_markers(goals, urdf_text, traj),
-                           locked=model.locked, scene=scene)
+                           locked=model.locked, scene=scene, clearance=clearance)
         written.append(target.label)
     return written
 

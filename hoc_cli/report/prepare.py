@@ -89,15 +89,18 @@ class Prepared:
 
         return sample_plan(self.system, reported.result, self.model.joint_names, self.task.rate)
 
-    def write(self, targets: list[OutputTarget], traj: Trajectory, summary: dict, goals, *, scene=None) -> list:
+    def write(self, targets: list[OutputTarget], traj: Trajectory, summary: dict, goals, *, scene=None,
+              clearance=None) -> list:
         """``write_outputs`` of ``traj`` with the task, its URDF and the reproducible part of ``summary``
-        (``scene``: the MCAP's collision markers, or None); the labels of the files written.
+        (``scene``, ``clearance``: the MCAP's collision markers and clearance samples, or None); the labels of
+        the files written.
         """
         from hoc_cli.report.outputs import summary_metadata, write_outputs
         from hoc_cli.report.summary import reproducible_summary
 
         return write_outputs(targets, traj, model=self.model, urdf_text=self.urdf_text, task_text=self.task.text,
-                             metadata=summary_metadata(reproducible_summary(summary)), goals=goals, scene=scene)
+                             metadata=summary_metadata(reproducible_summary(summary)), goals=goals, scene=scene,
+                             clearance=clearance)
 
 
 def prepare(task: Task, targets: list[OutputTarget], *, starts: int, explicit_collision: bool = False,
