@@ -80,3 +80,8 @@ def test_the_shipped_foxglove_layout_reads_topics_and_fields_that_hoc_writes(out
             topic, field = path["value"].split(".")
             assert topic in topics and hasattr(js, field.split("[")[0])
     assert {"3D!hoc", "Plot!q", "Plot!dq", "Plot!u"} <= set(panels)
+    from hoc_cli.io.mcap import TOPIC_CLEARANCE
+    from hoc_cli.io.ros2_msgdefs import MSGDEFS
+
+    assert [p["value"] for p in panels["Plot!clearance"]["paths"]] == [f"{TOPIC_CLEARANCE}.data"]
+    assert MSGDEFS["std_msgs/msg/Float64"] == "float64 data\n"  # the field the panel plots
