@@ -464,3 +464,29 @@ def test_a_batch_row_tells_the_truth_as_hoc_plan_does(tmp_path):
     by_T = {row["T"]: row for row in rows}
     assert by_T[0.05]["status"] == "infeasible" and "T >=" in by_T[0.05]["error"] and not by_T[0.05]["converged"]
     assert by_T[1.5]["status"] == "converged" and by_T[1.5]["error"] is None
+
+
+def test_a_worker_drops_only_its_lost_heartbeat_record_whose_text_is_dasks():
+    """The local cluster's workers (worker_init) drop the lost-heartbeat record of a closing cluster, which Dask
+    logs with its traceback after hoc's one line; any other record of theirs passes."""
+    import inspect
+    import io
+    import logging
+
+    import distributed.worker
+
+    from hoc_cli.batch import worker_init
+
+    assert worker_init.HEARTBEAT_LOST in inspect.getsource(distributed.worker.Worker.heartbeat)
+    logger, buf = logging.getLogger("distributed.worker"), io.StringIO()
+    handler = logging.StreamHandler(buf)
+    logger.addHandler(handler)
+    try:
+        try:
+            raise OSError("stream closed")
+        except OSError:
+            logger.error(worker_init.HEARTBEAT_LOST + ".", exc_info=True)
+            logger.error("Unexpected exception during heartbeat. Closing worker.", exc_info=True)
+    finally:
+        logger.removeHandler(handler)
+    assert worker_init.HEARTBEAT_LOST not in buf.getvalue() and "Unexpected exception" in buf.getvalue()

@@ -55,3 +55,36 @@ def test_a_signal_outside_a_block_is_handled_at_once():
             os.kill(os.getpid(), signal.SIGTERM)
             for _ in range(1000):
                 time.sleep(0.001)
+
+
+class _RaisesInDel:
+    """Sends SIGHUP to this process from ``__del__``: its handler runs there, where Python swallows exceptions
+    (as in Dask's garbage-collection callback, where ``hoc plan --starts`` once lost a SIGHUP and ran on)."""
+
+    def __del__(self):
+        signal.raise_signal(signal.SIGHUP)
+
+
+def test_a_signal_whose_exception_python_swallowed_is_raised_again_and_ends_the_run(capfd):
+    from hoc_cli.commands.common import EXIT_SIGHUP, run_guarded
+
+    ran_on = []
+
+    def body() -> int:
+        obj = _RaisesInDel()
+        del obj  # the handler raises Terminated inside __del__: swallowed, then redelivered
+        start = time.monotonic()
+        while time.monotonic() - start < 5.0:
+            time.sleep(0.001)
+        ran_on.append(True)  # reached only if the signal was lost
+        return 0
+
+    import sys
+
+    hook, handler = sys.unraisablehook, signal.getsignal(signal.SIGHUP)
+    start = time.monotonic()
+    assert run_guarded(body) == EXIT_SIGHUP
+    assert not ran_on and time.monotonic() - start < 2.0
+    err = capfd.readouterr().err
+    assert "hung up (SIGHUP)" in err and "Exception ignored" not in err and "Traceback" not in err
+    assert sys.unraisablehook is hook and signal.getsignal(signal.SIGHUP) is handler  # both restored

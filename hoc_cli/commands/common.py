@@ -32,6 +32,7 @@ from hoc_cli.report.files import (  # noqa: F401  (re-exported)
     atomic_output,
     output_transaction,
     parse_outputs,
+    redelivered_when_swallowed,
     refuse_inputs,
     signal_handlers,
     start_run,
@@ -48,8 +49,9 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
     """Run a command body and map failures to exit codes; tracebacks only with ``debug``.
 
     SIGTERM and SIGHUP raise :class:`Terminated` and SIGINT ``KeyboardInterrupt`` in the body, once:
-    a second signal while the first unwinds (removing temporary files) is ignored. ``quiet``
-    silences every warning.
+    a second signal while the first unwinds (removing temporary files) is ignored; one whose exception
+    Python swallowed (raised in a ``__del__`` or a garbage-collection callback) is raised again
+    (``redelivered_when_swallowed``). ``quiet`` silences every warning.
     """
     fired = False
 
@@ -62,10 +64,14 @@ def run_guarded(body: Callable[[], int], debug: bool = False, quiet: bool = Fals
             raise KeyboardInterrupt
         raise Terminated(signum)
 
+    def _lost(signum: int) -> None:
+        nonlocal fired
+        fired = False  # its exception never reached the body: the redelivered signal raises again
+
     handled = list(TERMINATING)
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when SIGINT is ignored
         handled.append(signal.SIGINT)
-    with signal_handlers(handled, _on_signal):  # not in the main thread (e.g. some test runners): none
+    with signal_handlers(handled, _on_signal), redelivered_when_swallowed(_lost):  # no handlers outside the main thread
         return _run_body(body, debug, quiet)
 
 

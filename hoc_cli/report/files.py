@@ -12,11 +12,13 @@ from __future__ import annotations
 import errno
 import os
 import signal
+import sys
 import tempfile
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from hoc_cli.errors import OutputError, OutputWriteError
 
@@ -276,6 +278,42 @@ def signal_handlers(signals, handler) -> Iterator[None]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+REDELIVER_S = 0.01  # s before a swallowed signal is delivered again
+
+
+@contextmanager
+def redelivered_when_swallowed(on_lost: Callable[[int], None]) -> Iterator[None]:
+    """A signal's exception (``KeyboardInterrupt``, :class:`Terminated`) that Python swallowed is delivered again.
+
+    A signal handler runs wherever the main thread is, also in a ``__del__`` method or a garbage-collection
+    or weakref callback (Dask's distributed registers one), where an exception cannot propagate: Python
+    passes it to ``sys.unraisablehook`` and goes on, and the run would ignore the signal. In the block,
+    such an exception is not printed; ``on_lost(signum)`` is called, and the signal is simulated for the
+    main thread ``REDELIVER_S`` later (from a timer thread, so not inside the hook), where its handler runs
+    again.
+    """
+    import _thread
+
+    previous = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        exc = unraisable.exc_value
+        if not isinstance(exc, (KeyboardInterrupt, Terminated)):
+            previous(unraisable)
+            return
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        on_lost(signum)
+        timer = threading.Timer(REDELIVER_S, _thread.interrupt_main, (signum,))
+        timer.daemon = True
+        timer.start()
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 def _discard(pending: list[tuple[str, Path]]) -> None:
