@@ -381,6 +381,25 @@ def catch_loop() -> str:
             f"({CATCH_LOOP_PLOT.name})")
 
 
+def catch_readme() -> str:
+    """README: ``hoc catch configs/catch_throw.yaml --json`` in a few numbers, and docs/catch_throw.png (the same
+    scenario: the ball, its estimate per cycle and the flange; the estimate's error; each update's CPU time)."""
+    tmp = scratch()
+    out = hoc(["catch", "configs/catch_throw.yaml", "--json"], tmp, check=False)
+    shutil.rmtree(tmp)
+    r = json.loads(out.stdout)
+    _plot_catch_loop()
+    wall, cpu = r["cycle_ms"], r["cpu_ms"]
+    return (f"`hoc catch configs/catch_throw.yaml` (σ = {1000 * r['noise']:g} mm, seed {r['seed']}): {r['status']}, the "
+            f"flange {1000 * r['position_error']:.2f} mm from the ball at T = {r['T']:.4f} s, relative speed "
+            f"{r['relative_speed']:.4f} m/s; {r['cycles']} updates ({r['steps']['total']} SQP steps, {r['feedback']} "
+            f"corrections, {r['overruns']} over the {r['budget_ms']:g} ms budget and discarded); compute per update: "
+            f"median {wall['median']:.1f} ms, p99 {wall['p99']:.1f} ms wall (CPU {cpu['median']:.1f}, "
+            f"{cpu['p99']:.1f} ms).\n\n"
+            f"![the ball, its estimates and the flange; the estimate's error and each update's CPU time]"
+            f"(docs/{CATCH_LOOP_PLOT.name})")
+
+
 def _plot_catch_loop() -> None:
     import matplotlib
     import numpy as np
@@ -569,6 +588,7 @@ SECTIONS: dict[str, Section] = {
     "bench-accuracy": Section("docs/accuracy.md", bench("bench_accuracy.py", keep_from="== time to"),
                               "python benchmarks/bench_accuracy.py", True),
     "catch-loop": Section("docs/realtime.md", catch_loop, "python docs/figures.py catch-loop", True),
+    "catch": Section("README.md", catch_readme, "python docs/figures.py catch", True),
 }
 
 
