@@ -122,3 +122,29 @@ def test_the_restoration_finds_a_T_where_the_catch_meets_its_goal_within_the_kin
     assert np.all(check.hi_excess[:KINEMATIC] <= 0) and np.all(check.lo_excess[:KINEMATIC] <= 0)
     reached = PinocchioOracle(model).link_pose(found.coeffs[-1, 0], "tool0")[:3, 3]
     assert np.abs(reached - (P0 + V0 * found.T + 0.5 * A0 * found.T ** 2)).max() < 1e-8
+
+
+def test_the_restoration_on_the_coarse_elements_reaches_the_optimum_of_the_steps_on_the_mesh():
+    """Where the coarse stage applies (``free_time_sqp._coarse_first``: 8 equal elements, no vias) the restoration runs
+    on its 4 elements, and the coarse optimum then takes a few steps in x and T on the mesh (one plan there): the
+    optimum of the restoration and the steps on the 8 elements alone (``coarse=0``, two plans: at the restored T and
+    the steps in x and T), T to 1e-9 and J to 1e-10 relative. Restored on the mesh, the trajectory resampled to the
+    coarse elements broke a limit and the coarse stage never ran."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    goals = problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    fine, coarse = (minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=c) for c in (0, 4))
+    assert fine.converged and coarse.converged and coarse.bound is None
+    assert len(fine.history) == 2 and len(coarse.history) == 1
+    assert coarse.result.optimizer.iterations <= 6 < fine.result.optimizer.iterations
+    assert coarse.T == pytest.approx(fine.T, rel=1e-9)
+    assert coarse.J == pytest.approx(fine.J, rel=1e-10)
