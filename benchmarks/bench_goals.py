@@ -28,6 +28,7 @@ from __future__ import annotations
 import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
 # isort: on
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -194,7 +195,9 @@ def main() -> None:
         for name, r in (("cold", cold), ("warm", warm), ("cold moved", moved)):
             print(f"{name:>10} {r.J:16.10f} {r.T:12.8f} {r.iterations:10d} {1e3 * r.wall:10.1f} "
                   f"{'ok' if r.success else r.status:>8}")
-        print("   the same catch, cold, as the mesh refines (ratio: hoc / IPOPT at N = K, wall and CPU, this run)")
+        load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+        print(f"   the same catch, cold, as the mesh refines (ratio: hoc / IPOPT at N = K, wall and CPU, this run; load "
+              f"average 1, 5, 15 min: {load})")
         print(f"{'solver':>10} {'mesh':>5} {'J':>16} {'T [s]':>12} {'wall [s]':>9} {'CPU [s]':>8} {'ratio wall':>10} "
               f"{'ratio CPU':>9}")
         hoc_times = {}
