@@ -12,8 +12,12 @@
    the CasADi transcription, checked against each other to 1e-12 first).
 3. The catch (configs/catch_ball.yaml: free T, a moving target, match_velocity) at K = N = 8: IPOPT cold,
    then warm-started (primal and dual) after the ball's initial position moves by 1 cm; then the catch
-   cold at each K (and hoc's cold catch at N = 8, 16, 32 with ``--hoc-catch``).
+   cold at each K (and hoc's cold catch at N = 8, 16, 32 with ``--hoc-catch``), wall and CPU time (the process's
+   over the solver call), and, where hoc's N equals IPOPT's K, the ratios hoc/IPOPT of both from this run.
    hoc's warm replan of the same change: ``python benchmarks/bench_replan.py --ipopt``.
+
+The modules hoc imports on first use (``scipy.optimize``) are imported before the timings, as CasADi's are: both
+times are the solves' (IPOPT's exclude building the NLP; the start-up of ``hoc plan`` is ``bench_startup.py``'s).
 
 The two discretisations differ (Hermite elements with Gauss quadrature against Radau collocation), so
 single meshes differ by their discretisation errors; the converged values are compared.
@@ -24,6 +28,7 @@ from __future__ import annotations
 import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
 # isort: on
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -129,7 +134,9 @@ def catch(path: Path = ROOT / "configs" / "catch_ball.yaml", moves=(0.01,), repe
                                                    acceleration=f.acceleration, match_velocity=f.match_velocity),
                         (free.min, free.max), K or task.N, weight=free.weight, limits=Limits.from_model(model))
     x0 = c.guess(free.guess, goals.q1_guess, goals.dq1_guess)
+    cpu = time.process_time()
     cold = c.solve(x0)
+    catch.cpu = time.process_time() - cpu  # the cold solve's CPU time [s] (the process's), read by ``main``
     rows = []
     for dx in moves:
         p1 = f.position + np.array([dx, 0.0, 0.0])
@@ -146,6 +153,8 @@ def main() -> None:
     ap.add_argument("--hoc-catch", type=int, nargs="*", default=None,
                     help="also hoc's cold catch on these N (default 8 16 32; seconds to a minute each)")
     args = ap.parse_args()
+    import scipy.optimize  # noqa: F401  (hoc's first-use import, before the timings: module docstring)
+
     if args.hoc_catch is not None and not args.hoc_catch:
         args.hoc_catch = [8, 16, 32]
     _, m2, _, _ = task_from(FREE_T, 8)
@@ -186,19 +195,28 @@ def main() -> None:
         for name, r in (("cold", cold), ("warm", warm), ("cold moved", moved)):
             print(f"{name:>10} {r.J:16.10f} {r.T:12.8f} {r.iterations:10d} {1e3 * r.wall:10.1f} "
                   f"{'ok' if r.success else r.status:>8}")
-        print("   the same catch, cold, as the mesh refines")
-        print(f"{'solver':>10} {'mesh':>5} {'J':>16} {'T [s]':>12} {'wall [s]':>9}")
+        load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+        print(f"   the same catch, cold, as the mesh refines (ratio: hoc / IPOPT at N = K, wall and CPU, this run; load "
+              f"average 1, 5, 15 min: {load})")
+        print(f"{'solver':>10} {'mesh':>5} {'J':>16} {'T [s]':>12} {'wall [s]':>9} {'CPU [s]':>8} {'ratio wall':>10} "
+              f"{'ratio CPU':>9}")
+        hoc_times = {}
         if args.hoc_catch:
             from bench_replan import cold as hoc_cold
             text = (ROOT / "configs" / "catch_ball.yaml").read_text()
             for N in args.hoc_catch:
                 task, model, st, limits = task_from(text, N)
+                cpu = time.process_time()
                 ft, wall = hoc_cold(RobotSystem(model), task, st, task_goals(task, model, st), limits)
-                print(f"{'hoc':>10} {N:5d} {ft.J:16.10f} {ft.T:12.8f} {wall:9.2f}", flush=True)
+                hoc_times[N] = (wall, time.process_time() - cpu)
+                print(f"{'hoc':>10} {N:5d} {ft.J:16.10f} {ft.T:12.8f} {wall:9.2f} {hoc_times[N][1]:8.2f}", flush=True)
         for K in args.ipopt_K:
             r = catch(moves=(), K=K)[0]
-            print(f"{'IPOPT':>10} {K:5d} {r.J:16.10f} {r.T:12.8f} {r.wall:9.2f}  {'' if r.success else r.status}",
-                  flush=True)
+            ratios = ""
+            if K in hoc_times:
+                ratios = f" {hoc_times[K][0] / r.wall:10.2f} {hoc_times[K][1] / max(catch.cpu, 1e-9):9.2f}"
+            print(f"{'IPOPT':>10} {K:5d} {r.J:16.10f} {r.T:12.8f} {r.wall:9.2f} {catch.cpu:8.2f}{ratios}"
+                  f"  {'' if r.success else r.status}", flush=True)
 
 
 if __name__ == "__main__":

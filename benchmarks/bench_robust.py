@@ -10,10 +10,14 @@ The tasks of issue 23's independent check, the URDF's limits enforced:
    [0.5, 3] s, weight 20, N = 8.
 3. ``panda reach``: the Panda's ``panda_link8`` to (0.5, 0.3, 0.4) m at rest in T = 1.5 s, N = 16.
 
-hoc: ``hoc_cli.solve`` (its ``wall_time_s``). IPOPT (``--ipopt``; casadi needed): ``_casadi_goals.GoalCollocation``
-on K intervals (``--K``), cold from the quintic to hoc's inverse-kinematics guess of the final state at the guess
-T; its wall time is the solver call's. The discretisations differ (quintic Hermite elements, Radau collocation),
-so J and T agree to the meshes' discretisation errors.
+hoc: ``hoc_cli.solve`` (its ``wall_time_s``, and the process's CPU time over the call). IPOPT (``--ipopt``; casadi
+needed): ``_casadi_goals.GoalCollocation`` on K intervals (``--K``), cold from the quintic to hoc's inverse-kinematics
+guess of the final state at the guess T; its wall time is the solver call's (the NLP is built before), its CPU time
+the process's over that call. The modules hoc imports on first use (``scipy.optimize``) are imported before the
+timings, as CasADi's are, so both times are the solves' (the start-up of ``hoc plan`` is ``bench_startup.py``'s).
+Each IPOPT row ends with the ratios hoc/IPOPT of the task's wall and CPU times, measured in the same run (the
+machine's load beside them in the first line). The discretisations differ (quintic Hermite elements, Radau
+collocation), so J and T agree to the meshes' discretisation errors.
 """
 from __future__ import annotations
 
@@ -21,8 +25,10 @@ from __future__ import annotations
 import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli sets)
 # isort: on
 import argparse
+import os
 import sys
 import sysconfig
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +48,7 @@ def tasks() -> dict:
     ur5 = load_robot(UR5)
     panda = load_robot(PANDA, joints=[f"panda_joint{i}" for i in range(1, 8)], locked={"panda_finger_joint1": 0.02})
     out = {}
-    for name, model, q0, link, target, time, N in (
+    for name, model, q0, link, target, span, N in (
             ("ur5 catch", ur5, UR5_Q0, "tool0", ([0.9, 0.6, 0.2], [-0.86, -0.3, 2.8], [0, 0, -9.81], True),
              Free(0.3, 0.8, guess=0.5), 8),
             ("ur5 moving", ur5, UR5_Q0, "tool0", ([-0.3, 0.5, 0.5], [0.2, -0.1, 0.0], [0, 0, 0], False),
@@ -51,7 +57,7 @@ def tasks() -> dict:
         arm = RobotSystem(model)
         p, v, a, match = target
         goal = link_goal(arm, link, position=p, velocity=v, acceleration=a, match_velocity=match)
-        problem = OptimalControlProblem(arm, q0=q0, dq0=np.zeros(model.n), link_goal=goal, time=time, N=N,
+        problem = OptimalControlProblem(arm, q0=q0, dq0=np.zeros(model.n), link_goal=goal, time=span, N=N,
                                         limits=JointLimits.from_model(model))
         out[name] = (model, problem, target)
     return out
@@ -72,7 +78,10 @@ def ipopt(model, problem, target, K: int):
     goals = problem.goals()
     nlp = GoalCollocation(model, problem.q0, problem.dq0, goal, T, K, limits=Limits.from_model(model),
                           weight=free.weight if free is not None else 0.0)
-    return nlp.solve(nlp.guess(T_guess, goals.q1_guess, goals.dq1_guess if match else None))
+    x0 = nlp.guess(T_guess, goals.q1_guess, goals.dq1_guess if match else None)
+    cpu = time.process_time()
+    s = nlp.solve(x0)
+    return s, time.process_time() - cpu
 
 
 def main() -> None:
@@ -80,16 +89,24 @@ def main() -> None:
     ap.add_argument("--ipopt", action="store_true", help="also solve each task with CasADi + IPOPT")
     ap.add_argument("--K", type=int, nargs="+", default=[8, 32], help="IPOPT's collocation intervals")
     args = ap.parse_args()
-    print(f"{'task':>12} {'solver':>6} {'mesh':>5} {'status':>24} {'T [s]':>12} {'J':>16} {'wall [s]':>9}")
+    import scipy.optimize  # noqa: F401  (hoc's first-use import, before the timings: module docstring)
+
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"load average (1, 5, 15 min) at the start: {load}; ratio = hoc / IPOPT, wall and CPU, in this run")
+    print(f"{'task':>12} {'solver':>6} {'mesh':>5} {'status':>24} {'T [s]':>12} {'J':>16} {'wall [s]':>9} "
+          f"{'CPU [s]':>8} {'ratio wall':>10} {'ratio CPU':>9}")
     for name, (model, problem, target) in tasks().items():
+        cpu = time.process_time()
         plan = hoc_cli.solve(problem)
+        cpu = time.process_time() - cpu
         status = "converged" if plan.converged else "not converged"
-        print(f"{name:>12} {'hoc':>6} {problem.N:5d} {status:>24} {plan.T:12.8f} {plan.J:16.10f} {plan.wall_time_s:9.2f}",
-              flush=True)
+        print(f"{name:>12} {'hoc':>6} {problem.N:5d} {status:>24} {plan.T:12.8f} {plan.J:16.10f} {plan.wall_time_s:9.2f} "
+              f"{cpu:8.2f}", flush=True)
         if args.ipopt:
             for K in args.K:
-                s = ipopt(model, problem, target, K)
-                print(f"{name:>12} {'IPOPT':>6} {K:5d} {s.status:>24} {s.T:12.8f} {s.J:16.10f} {s.wall:9.2f}", flush=True)
+                s, s_cpu = ipopt(model, problem, target, K)
+                print(f"{name:>12} {'IPOPT':>6} {K:5d} {s.status:>24} {s.T:12.8f} {s.J:16.10f} {s.wall:9.2f} "
+                      f"{s_cpu:8.2f} {plan.wall_time_s / s.wall:10.2f} {cpu / max(s_cpu, 1e-9):9.2f}", flush=True)
 
 
 if __name__ == "__main__":

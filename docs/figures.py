@@ -221,12 +221,12 @@ def excerpt(output: str, keep_from: str | None, head: int = 2) -> str:
     return "```\n" + "\n".join(lines) + "\n```"
 
 
-def bench(script: str, *args: str, keep_from: str | None = None) -> Callable[[], str]:
+def bench(script: str, *args: str, keep_from: str | None = None, head: int = 2) -> Callable[[], str]:
     def section() -> str:
         proc = run([sys.executable, str(ROOT / "benchmarks" / script), *args], ROOT)
         if proc.returncode != 0:
             raise RuntimeError(f"benchmarks/{script} exited {proc.returncode}:\n{proc.stderr}")
-        return excerpt(proc.stdout, keep_from)
+        return excerpt(proc.stdout, keep_from, head)
     return section
 
 
@@ -581,6 +581,13 @@ SECTIONS: dict[str, Section] = {
                                 "python benchmarks/bench_plan.py --task configs/lbr7_swing.yaml", True),
     "bench-simulate": Section("docs/benchmarks.md", bench("bench_simulate.py"),
                               "python benchmarks/bench_simulate.py", True),
+    "bench-robust": Section("docs/benchmarks.md", bench("bench_robust.py", "--ipopt"),
+                            "python benchmarks/bench_robust.py --ipopt", True),
+    "bench-goals-catch": Section("docs/benchmarks.md",
+                                 bench("bench_goals.py", "--hoc-N", "8", "--ipopt-K", "8", "16", "32", "--hoc-catch",
+                                       "8", "16", "32", keep_from="   the same catch", head=1),
+                                 "python benchmarks/bench_goals.py --hoc-N 8 --ipopt-K 8 16 32 --hoc-catch 8 16 32",
+                                 True),
     "batch": Section("docs/batch.md", batch, "python docs/figures.py batch", True),
     "starts": Section("docs/batch.md", starts, "python docs/figures.py starts", True),
     "goals": Section("README.md", goals, "python docs/figures.py goals", True),

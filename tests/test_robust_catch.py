@@ -122,3 +122,76 @@ def test_the_restoration_finds_a_T_where_the_catch_meets_its_goal_within_the_kin
     assert np.all(check.hi_excess[:KINEMATIC] <= 0) and np.all(check.lo_excess[:KINEMATIC] <= 0)
     reached = PinocchioOracle(model).link_pose(found.coeffs[-1, 0], "tool0")[:3, 3]
     assert np.abs(reached - (P0 + V0 * found.T + 0.5 * A0 * found.T ** 2)).max() < 1e-8
+
+
+def test_the_restoration_on_the_coarse_elements_reaches_the_optimum_of_the_steps_on_the_mesh():
+    """Where the coarse stage applies (``free_time_sqp._coarse_first``: 8 equal elements, no vias) the restoration runs
+    on its 4 elements, and the coarse optimum then takes a few steps in x and T on the mesh (one plan there): the
+    optimum of the restoration and the steps on the 8 elements alone (``coarse=0``, two plans: at the restored T and
+    the steps in x and T), T to 1e-9 and J to 1e-10 relative. Restored on the mesh, the trajectory resampled to the
+    coarse elements broke a limit and the coarse stage never ran."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    goals = problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    fine, coarse = (minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=c) for c in (0, 4))
+    assert fine.converged and coarse.converged and coarse.bound is None
+    assert len(fine.history) == 2 and len(coarse.history) == 1
+    assert coarse.result.optimizer.iterations <= 6 < fine.result.optimizer.iterations
+    assert coarse.T == pytest.approx(fine.T, rel=1e-9)
+    assert coarse.J == pytest.approx(fine.J, rel=1e-10)
+
+
+def test_from_the_guess_0_7_s_the_catch_reaches_the_optimum_from_0_5_s():
+    """From the guess 0.7 s the minimum-norm final velocity of the inverse-kinematics guess needs 9 rad/s of a 3.15 rad/s
+    joint. Restored on the coarse stage's 4 elements (43 steps, to T ≈ 0.598 s; on the 8 elements the restoration did
+    not reach the limits) the catch converges to the optimum reached from 0.5 s: T to 1e-9 and J to 1e-10 relative,
+    within 1 % of IPOPT's, meeting the ball by Pinocchio's forward kinematics."""
+    import dataclasses
+
+    import hoc_cli
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=JointLimits.from_model(model))
+    ref, late = (hoc_cli.solve(dataclasses.replace(problem, time=Free(0.3, 0.8, guess=g))) for g in (0.5, 0.7))
+    assert ref.converged and late.converged and late.details["T_bound"] is None
+    assert late.T == pytest.approx(ref.T, rel=1e-9) and late.J == pytest.approx(ref.J, rel=1e-10)
+    assert abs(late.T - T_IPOPT) <= 1e-2 * T_IPOPT and abs(late.J - J_IPOPT) <= 1e-2 * J_IPOPT
+    reached = PinocchioOracle(model).link_pose(late.coeffs[-1, 0], "tool0")[:3, 3]
+    assert np.abs(reached - (P0 + V0 * late.T + 0.5 * A0 * late.T ** 2)).max() < 1e-9
+
+
+@pytest.mark.parametrize("N", [10, 16])
+def test_the_catch_on_finer_meshes_converges_by_way_of_the_coarse_elements(N):
+    """On 10 and 16 elements the steps on the mesh from its restored trajectory run off (a Newton matrix with
+    entries beyond the floating-point range: a ``ValueError`` of the banded factorisation); restored on the coarse
+    stage's 4 elements the catch converges in a few steps on the mesh: within 1 % of IPOPT's T and J (K = 32), the
+    ball met by Pinocchio's forward kinematics, within the limits by the exact check."""
+    import hoc_cli
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli.constraints.check import check_limits
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
+                                    time=Free(0.3, 0.8, guess=0.5), N=N, limits=limits)
+    plan = hoc_cli.solve(problem)
+    assert plan.converged and plan.details["T_solves"] == 1 and plan.details["T_bound"] is None
+    assert abs(plan.T - T_IPOPT) <= 1e-2 * T_IPOPT and abs(plan.J - J_IPOPT) <= 1e-2 * J_IPOPT
+    assert check_limits(arm, limits, plan.mesh, plan.coeffs).feasible
+    reached = PinocchioOracle(model).link_pose(plan.coeffs[-1, 0], "tool0")[:3, 3]
+    assert np.abs(reached - (P0 + V0 * plan.T + 0.5 * A0 * plan.T ** 2)).max() < 1e-9

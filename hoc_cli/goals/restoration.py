@@ -38,7 +38,8 @@ from hoc_cli.free_time import rescale
 from hoc_cli.goals.active_limits import ActiveRows, all_rows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.qp_step import solve_qp, upper_factor
-from hoc_cli.goals.replan_point import evaluate_point
+from hoc_cli.goals.replan_point import point_problem
+from hoc_cli.goals.terms import GoalTerms
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 MARGIN = 0.05  # κ: the rows tightened by this fraction of the limit's size
@@ -77,10 +78,9 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     cache: dict = {}
 
     def at(T_: float, C_: np.ndarray) -> _Point:
-        pt = evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam, None, None, 0.0, False, cache,
-                            fractions=fractions)
-        problem, rows, where = cache[T_]
-        if rows is None:  # without limits ``evaluate_point`` caches no limit rows
+        problem, rows, where = point_problem(system, order, N, T_, q0, dq0, goals, cost, G, None, cache, fractions)
+        pt = _goal_rows(problem, where, C_, lam)
+        if rows is None:  # without limits ``point_problem`` caches no limit rows
             rows = LimitRows.build(problem.mesh, problem.layout.free, limits.n)
             cache[T_] = (problem, rows, where)
         g = all_rows(system, limits, rows, pt.C)
@@ -152,8 +152,36 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
 
 
 @dataclass(frozen=True, eq=False)
+class _GoalRows:
+    """The goal rows at one (x, T): the problem (its mesh at T), the free coefficients x (P,), C (N+1, m, n), the rows
+    c (r,) and their Jacobian D (r, P) in x.
+    """
+
+    problem: object
+    x: np.ndarray
+    C: np.ndarray
+    c: np.ndarray
+    D: np.ndarray
+
+
+def _goal_rows(problem, where, C: np.ndarray, lam: list) -> _GoalRows:
+    """The goal rows and their Jacobian at coefficients C on the problem's mesh: the numbers of
+    ``replan_point.evaluate_point`` (the same ``GoalTerms`` calls) without its dynamics sweep, which the violation
+    m does not need.
+    """
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
+    if not problem.points:
+        return _GoalRows(problem, x, C, np.zeros(0), np.zeros((0, x.size)))
+    terms = GoalTerms(problem.mesh, problem.points, lam, 0.0, where)
+    res = terms.residuals(C)
+    c, dc = terms.jacobian(C, res)
+    return _GoalRows(problem, x, C, c, dc.reshape(len(c), -1)[:, problem.layout.free])
+
+
+@dataclass(frozen=True, eq=False)
 class _Point:
-    """The restoration at one (x, T): the goal rows' ``LagrangianPoint``, T, the mesh's limit rows, every
+    """The restoration at one (x, T): the goal rows (``_GoalRows``), T, the mesh's limit rows, every
     kinematic row's g + κ (lower rows per kind, then upper), m, the largest |c| and the largest g + κ.
     """
 
