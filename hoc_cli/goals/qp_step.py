@@ -204,6 +204,10 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         else:
             M_new, scale_new, _ = el.rows(A[new], b[new], size)
             M, scale = np.hstack([M, M_new]), np.concatenate([scale, scale_new])
+            top = float(np.max(np.abs(M_new[-1])))
+            if top > 1.0:  # h to a unit largest entry over the grown rows (the start repairs its passive set)
+                M[-1] /= top
+                size *= top
             cap = max(1, NNLS_ITER * M.shape[1])
             try:
                 res = warm_nnls(M, _unit(M), passive=np.flatnonzero(w > 0.0), max_iter=cap)
