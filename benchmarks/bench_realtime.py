@@ -7,7 +7,8 @@ with every update converged (up to 40 SQP steps, no budget: hoc's own full re-co
 ``--ipopt`` and casadi importable, IPOPT (benchmarks/_casadi_goals.py, K = N Radau intervals) on the problem of every
 ``--ipopt-every``-th cycle (its start state, the estimate, the remaining time free), warm-started from the previous
 such cycle's IPOPT solution. Prints per-update wall time and thread CPU time (``time.thread_time``) distributions
-[ms] and the ratios of the medians. The machine may be shared: wall times then exceed CPU times.
+[ms] and the ratios of the medians. The machine may be shared: wall times then exceed CPU times (and CPU times
+grow too), so the load average is printed before and after the runs.
 ``--repeat R`` runs the real-time loop R times and pools their updates in the distributions (a run has few SQP
 updates: none while the estimate is uncertain, corrections in the last 0.1 s). The step rows count the updates that
 took a step (a skipped update costs nothing); the feedback rows the corrections.
@@ -23,6 +24,7 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import dataclasses
+import os
 import time
 from pathlib import Path
 
@@ -59,6 +61,7 @@ def main() -> None:
     ap.add_argument("--ipopt-every", type=int, default=8)
     args = ap.parse_args()
     sc = load_scenario(args.scenario)
+    print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} (1, 5, 15 min)")
     print(f"scenario {args.scenario}: cycle {sc.cycle.rate:g} Hz, budget {1e3 * sc.cycle.budget:g} ms, at most "
           f"{sc.cycle.steps} steps; observations {sc.observer.rate:g} Hz, sigma {1e3 * sc.observer.noise:g} mm")
     for N in args.N:
@@ -133,6 +136,7 @@ def main() -> None:
               f"max {1e3 * np.max(errors):.2f} mm; under 4 mm: {sum(e < 4e-3 for e in errors)}; the estimates at the catch "
               f"off by median {1e3 * np.median(est_errors):.2f} mm, max {1e3 * np.max(est_errors):.2f} mm; "
               f"{overruns} overruns and {skipped} skipped of {updates} updates")
+    print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} (1, 5, 15 min)")
 
 
 def ipopt(model, problem, run, every: int, hoc_median_wall: float, hoc_median_cpu: float) -> None:

@@ -2,7 +2,8 @@
 
 A real-time update re-solves a programme whose step broke limit rows outside its candidates over the last
 programme's active rows and the rows added (``hoc_cli.goals.replan_qp``); the rows it leaves out are checked and
-added back while the step breaks one, so the step is ``solve_qp``'s over every row.
+added back while the step breaks one, so the step is ``solve_qp``'s over every row. The rounds after the first
+continue the least-distance programme's Lawson-Hanson iterations from the last round's passive set.
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from _robots import CATCH_G, CATCH_P0, CATCH_V0, lbr7_catch_problem
 
+import hoc_cli.goals.qp_step as qp_step
 import hoc_cli.goals.replan_qp as replan_qp
 from hoc_cli.goals.qp_step import solve_qp, solve_qp_within, upper_factor
 from hoc_cli.realtime import Replanner, Target
@@ -49,6 +51,23 @@ def test_the_step_over_a_subset_of_the_rows_is_the_full_programmes(seed):
     H = U.T @ U  # stationarity with its own multipliers (those of dependent rows may differ from solve_qp's)
     assert np.allclose(H @ within.d + g + A.T @ within.mu + E.T @ within.nu, 0.0, atol=1e-8 * np.abs(g).max())
     assert np.all(within.mu[np.abs(A @ within.d - b) > 1e-8] == 0.0)  # complementarity
+
+
+def test_only_the_first_round_solves_its_least_distance_programme_from_no_active_row(monkeypatch):
+    """The rounds that add the rows a step broke continue from the last round's passive set (few iterations), and
+    the step is still the full programme's.
+    """
+    U, g, E, e, A, b = _programme(0)
+    full = solve_qp(U, g, E, e, A, b)
+    rows = np.zeros(b.size, bool)
+    rows[:10] = True
+    cold, warm = [], []
+    monkeypatch.setattr(qp_step, "_cold_nnls", lambda M, f=qp_step._cold_nnls: cold.append(M.shape) or f(M))
+    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, f=qp_step.warm_nnls, **k: warm.append(f(*a, **k)) or warm[-1])
+    within = solve_qp_within(U, g, E, e, A, b, rows)
+    assert len(cold) == 1 and cold[0][1] == 10  # the first round's programme (its 10 rows) alone from scratch
+    assert len(warm) >= 1 and all(res.iterations < res.w.size for res in warm)
+    assert np.allclose(within.d, full.d, rtol=0.0, atol=1e-10 * np.max(np.abs(full.d)))
 
 
 def test_a_real_time_updates_reduced_programmes_take_the_full_programmes_steps(monkeypatch):

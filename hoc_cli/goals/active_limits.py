@@ -15,6 +15,7 @@ limit's size (``effective_bounds``): dimensionless, linear in C at a fixed mesh.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -91,7 +92,7 @@ class ActiveRows:
         slot = np.broadcast_to(local % m, (a, 2 * m))
         coef = self._coefficients(rows, limits)
         cols = (node * m + slot) * n + self.joint[:, None]
-        np.add.at(A, (np.repeat(np.arange(a), 2 * m), cols.ravel()), coef.ravel())
+        A[np.arange(a)[:, None], cols] = coef  # one entry per (row, column): the 2m columns of a row differ
         return A[:, free], A
 
     def gram_blocks(self, rows: LimitRows, limits: JointLimits, rho: float) -> np.ndarray:
@@ -109,7 +110,7 @@ class ActiveRows:
 
     def _coefficients(self, rows: LimitRows, limits: JointLimits) -> np.ndarray:
         """∂g/∂(element-local coefficients of the row's joint), (a, 2m)."""
-        _, _, sig = effective_bounds(limits, MARGIN)
+        _, _, sig = _bounds(limits)
         coef = np.zeros((self.size, 2 * rows.mesh.m))
         for k in range(KINEMATIC):
             sel = self.kind == k
@@ -123,9 +124,17 @@ class ActiveRows:
 
     def offsets(self, limits: JointLimits) -> np.ndarray:
         """−s b / σ per row (a,): g = A_full · C.ravel() + offsets."""
-        lo, hi, sig = effective_bounds(limits, MARGIN)
+        lo, hi, sig = _bounds(limits)
         b = np.where(self.side > 0, hi[self.kind, self.joint], lo[self.kind, self.joint])
         return -self.side * b / sig[self.kind, self.joint]
+
+
+@lru_cache(maxsize=16)
+def _bounds(limits: JointLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``effective_bounds(limits, MARGIN)`` of a ``JointLimits`` (immutable), kept: the rows' Jacobians and
+    offsets ask for it several times per step.
+    """
+    return effective_bounds(limits, MARGIN)
 
 
 def from_multipliers(pv: PenaltyValue | None) -> ActiveRows | None:

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
 
 from hoc_cli.errors import NumericalError
+from hoc_cli.optimize.nnls import nnls as warm_nnls
 
-SHRINK_ROUNDS = 2  # solve_qp_within's first rounds drop the inactive rows (then the rows only grow: it ends)
 NNLS_ITER = 50  # Lawson-Hanson iterations per row of the least-distance programme before it is given up
 
 
@@ -78,80 +78,143 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         The rows admit no step, or the least-distance programme did not converge in ``NNLS_ITER`` iterations per
         row (the callers end their steps there with a status, as after any failed step).
     """
-    P = g.size
-    y0 = -solve_triangular(U, g, trans="T", check_finite=False)
-    if E.shape[0]:
-        Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
-        Q, R, _ = qr(Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
-        rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
-        y_p = lstsq(Eh, e, cond=1e-12, check_finite=False)[0]
-        Z = Q[:, rank:]
-    else:
-        y_p, Z = np.zeros(P), np.eye(P)
-    z0 = Z.T @ y0
-    if A.shape[0]:
-        Ah = solve_triangular(U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
-        G = -(Ah @ Z)
-        h = -(b - Ah @ y_p - Ah @ (Z @ z0))
+    el = _Eliminated(U, g, E, e)
+    if not A.shape[0]:
+        return el.step(A, np.zeros(0), np.zeros(0), np.ones(0), 1.0)
+    M, scale, size = el.rows(A, b)
+    w = _cold_nnls(M)
+    return el.step(A, w, M @ w - _unit(M), scale, size)
+
+
+def _unit(M: np.ndarray) -> np.ndarray:
+    """The least-distance programme's right-hand side f = (0, …, 0, 1) (m,)."""
+    f = np.zeros(M.shape[0])
+    f[-1] = 1.0
+    return f
+
+
+def _cold_nnls(M: np.ndarray) -> np.ndarray:
+    """The w ≥ 0 minimising ‖M w − f‖ (scipy's Lawson-Hanson from no active row), its cap ``NNLS_ITER`` per column."""
+    from scipy.optimize import nnls  # imported on first use (0.25 s)
+
+    cap = max(1, NNLS_ITER * M.shape[1])
+    try:
+        return nnls(M, _unit(M), maxiter=cap)[0]
+    except RuntimeError:  # its iteration cap (scipy raises): the callers' failed step, not a crash
+        raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
+
+
+class _Eliminated:
+    """The programme's equality rows eliminated (module docstring): y = U d = y_p + Z z, z = z0 + u; what every
+    set of inequality rows of the same U, g, E, e shares.
+    """
+
+    def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray) -> None:
+        P = g.size
+        self.U, self.g, self.E = U, g, E
+        y0 = -solve_triangular(U, g, trans="T", check_finite=False)
+        if E.shape[0]:
+            Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
+            Q, R, _ = qr(Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
+            rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
+            self.y_p = lstsq(Eh, e, cond=1e-12, check_finite=False)[0]
+            self.Z = Q[:, rank:]
+        else:
+            self.y_p, self.Z = np.zeros(P), np.eye(P)
+        self.z0 = self.Z.T @ y0
+
+    def rows(self, A: np.ndarray, b: np.ndarray, size: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """The least-distance rows G u ≥ h of A d ≤ b (k rows) as the NNLS matrix M = [Gᵀ; hᵀ] (P − rank + 1, k),
+        each row divided by its scale ‖G_j‖ (k,) and h by ``size`` (None: h's largest entry): (M, scale, size).
+        """
+        Ah = solve_triangular(self.U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
+        G = -(Ah @ self.Z)
+        h = -(b - Ah @ self.y_p - Ah @ (self.Z @ self.z0))
         scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
         Gs, hs = G / scale[:, None], h / scale
         # and h to a unit largest entry: the test of r[-1] = −1/(1 + ‖u‖²) below then reads ‖u‖ relative to
         # the rows' own size, not to the model's units (a step of 1e11 in y is as feasible as one of 1)
-        size = max(float(np.max(np.abs(hs))), 1e-300)
+        if size is None:
+            size = max(float(np.max(np.abs(hs))), 1e-300)
         hs = hs / size
-        M = np.vstack([Gs.T, hs[None, :]])
-        f = np.zeros(M.shape[0])
-        f[-1] = 1.0
-        from scipy.optimize import nnls  # imported on first use (0.25 s)
+        return np.vstack([Gs.T, hs[None, :]]), scale, size
 
-        cap = max(1, NNLS_ITER * M.shape[1])
-        try:
-            w, _ = nnls(M, f, maxiter=cap)
-        except RuntimeError:  # its iteration cap (scipy raises): the callers' failed step, not a crash
-            raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
-        r = M @ w - f
-        if abs(r[-1]) < 1e-12:
-            raise NumericalError("the replan's limit rows admit no step")
-        u = -r[:-1] / r[-1] * size
-        mu = (w / (-r[-1])) / scale * size
-    else:
-        u, mu = np.zeros(Z.shape[1]), np.zeros(0)
-    y = y_p + Z @ (z0 + u)
-    d = solve_triangular(U, y, check_finite=False)
-    stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
-    nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
-    decrease = -float(g @ d + 0.5 * y @ y)
-    return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
+    def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float) -> QPStep:
+        """The step from the NNLS solution w (k,) ≥ 0 of the rows A (k, P) (``rows``' scale and size) and its
+        residual r = M w − f.
+        """
+        if A.shape[0]:
+            if abs(r[-1]) < 1e-12:
+                raise NumericalError("the replan's limit rows admit no step")
+            u = -r[:-1] / r[-1] * size
+            mu = (w / (-r[-1])) / scale * size
+        else:
+            u, mu = np.zeros(self.Z.shape[1]), np.zeros(0)
+        U, g, E = self.U, self.g, self.E
+        y = self.y_p + self.Z @ (self.z0 + u)
+        d = solve_triangular(U, y, check_finite=False)
+        stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
+        nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
+        decrease = -float(g @ d + 0.5 * y @ y)
+        return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
 
 
 def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
                     rows: np.ndarray) -> QPStep:
-    """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then again with every left-out
-    row the step breaks (A d > b) added, until it breaks none: the step of ``solve_qp`` over all k rows (H is
+    """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then with every left-out row its
+    step breaks (A d > b) added, until the step breaks none: the step of ``solve_qp`` over all k rows (H is
     positive definite, so the programme's minimiser is unique; a left-out row the minimiser over the others keeps
-    changes nothing; the first ``SHRINK_ROUNDS`` rounds keep only the active rows of the last, then rows are only
-    added, so it ends). The least-distance programme's cost grows with its rows, not its active ones, so a mask
-    holding the active rows of a programme nearby (the last one, before rows were added) makes the step cheaper.
+    changes nothing; rows are only added, so it ends). The least-distance programme's cost grows with its rows,
+    not its active ones, so a mask holding the active rows of a programme nearby (the last one, with the rows
+    added since) makes the step cheaper. The rounds share the equality rows' elimination and the rows already
+    transformed; each round after the first continues the last one's Lawson-Hanson iterations from its passive
+    set (``hoc_cli.optimize.nnls``: that set's least-squares solution is still positive, only the rows added can
+    enter), instead of solving the grown programme from no active row.
     μ (k,) is zero at the rows left out; rows that are linearly dependent may share their multipliers differently
     from ``solve_qp``'s (they are not unique there).
 
     Parameters as ``solve_qp``'s, with ``rows`` (k,) bool.
     """
-    rows = np.asarray(rows, bool).copy()
-    rounds = 0
+    el = _Eliminated(U, g, E, e)
+    idx = np.flatnonzero(np.asarray(rows, bool))  # the rows in the programme, in M's column order
+    if idx.size == 0:
+        step = el.step(A[idx], np.zeros(0), np.zeros(0), np.ones(0), 1.0)
+        M = None
+    else:
+        M, scale, size = el.rows(A[idx], b[idx])
+        w = _cold_nnls(M)
+        step = el.step(A[idx], w, M @ w - _unit(M), scale, size)
+    used = np.zeros(b.size, bool)
+    used[idx] = True
     while True:
-        step = solve_qp(U, g, E, e, A[rows], b[rows])
-        out = ~rows
-        if not out.any():
+        out = np.flatnonzero(~used)
+        if not out.size:
             break
         Ad = A[out] @ step.d
         broken = Ad - b[out] > 1e-12 * (np.abs(A[out]) @ np.abs(step.d) + np.abs(b[out]) + 1.0)
         if not broken.any():
             break
-        if rounds < SHRINK_ROUNDS:  # the next programme over this one's active rows and the broken ones
-            rows[np.flatnonzero(rows)[step.mu <= 0.0]] = False
-        rows[np.flatnonzero(out)[broken]] = True
-        rounds += 1
+        new = out[broken]
+        idx = np.concatenate([idx, new])
+        used[new] = True
+        if M is None:  # no row yet: the programme of the rows added, from no active row
+            M, scale, size = el.rows(A[new], b[new])
+            w = _cold_nnls(M)
+            r = M @ w - _unit(M)
+        else:
+            M_new, scale_new, _ = el.rows(A[new], b[new], size)
+            M, scale = np.hstack([M, M_new]), np.concatenate([scale, scale_new])
+            top = float(np.max(np.abs(M_new[-1])))
+            if top > 1.0:  # h to a unit largest entry over the grown rows (the start repairs its passive set)
+                M[-1] /= top
+                size *= top
+            cap = max(1, NNLS_ITER * M.shape[1])
+            try:
+                res = warm_nnls(M, _unit(M), passive=np.flatnonzero(w > 0.0), max_iter=cap)
+            except NumericalError:
+                raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
+            w, r = res.w, res.residual
+        step = el.step(A[idx], w, r, scale, size)
     mu = np.zeros(A.shape[0])
-    mu[rows] = step.mu
+    mu[idx] = step.mu
     return QPStep(d=step.d, nu=step.nu, mu=mu, decrease=step.decrease)
