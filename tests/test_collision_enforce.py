@@ -246,9 +246,9 @@ def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatc
 
     loop = enforce.CollisionConstraint._loop
 
-    def failing(self, *args):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
-        got = loop(self, *args)
-        return got if args[-1] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
+    def failing(self, *args, **kw):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
+        got = loop(self, *args, **kw)
+        return got if kw["start"] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
 
     monkeypatch.setattr(enforce.CollisionConstraint, "_loop", failing)
     r, s = plan(workdir, two_link([BALL], N=4))
