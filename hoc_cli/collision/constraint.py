@@ -18,6 +18,7 @@ element of the point, so the Newton matrix stays block-banded (``PointSet.sample
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -88,13 +89,6 @@ def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:
     return np.einsum("pa,pan->pn", points.B[0], loc)
 
 
-def point_distances(model: RobotModel, scene: CollisionScene, q: np.ndarray, rows: np.ndarray,
-                    pairs: np.ndarray) -> np.ndarray:
-    """Signed distances (M,) m of pair ``pairs[r]`` at configuration ``q[rows[r]]`` (q (K, n))."""
-    used, inverse = np.unique(rows, return_inverse=True)
-    return row_contacts(model, scene, q[used], inverse, pairs).distance
-
-
 @dataclass(frozen=True, eq=False)
 class CollisionTerms:
     """Φ for one inner minimisation (fixed rows, λ and ρ): see the module docstring.
@@ -113,12 +107,17 @@ class CollisionTerms:
     bound: float
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
 
+    @cached_property
+    def _used(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the points the rows use (U,), each row's index among them (M,))."""
+        return np.unique(self.rows, return_inverse=True)
+
     def _gradient(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(d (M,), ∂d/∂q (M, n)) of the rows at C; the Newton matrix at the point just evaluated reuses them."""
         if self._last and np.array_equal(self._last[0], C):
             return self._last[1], self._last[2]
         q = point_configurations(self.points, C)
-        used, inverse = np.unique(self.rows, return_inverse=True)
+        used, inverse = self._used
         d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
         self._last[:] = [np.array(C), d, dd]
         return d, dd
@@ -136,7 +135,9 @@ class CollisionTerms:
         """Distances d (M,) m of the rows at coefficients C."""
         if self.rows.size == 0:
             return np.zeros(0)
-        return point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+        used, inverse = self._used
+        return row_contacts(self.model, self.scene, point_configurations(self.points, C)[used], inverse,
+                            self.pairs).distance
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
         """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
@@ -146,7 +147,7 @@ class CollisionTerms:
         if grad:
             d, dd = self._gradient(C)
         else:
-            d = point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+            d = self.distances(C)
         rr = self.rho_rows
         mu = self.multipliers(d)
         value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
@@ -162,7 +163,7 @@ class CollisionTerms:
         size = 2 * mesh.m * n
         if self.rows.size == 0:
             return np.zeros((mesh.N, size, size))
-        used, inverse = np.unique(self.rows, return_inverse=True)
+        used, inverse = self._used
         d, dd = self._gradient(C)
         rr = self.rho_rows
         on = self.lam + rr * (self.bound - d) > 0
