@@ -3,13 +3,14 @@ J against the margin, an infeasible task, and goal tasks refused."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 from _collision_tasks import plan, task_folder
 
-from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
+from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
 from hoc_cli.collision.evaluate import distances, pair_gradient, row_contacts
 from hoc_cli.collision.geometry import Shape
@@ -196,6 +197,34 @@ def test_the_curvature_blocks_are_the_gauss_newton_matrix_of_the_active_rows(lbr
     assert active.sum() >= 5
     ref = float(np.sum(terms.rho_rows[active] * dd[active] ** 2))
     assert quad == pytest.approx(ref, rel=1e-5)
+
+
+def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_changing_phi(lbr7_scene):
+    """Skipped rows (``RowStart``: the reach bound from the inner solve's start) add exactly nothing: Φ, its
+    gradient and its blocks equal those of every row evaluated, at plans moved a little and far from the start."""
+    model, scene = lbr7_scene
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C0 = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    full, D = _terms(model, scene, mesh, C0)
+    points = full.points
+    start = RowStart(point_configurations(points, C0), D[full.rows, full.pairs],
+                     row_reach(model, scene, np.arange(scene.size))[full.pairs])
+    pruned = dataclasses.replace(full, start=start, _last=[])
+    rng = np.random.default_rng(4)
+    skipped = []
+    for size in (1e-3, 3e-2, 0.3):
+        C = C0 + size * rng.normal(size=C0.shape)
+        v, G = full.evaluate(C)
+        vp, Gp = pruned.evaluate(C)
+        assert vp == pytest.approx(v, rel=1e-13, abs=1e-13) and np.allclose(Gp, G, rtol=0, atol=1e-12 * np.abs(G).max())
+        assert np.allclose(pruned.newton_blocks(C), full.newton_blocks(C), rtol=1e-13, atol=0)
+        d, dp = full.distances(C), pruned.distances(C)
+        live = np.isfinite(dp)
+        assert np.array_equal(dp[live], d[live]) and np.all(d[~live] >= full.bound[~live])  # a skipped row is clear
+        assert np.all(full.lam[~live] == 0)
+        skipped.append(int((~live).sum()))
+    assert skipped[0] > 0 and skipped[0] >= skipped[-1]  # the test skips rows, fewer the further the plan moved
 
 
 def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):

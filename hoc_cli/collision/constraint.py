@@ -23,11 +23,12 @@ from functools import cached_property
 import numpy as np
 
 from hoc_cli.collision.evaluate import pair_gradient, row_contacts
-from hoc_cli.collision.robot import RobotGeometry
+from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
+PRUNE_SLACK = 1e-9    # relative and absolute (m) slack of the test that skips a row (rounding of d0 and the bound)
 SPHERE_PADDING = 2e-3  # m: how far the spheres standing for a capsule against obstacles may reach beyond it
 
 
@@ -90,11 +91,41 @@ def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class RowStart:
+    """Where an inner solve starts, for skipping rows that cannot reach their bound (``CollisionTerms``).
+
+    q0 : (P, n) the configurations at the points; d0 : (M,) m the rows' distances there; reach : (M, n) m per
+    rad, per row the sum over its moving primitives of ``robot.reach``'s R0 (revolute joints only: a row of a
+    primitive moved by a prismatic joint is never skipped, reach = inf).
+    """
+
+    q0: np.ndarray
+    d0: np.ndarray
+    reach: np.ndarray
+
+
+def row_reach(model: RobotModel, scene: CollisionScene, pairs: np.ndarray) -> np.ndarray:
+    """(M, n) m per rad: the ``RowStart.reach`` of the rows of ``pairs`` (M,)."""
+    R0, S = reach(model, scene.robot)
+    moved_by_slide = S.any(axis=(1, 2)) | (R0[:, np.asarray(model.is_prismatic, dtype=bool)] > 0).any(axis=1)
+    R = np.where(moved_by_slide[:, None], np.inf, R0)                          # (P, n)
+    out = R[scene.prim[pairs]]
+    self_rows = scene.kind[pairs] == KIND_SELF
+    out[self_rows] += R[scene.other[pairs[self_rows]]]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
 class CollisionTerms:
     """Φ for one inner minimisation (fixed rows, λ and ρ): see the module docstring.
 
     model, scene : the robot and the pairs; points : where the rows sit; rows, pairs : (M,) the
     point and the pair of each row; lam : (M,) ≥ 0; rho : cost units / (m²·s); bound : m.
+
+    start (optional): the rows' distances where the inner solve starts. Any point of a primitive moves at
+    most Σ_j R0_j |q_j − q0_j| from q0 to q (``robot.reach``; the straight path in joint space), so a row
+    with λ = 0 and d0 − Σ_j reach_j |q_j − q0_j| ≥ bound has d ≥ bound at q: μ = 0, and it adds nothing
+    to Φ, its gradient or its curvature. Such rows are not evaluated (their distance is reported as +inf).
     """
 
     model: RobotModel
@@ -105,6 +136,7 @@ class CollisionTerms:
     lam: np.ndarray
     rho: float
     bound: float
+    start: RowStart | None = None
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
 
     @cached_property
@@ -118,9 +150,25 @@ class CollisionTerms:
             return self._last[1], self._last[2]
         q = point_configurations(self.points, C)
         used, inverse = self._used
-        d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        live = self._live(q)
+        if live is None:
+            d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        else:
+            d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
+            if live.any():
+                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used], inverse[live], self.pairs[live])
         self._last[:] = [np.array(C), d, dd]
         return d, dd
+
+    def _live(self, q: np.ndarray) -> np.ndarray | None:
+        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points (None: all)."""
+        start = self.start
+        if start is None:
+            return None
+        with np.errstate(invalid="ignore"):  # inf · 0 (a prismatic joint that did not move): NaN, kept as a live row
+            move = np.einsum("mj,mj->m", start.reach, np.abs(q - start.q0)[self.rows])
+        move = np.where(np.isnan(move), np.inf, move)
+        return (self.lam > 0) | (start.d0 - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
 
     @property
     def rho_rows(self) -> np.ndarray:
@@ -132,12 +180,18 @@ class CollisionTerms:
         return np.maximum(0.0, self.lam + self.rho_rows * (self.bound - d))
 
     def distances(self, C: np.ndarray) -> np.ndarray:
-        """Distances d (M,) m of the rows at coefficients C."""
+        """Distances d (M,) m of the rows at coefficients C (+inf for a row ``start`` shows cannot reach its bound)."""
         if self.rows.size == 0:
             return np.zeros(0)
         used, inverse = self._used
-        return row_contacts(self.model, self.scene, point_configurations(self.points, C)[used], inverse,
-                            self.pairs).distance
+        q = point_configurations(self.points, C)
+        live = self._live(q)
+        if live is None:
+            return row_contacts(self.model, self.scene, q[used], inverse, self.pairs).distance
+        d = np.full(self.rows.size, np.inf)
+        if live.any():
+            d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+        return d
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
         """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""

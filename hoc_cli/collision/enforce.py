@@ -45,7 +45,7 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.collision.certify import Certificate, certify
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations, sphere_rows_scene
+from hoc_cli.collision.constraint import CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.guess import via_candidates, via_guess
 from hoc_cli.collision.limit_rounds import LimitState, LimitWarm
@@ -203,8 +203,14 @@ class CollisionConstraint:
         """The pairs imposed (``constraint.sphere_rows_scene``: obstacles against spheres along the capsules)."""
         got = self._rows
         if not got:
-            got.append(sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene)
+            scene = sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene
+            got.extend([scene, row_reach(self.model, scene, np.arange(scene.size))])
         return got[0]
+
+    def _pair_reach(self) -> np.ndarray:
+        """(Q', n) ``constraint.row_reach`` of every pair of ``rows_scene``."""
+        self.rows_scene()
+        return self._rows[1]
 
     def _bounds(self, problem, scene: CollisionScene) -> np.ndarray:
         """The bound (Q,) m per pair of ``scene``: margin + INFLATION, or less where x0 or x1 is nearer (half its
@@ -240,7 +246,9 @@ class CollisionConstraint:
                 near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
                 p, k = np.nonzero(near & ((D < bound + ROW_REACH) | (lam > 0)))  # ... where within ROW_REACH
                 rows = p.size
-                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k])
+                start_rows = RowStart(point_configurations(points, problem.coefficients(x)), D[p, k],
+                                      self._pair_reach()[k])  # rows that cannot reach their bound are skipped
+                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows)
                 problem.terms = (terms,)
                 inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
                 if lim is None:
