@@ -230,6 +230,7 @@ class CollisionConstraint:
         points = base_points(mesh)
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+        known = (x, points)  # D is at this plan and these points
         c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
         rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
@@ -242,7 +243,8 @@ class CollisionConstraint:
         outer = 0
         try:
             for outer in range(1, max_outer + 1):
-                D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
+                if known[0] is not x or known[1] is not points:
+                    D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
                 near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
                 p, k = np.nonzero(near & ((D < bound + ROW_REACH) | (lam > 0)))  # ... where within ROW_REACH
                 rows = p.size
@@ -257,6 +259,7 @@ class CollisionConstraint:
                 else:  # the joint limits' rounds, from their multipliers of the previous outer iteration
                     res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full)
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+                known = (x, points)
                 lam = np.zeros_like(D)
                 lam[p, k] = terms.multipliers(D[p, k])
                 excess = float(np.max(bound - D, initial=0.0))
