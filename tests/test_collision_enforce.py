@@ -83,6 +83,27 @@ def test_the_arm_goes_round_a_ball_certified_and_coal_agrees_at_1_khz_and_J_grow
     assert free["cost"] < costs[0] <= costs[1] <= costs[2]
 
 
+def test_a_binding_velocity_limit_and_the_ball_are_met_together_in_one_loop(workdir):
+    """The joint limits' rounds run inside the collision loop (``limit_rounds``): the plan meets the limit exactly
+    (the check finds nothing beyond it, the limit is active) and its clearance is certified, coal agreeing."""
+    doc = two_link([BALL], N=16)
+    r, free = plan(workdir, doc)
+    assert r.exit_code == 0 and free["active_limits"] == []
+    with open(workdir / "out.csv") as f:
+        fastest = max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f))
+    assert fastest > 2.5  # the enforced plan without the limit swings the elbow faster than it
+    doc["limits"] = {"velocity": {"shoulder": 1.5, "elbow": 1.5}}
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["limit_violations"] == []
+    assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 1.5 * (1 + 1e-9)
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert s["cost"] > free["cost"]
+
+
 def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workdir):
     wall = {"name": "wall", "box": {"size": [0.1, 0.1, 0.1]}, "position": [0.33, 0, 0.226]}  # across the upper arm's sweep
     r, s = plan(workdir, two_link([wall], N=4))

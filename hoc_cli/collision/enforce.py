@@ -10,13 +10,18 @@ are ``constraint.CollisionTerms`` (PHR), added to the control problem through it
 
 The loop (one level of the planner's continuation):
 
-1. Select the rows; solve min I + Φ from the current x (``inner``: the plain solve, or the joint
-   limits' ``enforce``, which then runs with Φ in its objective).
+1. Select the rows; solve min I + Φ from the current x (``minimize``: the plain solve; with joint
+   limits, ``limit_rounds.LimitState.rounds``: their PHR terms join Φ, their multipliers, ρ and
+   working set go on from the previous outer iteration, and the rounds stop once the plan is
+   settled within its limits, or meets them exactly once the clearance is certified at ``tol``).
+   The rows start from the distances at x (``constraint.RowStart``: rows that cannot reach their
+   bound are not evaluated).
 2. λ ← μ on the rows. The worst violation at the points, max(0, bound − d), decides ρ: × 10 when it
    did not fall to a quarter of the previous one and is still above the inflation (closer to the
    obstacle than the margin itself); within the inflation the multiplier updates finish the job.
 3. When it is below ``VIOLATION_TOL`` the continuous trajectory is certified (``certify``, at the
-   margin itself). Certified and the inner solve converged: done. Not certified (the clearance
+   margin itself). Certified, the inner solve converged and the joint limits met: done (limits not
+   met yet: the loop goes on). Not certified (the clearance
    dips between points): ``REFINE_POINTS`` points are added inside each interval the certificate
    could not prove, and the loop goes on; at most ``MAX_REFINEMENTS`` times.
 4. Infeasible when ρ has grown ``RHO_RANGE``-fold and the violation, still above the inflation
@@ -267,8 +272,8 @@ class CollisionConstraint:
                     _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
                                f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
                                f"min d {float(D.min()):.4f}"
-                               + ("" if lim is None else f" | lim met {limits_met} viol {lim.pv.max_violation():.2e}"
-                                  f"rho {lim.rho} working {int(lim.working.sum())} ev {res.n_evals}"))
+                               + ("" if lim is None else f" limits met {limits_met} rho {lim.rho or 0:.3e} "
+                                  f"working {int(lim.working.sum())}"))
                 if not full and excess <= COARSE_EXCESS:
                     status, message = "converged", f"near the bound at the points (outer iterations: {outer})"
                     break

@@ -1,16 +1,20 @@
 """The joint limits as terms of the collision loop's augmented Lagrangian: one outer loop for both.
 
-The collision outer loop (``enforce.CollisionConstraint``) makes one inner solve per outer
-iteration; with joint limits its objective is I + Φ_collision + Φ_limits (``LimitTerms``, the
-limits' own PHR terms), and after it both sets of multipliers are updated: the collision rows'
-by the loop, the limit rows' here (``LimitState.update``), with the rules of
+Each outer iteration of the collision loop (``enforce.CollisionConstraint``) minimises
+I + Φ_collision + Φ_limits (``LimitTerms``: the limits' own PHR terms) in a few rounds
+(``LimitState.rounds``); after each round the limits' multipliers are updated by the rules of
 ``constraints.augmented_lagrangian`` (the (kind, joint) pairs found beyond their bounds join the
 working set, idle effort pairs leave it, λ ← μ, ρ × 10 when the worst violation did not fall to a
-quarter), and after each converged inner solve its polish (one full Newton step on I + Φ: it
-meets the limits to the rounding level the inner test cannot see). The limits are met when every
-value is within its true bounds (``check_limits``) and Σ μ|g| ≤ tol·|J|; the loop asks it of its
-last iteration only, so intermediate iterations carry the limits' multipliers instead of solving
-the limits to 1e-9 each time.
+quarter within the rounds), after a converged inner solve its polish (one full Newton step on
+I + Φ: it meets the limits to the rounding level the inner test cannot see). The collision's
+multipliers are updated by its loop after the rounds.
+
+The limits' multipliers, ρ and working set go on from one outer iteration to the next and from
+one solve to the next (``LimitWarm``), so the rounds of an outer iteration stop once the plan is
+within ``SETTLED``·σ of every limit (at most ``ROUNDS``): the collision loop needs the limits
+settled to judge its own progress, not met to 1e-9. Its final iterations (the clearance certified
+at the plan's tolerance) ask them met: every value within its true bounds (``check_limits``) and
+Σ μ|g| ≤ tol·|J| (at most ``EXACT_ROUNDS`` rounds an outer iteration).
 """
 from __future__ import annotations
 
@@ -29,8 +33,7 @@ from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 
 _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
 
-START_RHO = 1.0
-SETTLED = 1e-3    # the worst relative violation below which a non-final outer iteration stops its limits' rounds
+SETTLED = 1e-3    # the worst excess over a limit, relative to σ, below which a non-final outer iteration stops its rounds
 ROUNDS = 4        # limits' rounds at most per outer iteration ...
 EXACT_ROUNDS = 12 # ... and in the final ones (the limits met exactly)
 
@@ -74,7 +77,7 @@ class LimitState:
 
     def _start_rho(self, J: float) -> None:
         if self.rho is None:
-            self.rho = self.rho0 = START_RHO * al.RHO_START * max(abs(J), 1e-6) / self.mesh.T
+            self.rho = self.rho0 = al.RHO_START * max(abs(J), 1e-6) / self.mesh.T
 
     def terms(self, J: float) -> LimitTerms:
         """The limits' terms for the next inner solve (``J``: the plan's cost, for ρ0 when the first pair binds)."""
