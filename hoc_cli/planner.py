@@ -208,13 +208,17 @@ class _Session:
         """(inner result with the plan's x, J without penalty, EnforceResult or None) of one level."""
         if self.constraint is None:
             return self._limited(problem, x0, tol_level, max_outer)
-        def inner(p, x, t):
+        def minimize(p, x, t):
             self.spent = self.totals["it"]
-            return self._limited(p, x, t, max_outer)
+            self.current_N = p.mesh.N
+            return self.solve(p, x, t)
 
-        res, J, er, self.outcome = self.constraint.solve(problem, x0, tol_level, inner, warm=self.constraint_warm,
-                                                         full=full)
+        res, J, er, self.outcome = self.constraint.solve(problem, x0, tol_level, minimize, warm=self.constraint_warm,
+                                                         full=full, system=self.system, limits=self.limits,
+                                                         working=self.working)
         self.constraint_warm = self.outcome.warm
+        if er is not None:
+            self.working = er.working
         return res, J, er
 
     def _limited(self, problem: ControlProblem, x0: np.ndarray, tol_level: float, max_outer: int):
@@ -294,10 +298,10 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     augmented Lagrangian on the same mesh).
 
     With ``constraint`` (e.g. ``hoc_cli.collision.enforce.CollisionConstraint``) every level's solve
-    runs inside its outer loop: ``constraint.solve(problem, x0, tol, inner, warm=…, full=…)`` returns
-    (result, J without its terms, limits outcome, outcome); ``inner`` is the level's solve without it
-    (within the limits, if any), the outcome's ``warm`` starts the next level, and the finest level's
-    outcome is ``PlanResult.constraint``.
+    runs inside its outer loop: ``constraint.solve(problem, x0, tol, minimize, warm=…, full=…, system=…,
+    limits=…, working=…)`` returns (result, J without its terms, limits outcome, outcome); ``minimize`` is
+    the unconstrained solve, the joint limits are terms of the constraint's own loop, the outcome's
+    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``.
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,

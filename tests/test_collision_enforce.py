@@ -3,13 +3,14 @@ J against the margin, an infeasible task, and goal tasks refused."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 from _collision_tasks import plan, task_folder
 
-from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, point_configurations, sphere_rows_scene
+from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
 from hoc_cli.collision.evaluate import distances, pair_gradient, row_contacts
 from hoc_cli.collision.geometry import Shape
@@ -80,6 +81,27 @@ def test_the_arm_goes_round_a_ball_certified_and_coal_agrees_at_1_khz_and_J_grow
         assert c["distance"] < margin + 0.005  # the constraint binds
         costs.append(s["cost"])
     assert free["cost"] < costs[0] <= costs[1] <= costs[2]
+
+
+def test_a_binding_velocity_limit_and_the_ball_are_met_together_in_one_loop(workdir):
+    """The joint limits' rounds run inside the collision loop (``limit_rounds``): the plan meets the limit exactly
+    (the check finds nothing beyond it, the limit is active) and its clearance is certified, coal agreeing."""
+    doc = two_link([BALL], N=16)
+    r, free = plan(workdir, doc)
+    assert r.exit_code == 0 and free["active_limits"] == []
+    with open(workdir / "out.csv") as f:
+        fastest = max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f))
+    assert fastest > 2.5  # the enforced plan without the limit swings the elbow faster than it
+    doc["limits"] = {"velocity": {"shoulder": 1.5, "elbow": 1.5}}
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["limit_violations"] == []
+    assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 1.5 * (1 + 1e-9)
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert s["cost"] > free["cost"]
 
 
 def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workdir):
@@ -198,6 +220,41 @@ def test_the_curvature_blocks_are_the_gauss_newton_matrix_of_the_active_rows(lbr
     assert quad == pytest.approx(ref, rel=1e-5)
 
 
+def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_changing_phi(lbr7_scene):
+    """Skipped rows (``RowStart``: the reach bound from the inner solve's start, or from the last plan where every
+    row was evaluated) add exactly nothing: Φ, its gradient and its blocks equal those of every row evaluated, at
+    plans moved a little and far from the start."""
+    model, scene = lbr7_scene
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C0 = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    points = base_points(mesh)
+    D = distances(model, scene, point_configurations(points, C0))
+    p, k = np.nonzero(D < 0.3)  # near and far rows, λ > 0 on one in eight
+    lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % 8 == 0)
+    full = CollisionTerms(model, scene, points, p, k, lam, 50.0, np.full(p.size, 0.03))
+    start = RowStart(point_configurations(points, C0), D[full.rows, full.pairs],
+                     row_reach(model, scene, np.arange(scene.size))[full.pairs])
+    pruned = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    rng = np.random.default_rng(4)
+    skipped = []
+    far = C0 + 1.5 * rng.normal(size=C0.shape)
+    for C in [C0 + size * rng.normal(size=C0.shape) for size in (1e-3, 3e-2)] + [far, far + 1e-3 * rng.normal(size=C0.shape)]:
+        v, G = full.evaluate(C)
+        vp, Gp = pruned.evaluate(C)
+        assert vp == pytest.approx(v, rel=1e-13, abs=1e-13) and np.allclose(Gp, G, rtol=0, atol=1e-12 * np.abs(G).max())
+        assert np.allclose(pruned.newton_blocks(C), full.newton_blocks(C), rtol=1e-13, atol=0)
+        d, dp = full.distances(C), pruned.distances(C)
+        live = np.isfinite(dp)
+        assert np.array_equal(dp[live], d[live]) and np.all(d[~live] >= full.bound[~live])  # a skipped row is clear
+        assert np.all(full.lam[~live] == 0)
+        skipped.append(int((~live).sum()))
+    # rows are skipped near the start; far from it every row is evaluated and the anchor moves there, so rows are
+    # skipped again near the far plan, more than from the start
+    fresh = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    assert skipped[0] > 0 and skipped[3] > int(np.isinf(fresh.distances(C)).sum())
+
+
 def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):
     pytest.importorskip("pyarrow")
     pytest.importorskip("distributed")
@@ -246,9 +303,9 @@ def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatc
 
     loop = enforce.CollisionConstraint._loop
 
-    def failing(self, *args):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
-        got = loop(self, *args)
-        return got if args[-1] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
+    def failing(self, *args, **kw):  # the loop from the level's own start ends infeasible (as from a start it cannot free)
+        got = loop(self, *args, **kw)
+        return got if kw["start"] != "start" else got[:3] + (dataclasses.replace(got[3], status="infeasible"),)
 
     monkeypatch.setattr(enforce.CollisionConstraint, "_loop", failing)
     r, s = plan(workdir, two_link([BALL], N=4))

@@ -163,8 +163,7 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
             break
         t0, t1, d0, d1, speed, pair, depth, e = (x[split] for x in (t0, t1, d0, d1, speed, pair, depth, e))
         tm = (t0 + t1) / 2
-        a, b = world_capsules(model, scene, mesh.evaluate(C, tm))
-        dm = pair_contacts(scene, a, b, np.arange(tm.size), pair).distance
+        dm = _distances_at(model, scene, mesh, C, tm, pair)
         evaluations += tm.size
         k = int(np.argmin(dm))
         if dm[k] < best[0]:
@@ -174,7 +173,8 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
         s0, sm, s1 = (t0 - start) / h, (tm - start) / h, (t1 - start) / h
         halves = np.concatenate([s0, sm]), np.concatenate([sm, s1])
         ee, pp = np.tile(e, 2), np.tile(pair, 2)
-        vmax = velocity_bounds(poly, ee, *halves)                           # rad/s (m/s)
+        _, first, inverse = np.unique(np.stack([ee, *halves]), axis=1, return_index=True, return_inverse=True)
+        vmax = velocity_bounds(poly, ee[first], halves[0][first], halves[1][first])[inverse.ravel()]  # rad/s (m/s)
         speed = np.minimum(np.tile(speed, 2), _speeds(scene, R[ee], vmax, pp))
         t0, t1 = np.concatenate([t0, tm]), np.concatenate([tm, t1])
         d0, d1 = np.concatenate([d0, dm]), np.concatenate([dm, d1])
@@ -185,8 +185,7 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
     s = (np.arange(REFINE_POINTS) + 0.5) / REFINE_POINTS
     ts = (L0[worst, None] + s * (L1 - L0)[worst, None]).ravel()
     ps = np.repeat(Lp[worst], REFINE_POINTS)
-    a, b = world_capsules(model, scene, mesh.evaluate(C, ts))
-    dr = pair_contacts(scene, a, b, np.arange(ts.size), ps).distance
+    dr = _distances_at(model, scene, mesh, C, ts, ps)
     evaluations += ts.size
     if dr.size and dr.min() < best[0]:
         k = int(np.argmin(dr))
@@ -197,6 +196,16 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
     return Certificate(margin=margin, certified=lower >= margin, lower_bound=lower, distance=best[0],
                        pair=scene.names[best_pair], t=best_t, collisions=collisions, evaluations=int(evaluations),
                        speed=V)
+
+
+def _distances_at(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray, t: np.ndarray,
+                  pair: np.ndarray) -> np.ndarray:
+    """Signed distances (M,) m of pair ``pair[i]`` at time ``t[i]`` (each (M,)): the primitives placed once per
+    distinct time (many pairs share an interval's midpoint).
+    """
+    times, inverse = np.unique(t, return_inverse=True)
+    a, b = world_capsules(model, scene, mesh.evaluate(C, times))
+    return pair_contacts(scene, a, b, inverse.ravel(), pair).distance
 
 
 def _merge(scene: CollisionScene, t0, t1, d, lb, pair, margin: float) -> tuple[dict, ...]:

@@ -18,15 +18,18 @@ element of the point, so the Newton matrix stays block-banded (``PointSet.sample
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from hoc_cli.collision.evaluate import pair_gradient, row_contacts
-from hoc_cli.collision.robot import RobotGeometry
+from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
+REANCHOR = 0.5       # more rows than this fraction may reach their bound: all evaluated, and the anchor moves
+PRUNE_SLACK = 1e-9    # relative and absolute (m) slack of the test that skips a row (rounding of d0 and the bound)
 SPHERE_PADDING = 2e-3  # m: how far the spheres standing for a capsule against obstacles may reach beyond it
 
 
@@ -88,11 +91,29 @@ def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:
     return np.einsum("pa,pan->pn", points.B[0], loc)
 
 
-def point_distances(model: RobotModel, scene: CollisionScene, q: np.ndarray, rows: np.ndarray,
-                    pairs: np.ndarray) -> np.ndarray:
-    """Signed distances (M,) m of pair ``pairs[r]`` at configuration ``q[rows[r]]`` (q (K, n))."""
-    used, inverse = np.unique(rows, return_inverse=True)
-    return row_contacts(model, scene, q[used], inverse, pairs).distance
+@dataclass(frozen=True, eq=False)
+class RowStart:
+    """Where an inner solve starts, for skipping rows that cannot reach their bound (``CollisionTerms``).
+
+    q0 : (P, n) the configurations at the points; d0 : (M,) m the rows' distances there; reach : (M, n) m per
+    rad, per row the sum over its moving primitives of ``robot.reach``'s R0 (revolute joints only: a row of a
+    primitive moved by a prismatic joint is never skipped, reach = inf).
+    """
+
+    q0: np.ndarray
+    d0: np.ndarray
+    reach: np.ndarray
+
+
+def row_reach(model: RobotModel, scene: CollisionScene, pairs: np.ndarray) -> np.ndarray:
+    """(M, n) m per rad: the ``RowStart.reach`` of the rows of ``pairs`` (M,)."""
+    R0, S = reach(model, scene.robot)
+    moved_by_slide = S.any(axis=(1, 2)) | (R0[:, np.asarray(model.is_prismatic, dtype=bool)] > 0).any(axis=1)
+    R = np.where(moved_by_slide[:, None], np.inf, R0)                          # (P, n)
+    out = R[scene.prim[pairs]]
+    self_rows = scene.kind[pairs] == KIND_SELF
+    out[self_rows] += R[scene.other[pairs[self_rows]]]
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,6 +122,13 @@ class CollisionTerms:
 
     model, scene : the robot and the pairs; points : where the rows sit; rows, pairs : (M,) the
     point and the pair of each row; lam : (M,) ≥ 0; rho : cost units / (m²·s); bound : m.
+
+    start (optional): the rows' distances where the inner solve starts. Any point of a primitive moves at
+    most Σ_j R0_j |q_j − q0_j| from q0 to q (``robot.reach``; the straight path in joint space), so a row
+    with λ = 0 and d0 − Σ_j reach_j |q_j − q0_j| ≥ bound has d ≥ bound at q: μ = 0, and it adds nothing
+    to Φ, its gradient or its curvature. Such rows are not evaluated (their distance is reported as +inf).
+    When more than ``REANCHOR`` of the rows may reach their bound, every row is evaluated and (q, d) there
+    replaces (q0, d0) for the next evaluations (the line search's trials lie near the last ones).
     """
 
     model: RobotModel
@@ -111,17 +139,49 @@ class CollisionTerms:
     lam: np.ndarray
     rho: float
     bound: float
+    start: RowStart | None = None
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
+    _anchor: list = field(default_factory=list, repr=False)  # [RowStart]: the last configurations with every row evaluated
+
+    @cached_property
+    def _used(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the points the rows use (U,), each row's index among them (M,))."""
+        return np.unique(self.rows, return_inverse=True)
 
     def _gradient(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(d (M,), ∂d/∂q (M, n)) of the rows at C; the Newton matrix at the point just evaluated reuses them."""
         if self._last and np.array_equal(self._last[0], C):
             return self._last[1], self._last[2]
         q = point_configurations(self.points, C)
-        used, inverse = np.unique(self.rows, return_inverse=True)
-        d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+        used, inverse = self._used
+        live = self._live(q)
+        if live is None:
+            d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+            self._anchor_at(q, d)
+        else:
+            d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
+            if live.any():
+                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used], inverse[live], self.pairs[live])
         self._last[:] = [np.array(C), d, dd]
         return d, dd
+
+    def _anchor_at(self, q: np.ndarray, d: np.ndarray) -> None:
+        """Every row was evaluated at q (P, n), its distances d (M,): the next evaluations bound their moves from here."""
+        if self.start is not None:
+            self._anchor[:] = [RowStart(q, d, self.start.reach)]
+
+    def _live(self, q: np.ndarray) -> np.ndarray | None:
+        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points (None: every row,
+        when more than ``REANCHOR`` of them may: they are all evaluated and q becomes the anchor).
+        """
+        if self.start is None:
+            return None
+        start = self._anchor[0] if self._anchor else self.start
+        with np.errstate(invalid="ignore"):  # inf · 0 (a prismatic joint that did not move): NaN, kept as a live row
+            move = np.einsum("mj,mj->m", start.reach, np.abs(q - start.q0)[self.rows])
+        move = np.where(np.isnan(move), np.inf, move)
+        live = (self.lam > 0) | (start.d0 - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
+        return None if live.mean() > REANCHOR else live
 
     @property
     def rho_rows(self) -> np.ndarray:
@@ -133,10 +193,20 @@ class CollisionTerms:
         return np.maximum(0.0, self.lam + self.rho_rows * (self.bound - d))
 
     def distances(self, C: np.ndarray) -> np.ndarray:
-        """Distances d (M,) m of the rows at coefficients C."""
+        """Distances d (M,) m of the rows at coefficients C (+inf for a row ``start`` shows cannot reach its bound)."""
         if self.rows.size == 0:
             return np.zeros(0)
-        return point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+        used, inverse = self._used
+        q = point_configurations(self.points, C)
+        live = self._live(q)
+        if live is None:
+            d = row_contacts(self.model, self.scene, q[used], inverse, self.pairs).distance
+            self._anchor_at(q, d)
+            return d
+        d = np.full(self.rows.size, np.inf)
+        if live.any():
+            d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+        return d
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
         """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
@@ -146,7 +216,7 @@ class CollisionTerms:
         if grad:
             d, dd = self._gradient(C)
         else:
-            d = point_distances(self.model, self.scene, point_configurations(self.points, C), self.rows, self.pairs)
+            d = self.distances(C)
         rr = self.rho_rows
         mu = self.multipliers(d)
         value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
@@ -162,7 +232,7 @@ class CollisionTerms:
         size = 2 * mesh.m * n
         if self.rows.size == 0:
             return np.zeros((mesh.N, size, size))
-        used, inverse = np.unique(self.rows, return_inverse=True)
+        used, inverse = self._used
         d, dd = self._gradient(C)
         rr = self.rho_rows
         on = self.lam + rr * (self.bound - d) > 0

@@ -137,7 +137,9 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     fields = ("distance", "normal", "point_a", "point_b")
     for f, v in zip(fields, got):
         getattr(out, f)[ball[done]] = v[done]
-    rest = np.setdiff1d(np.arange(M), ball[done])  # capsules, and spheres whose centre is in the box
+    keep = np.ones(M, dtype=bool)
+    keep[ball[done]] = False
+    rest = np.flatnonzero(keep)  # capsules, and spheres whose centre is in the box
     if rest.size:
         c = _capsule_box_rows(a[rest], b[rest], r[rest], center[rest], R[rest], h[rest])
         for f in fields:

@@ -10,13 +10,18 @@ are ``constraint.CollisionTerms`` (PHR), added to the control problem through it
 
 The loop (one level of the planner's continuation):
 
-1. Select the rows; solve min I + Φ from the current x (``inner``: the plain solve, or the joint
-   limits' ``enforce``, which then runs with Φ in its objective).
+1. Select the rows; solve min I + Φ from the current x (``minimize``: the plain solve; with joint
+   limits, ``limit_rounds.LimitState.rounds``: their PHR terms join Φ, their multipliers, ρ and
+   working set go on from the previous outer iteration, and the rounds stop once the plan is
+   settled within its limits, or meets them exactly once the clearance is certified at ``tol``).
+   The rows start from the distances at x (``constraint.RowStart``: rows that cannot reach their
+   bound are not evaluated).
 2. λ ← μ on the rows. The worst violation at the points, max(0, bound − d), decides ρ: × 10 when it
    did not fall to a quarter of the previous one and is still above the inflation (closer to the
    obstacle than the margin itself); within the inflation the multiplier updates finish the job.
 3. When it is below ``VIOLATION_TOL`` the continuous trajectory is certified (``certify``, at the
-   margin itself). Certified and the inner solve converged: done. Not certified (the clearance
+   margin itself). Certified, the inner solve converged and the joint limits met: done (limits not
+   met yet: the loop goes on). Not certified (the clearance
    dips between points): ``REFINE_POINTS`` points are added inside each interval the certificate
    could not prove, and the loop goes on; at most ``MAX_REFINEMENTS`` times.
 4. Infeasible when ρ has grown ``RHO_RANGE``-fold and the violation, still above the inflation
@@ -36,6 +41,7 @@ converges. Each level starts at its own ρ0, with the coarser level's multiplier
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -44,10 +50,12 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.collision.certify import Certificate, certify
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations, sphere_rows_scene
+from hoc_cli.collision.constraint import CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.guess import via_candidates, via_guess
+from hoc_cli.collision.limit_rounds import LimitState, LimitWarm
 from hoc_cli.collision.scene import CollisionScene
+from hoc_cli.constraints.bounds import JointLimits
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
@@ -80,13 +88,14 @@ COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close t
 @dataclass(frozen=True, eq=False)
 class CollisionWarm:
     """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ (reported only: each
-    level starts at its own ρ0).
+    level starts at its own ρ0); the joint limits' state (``limit_rounds.LimitWarm``), if any.
     """
 
     t: np.ndarray
     w: np.ndarray
     lam: np.ndarray
     rho: float
+    limits: LimitWarm | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,14 +172,18 @@ class CollisionConstraint:
     scene: CollisionScene
     _rows: list = field(default_factory=list, repr=False)  # the rows' scene, built on first use
 
-    def solve(self, problem, x0: np.ndarray, tol: float, inner: Callable, *, warm: CollisionWarm | None = None,
-              full: bool = True):
-        """(inner result with the plan's x, J without Φ, the inner's limits outcome, ``CollisionOutcome``).
+    def solve(self, problem, x0: np.ndarray, tol: float, minimize: Callable, *, warm: CollisionWarm | None = None,
+              full: bool = True, system=None, limits: JointLimits | None = None, working: np.ndarray | None = None):
+        """(inner result with the plan's x, J without Φ, the limits' ``EnforceResult`` or None, ``CollisionOutcome``).
 
-        ``inner(problem, x, tol) -> (result, J, limits outcome)`` minimises ``problem`` (with its ``terms``).
+        ``minimize(problem, x, tol) -> OptimizeResult`` is the unconstrained minimiser of ``problem`` (with its
+        ``terms``). With ``limits`` (and ``system``, the dynamics) the joint limits are terms of the same loop
+        (``limit_rounds``), their working set starting from ``working`` (K, n) when given.
         Without ``warm`` (the plan's first level) a start the loop cannot free tries via guesses.
         """
-        got = self._loop(problem, x0, tol, inner, warm, full, MAX_OUTER if full else COARSE_MAX_OUTER, "start")
+        inner = functools.partial(self._loop, problem, tol=tol, minimize=minimize, full=full,
+                                  limits=None if limits is None or not limits.any else (system, limits, working))
+        got = inner(x0, warm=warm, max_outer=MAX_OUTER if full else COARSE_MAX_OUTER, start="start")
         if got[3].status != "infeasible":
             return got
         mesh = problem.mesh
@@ -181,7 +194,7 @@ class CollisionConstraint:
                 starts.append(("via", problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))))
         best = None
         for label, x in starts:
-            tried = self._loop(problem, x, tol, inner, None, full, VIA_MAX_OUTER, label)
+            tried = inner(x, warm=None, max_outer=VIA_MAX_OUTER, start=label)
             if tried[3].status == "converged" and (best is None or tried[1] < best[1]):
                 best = tried
         if best is None:
@@ -195,8 +208,14 @@ class CollisionConstraint:
         """The pairs imposed (``constraint.sphere_rows_scene``: obstacles against spheres along the capsules)."""
         got = self._rows
         if not got:
-            got.append(sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene)
+            scene = sphere_rows_scene(self.scene) if SPHERE_ROWS else self.scene
+            got.extend([scene, row_reach(self.model, scene, np.arange(scene.size))])
         return got[0]
+
+    def _pair_reach(self) -> np.ndarray:
+        """(Q', n) ``constraint.row_reach`` of every pair of ``rows_scene``."""
+        self.rows_scene()
+        return self._rows[1]
 
     def _bounds(self, problem, scene: CollisionScene) -> np.ndarray:
         """The bound (Q,) m per pair of ``scene``: margin + INFLATION, or less where x0 or x1 is nearer (half its
@@ -207,14 +226,16 @@ class CollisionConstraint:
         ends = distances(self.model, scene, np.stack([q0, q1])).min(axis=0)
         return margin + np.minimum(0.5 * (ends - margin), INFLATION)
 
-    def _loop(self, problem, x: np.ndarray, tol: float, inner: Callable, warm: CollisionWarm | None, full: bool,
-              max_outer: int, start: str):
+    def _loop(self, problem, x: np.ndarray, *, tol: float, minimize: Callable, full: bool, limits,
+              warm: CollisionWarm | None, max_outer: int, start: str):
         model, mesh, exact = self.model, problem.mesh, self.scene
+        lim = None if limits is None else LimitState(*limits, problem, None if warm is None else warm.limits)
         scene = self.rows_scene()  # the rows; the certificate takes the exact pairs
         bound = self._bounds(problem, scene)                            # (Q,)
         points = base_points(mesh)
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
+        known = (x, points)  # D is at this plan and these points
         c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
         rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
@@ -222,26 +243,37 @@ class CollisionConstraint:
         grown = 0  # how many times ρ has grown (counted: ρ0·10⁴ computed by products is not ρ0·1e4 exactly)
         refinements = 0
         tight = float(np.max(bound - D, initial=0.0)) <= VIOLATION_TOL  # the start is clear at the points already
-        status, message, cert, res, er, rows = "not_converged", "", None, None, None, 0
+        status, message, cert, res, rows = "not_converged", "", None, None, 0
+        limits_met = True
         outer = 0
         try:
             for outer in range(1, max_outer + 1):
-                D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
+                if known[0] is not x or known[1] is not points:
+                    D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
                 near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
                 p, k = np.nonzero(near & ((D < bound + ROW_REACH) | (lam > 0)))  # ... where within ROW_REACH
                 rows = p.size
-                problem.terms = (CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k]),)
-                res, _, er = inner(problem, x, tol if tight and full else max(tol, LOOSE_TOL))
-                x = res.x
+                start_rows = RowStart(point_configurations(points, problem.coefficients(x)), D[p, k],
+                                      self._pair_reach()[k])  # rows that cannot reach their bound are skipped
+                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows)
+                problem.terms = (terms,)
+                inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
+                if lim is None:
+                    res = minimize(problem, x, inner_tol)
+                    x = res.x
+                else:  # the joint limits' rounds, from their multipliers of the previous outer iteration
+                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full)
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
-                terms = problem.terms[0]
+                known = (x, points)
                 lam = np.zeros_like(D)
                 lam[p, k] = terms.multipliers(D[p, k])
                 excess = float(np.max(bound - D, initial=0.0))
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"collision outer {outer} N {mesh.N} start {start} it {res.iterations} "
                                f"J {problem.bare_cost(x):.10g} rows {rows} excess {excess:.3e} rho {rho:.3e} "
-                               f"min d {float(D.min()):.4f}")
+                               f"min d {float(D.min()):.4f}"
+                               + ("" if lim is None else f" limits met {limits_met} rho {lim.rho or 0:.3e} "
+                                  f"working {int(lim.working.sum())}"))
                 if not full and excess <= COARSE_EXCESS:
                     status, message = "converged", f"near the bound at the points (outer iterations: {outer})"
                     break
@@ -253,11 +285,15 @@ class CollisionConstraint:
                     if cert.certified and not tight:  # once more with the plan's tolerance, λ updated
                         tight = True
                         continue
+                    if cert.certified and not limits_met and outer < max_outer:
+                        continue  # the joint limits' multipliers still move
                     if cert.certified:
-                        if res.converged:
+                        if res.converged and limits_met:
                             status = "converged"
                             message = (f"clearance certified >= {scene.margin:g} m on the whole trajectory "
                                        f"(outer iterations: {outer})")
+                        elif not limits_met:
+                            message = "clearance certified, but the joint limits were not met"
                         else:
                             message = f"clearance certified, but the inner solve stopped: {res.message}"
                         break
@@ -298,7 +334,8 @@ class CollisionConstraint:
                 message = (f"no collision-free trajectory was found: {a} and {b} {how} at t = {t:.4g} s "
                            f"(margin {scene.margin:g} m)")
         J = problem.bare_cost(x)
-        warm_next = CollisionWarm(points.t, points.weight, lam, rho)
+        er = None if lim is None else lim.result(res, x, J, outer)
+        warm_next = CollisionWarm(points.t, points.weight, lam, rho, None if lim is None else lim.warm())
         outcome = CollisionOutcome(status=status, message=message, certificate=cert if full else None,
                                    outer_iterations=outer, rho=rho, rows=rows, points=points.size, start=start,
                                    warm=warm_next)

@@ -32,7 +32,7 @@ LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working se
    pair without multipliers whose torques stay ``EFFORT_SLACK``·σ inside its limit leaves it (its
    rows would cost the dynamics at 32 points per element in every evaluation and add nothing; the
    check brings it back if broken), so a level can again go to the SQP.
-3. One full Newton step on I + Φ ("polish"; see ``_polish``), then λ ← max(0, λ + ρ_w g) and
+3. One full Newton step on I + Φ ("polish"; see ``polish``), then λ ← max(0, λ + ρ_w g) and
    ρ × 10 whenever the worst violation did not fall to a quarter of the previous one.
 4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
    imposed bounds are tightened by a relative margin of 1e-9, so the plan ends strictly inside),
@@ -186,7 +186,7 @@ def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str
     return best
 
 
-def _polish(problem: PenalizedProblem, x: np.ndarray) -> np.ndarray:
+def polish(problem: PenalizedProblem, x: np.ndarray) -> np.ndarray:
     """One full Newton step on I + Φ from an inner optimum.
 
     The inner stopping test weighs the decrement against |J|; a violation δ changes Φ by about
@@ -279,7 +279,7 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                          check=check, working=working, rows=s.rows, penalty=s.penalty, sqp="converged"), x, working
 
 
-def _idle_effort(pv: PenaltyValue, check: LimitCheck) -> np.ndarray:
+def idle_effort(pv: PenaltyValue, check: LimitCheck) -> np.ndarray:
     """(n,) bool: joints whose effort rows have no multiplier and whose torque is ``EFFORT_SLACK``·σ within its limit."""
     mu = pv.mu_lo[EFFORT] + pv.mu_hi[EFFORT]  # (P, n)
     return ~(mu > 0).any(axis=0) & (check.relative_excess()[EFFORT] < -EFFORT_SLACK)
@@ -343,7 +343,7 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         res = inner_solve(problem, x, tol)
         x = res.x
         if not terms.empty and res.converged:
-            x = _polish(problem, x)
+            x = polish(problem, x)
         C = base.coefficients(x)
         check = check_limits(system, limits, mesh, C)
         pv = terms.evaluate(C, grad=False)
@@ -363,7 +363,7 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
             message = f"the inner solve failed: {res.message}"
             break
         lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
-        idle = _idle_effort(pv, check) & working[EFFORT]
+        idle = idle_effort(pv, check) & working[EFFORT]
         if idle.any():  # effort rows far from their limits cost dynamics at every point and add nothing: dropped
             working = working.copy()
             working[EFFORT] &= ~idle
