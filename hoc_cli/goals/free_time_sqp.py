@@ -22,6 +22,8 @@ same first-order conditions as the search's end.
    at the guess is made there, from the restored trajectory. Where the coarse stage below applies, the restoration
    runs on its elements (``_restored``: the UR5's fast catch 21 restoration steps there against 44 on its 8
    elements, then 25 + 19 steps on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
+   When the restoration stalls with T at a bound of its range (no T there where the goal meets the limits) and the
+   steps at the guess do not converge, the plan ends there, not converged (``_unfinished``), without the search.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
