@@ -98,3 +98,27 @@ N: 4
     assert "internal error" not in out.stderr and "no T in [0.3, 0.5] s found" in out.stderr
     s = json.loads(out.stdout)
     assert s["status"] == "max_iter" and s["T"] == 0.5 and s["T_converged"] is False
+
+
+def test_a_goal_plan_whose_newton_matrix_overflows_raises_a_numerical_error(monkeypatch):
+    """A goal plan (``plan_goals``: the search's fixed-T solves) whose Newton matrix leaves the floating-point range (the
+    UR5 catch with a via at s = 0.3 on 6 elements: the search's plan at T = 0.68 s diverged to a cost of 3e300 in 29 s,
+    too slow for this file) raises ``NumericalError`` (``hoc plan``: exit 1, one line), not scipy's ``ValueError``
+    (``hoc plan``: "internal error"). Here the banded factorisation sees an infinite matrix from the first step."""
+    import hoc_cli.banded
+    from hoc_cli.dynamics import link_poses
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.errors import NumericalError
+    from hoc_cli.goals import FrameResidual, Goals, plan_goals
+    from hoc_cli.model import load_robot
+    from hoc_cli.system import RobotSystem
+    from tests._robots import ROBOTS
+
+    lbr = load_robot(ROBOTS / "lbr7.urdf")
+    q0 = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
+    target = link_poses(lbr, q0 + 0.2)["lbr_flange"][:3, 3]
+    factor = hoc_cli.banded.cholesky_banded
+    monkeypatch.setattr(hoc_cli.banded, "cholesky_banded", lambda ab, lower=False: factor(np.full_like(ab, np.inf), lower=lower))
+    with pytest.raises(NumericalError, match="not finite"):
+        plan_goals(RobotSystem(lbr), HermiteMesh("quintic", 1.0, 4), q0, np.zeros(7),
+                   Goals(final=FrameResidual(lbr, "lbr_flange", target)))
