@@ -22,6 +22,8 @@ same first-order conditions as the search's end.
    at the guess is made there, from the restored trajectory. Where the coarse stage below applies, the restoration
    runs on its elements (``_restored``: the UR5's fast catch 21 restoration steps there against 44 on its 8
    elements, then 25 + 19 steps on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
+   When the restoration stalls with T at a bound of its range (no T there where the goal meets the limits) and the
+   steps at the guess do not converge, the plan ends there, not converged (``_unfinished``), without the search.
 2. The steps in x and T from that plan (the same quadrature test at their end).
 3. When those do not converge, the search runs, seeded with the plan at the guess.
 
@@ -46,6 +48,7 @@ Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -84,9 +87,9 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
     first = None
     if initial is not None and cold_steps > 0 and limits is not None and limits.any:
         start = initial(guess)
-        level = None  # the start on ``coarse`` elements, when the restoration made it there
+        level, stalled = None, False  # the start on ``coarse`` elements, when the restoration made it there
         if _breaks_limits(system, start, limits):  # perhaps no plan at the guess: T moves to where there is one
-            start, level = _restored(system, start, goals, limits, span, coarse)
+            start, level, stalled = _restored(system, start, goals, limits, span, coarse)
             guess = start.mesh.T
         coarsened = (_coarse_first(system, start, goals, limits, span, cold_steps, max_steps, coarse, level=level)
                      if coarse else None)
@@ -94,6 +97,8 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
             return coarsened
         r = replan(system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
+        if not r.converged and stalled:  # the violation's minimum at T's bound: no T in range meets the limits
+            return _unfinished(r, span)
         r = _with_quadrature(r, system, goals, None, limits, max_steps) if r.converged else None
         if r is not None:
             plan = r.plan
@@ -115,9 +120,13 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
 
 
 def _restored(system, start, goals, limits, span: TimeRange, coarse: int):
-    """(the start of the steps on the mesh of ``start``, the start on ``coarse`` elements or None) after the restoration
-    (``hoc_cli.goals.restoration.restore``) of ``start``, the initial trajectory at the guess that breaks a kinematic
-    limit: both at the restored T with zero multipliers, or ``start`` itself and None when no T was found.
+    """(the start of the steps on the mesh of ``start``, the start on ``coarse`` elements or None, whether the
+    restoration on the mesh stalled at a bound of T) after the restoration (``hoc_cli.goals.restoration.restore``) of
+    ``start``, the initial trajectory at the guess that breaks a kinematic limit: both at the restored T with zero
+    multipliers, or ``start`` itself and None when no T was found. Stalled at a bound: the violation's minimum over x
+    and T sits at the end of T's range, where it still decreases beyond it (the UR5's fast catch with T ≤ 0.5 s); a stall
+    inside the range is no such evidence (the lbr7 catch with a via: stalled at 0.35 s, where the search over T then
+    finds the optimum at 0.466 s).
 
     Where ``_coarse_first`` applies (``_coarsens``), the restoration runs on the ``coarse`` elements it starts from (each
     step's programme a fraction of the size; the initial trajectory, one quintic, is the same there): the UR5's fast
@@ -141,11 +150,11 @@ def _restored(system, start, goals, limits, span: TimeRange, coarse: int):
         if found.feasible:
             level = HermiteMesh(mesh.order, found.T, coarse)
             fine = HermiteMesh(mesh.order, found.T, mesh.N)
-            return plan_on(fine, resample(level, found.coeffs, fine)), plan_on(level, found.coeffs)
+            return plan_on(fine, resample(level, found.coeffs, fine)), plan_on(level, found.coeffs), False
     found = restore(system, start, goals, limits, span=span)
     if not found.feasible:
-        return start, None
-    return plan_on(scaled_mesh(mesh.order, found.T, mesh.N, mesh_fractions(mesh)), found.coeffs), None
+        return start, None, found.stalled and found.T in (span.min, span.max)
+    return plan_on(scaled_mesh(mesh.order, found.T, mesh.N, mesh_fractions(mesh)), found.coeffs), None, False
 
 
 def _coarsens(mesh, goals, coarse: int) -> bool:
@@ -232,6 +241,24 @@ def _breaks_limits(system, plan, limits) -> bool:
     everything = all_rows(system, limits, rows, plan.coeffs)
     worst = max(float(np.max(g, initial=-np.inf)) for g in everything.g_lo[:KINEMATIC] + everything.g_hi[:KINEMATIC])
     return worst > 0.0 or plan.violation > COLD_FLOOR
+
+
+def _unfinished(r, span: TimeRange) -> FreeTimeResult:
+    """The end of a free T whose restoration stalled at a bound of T (the violation over x and T least at the end of
+    ``span``: no T in it found where the goal rows meet the kinematic limits) and whose steps at the guess T from the initial trajectory
+    did not converge (``r``, their replan): its last
+    plan, not converged (its status kept: ``max_iter``, or ``not_finite`` when a programme left the floating-point
+    range), and no search over T, whose fixed-T solves at T without a plan ran for minutes (the UR5's fast catch).
+    """
+    plan = r.plan
+    message = (f"free final time: no T in [{span.min:g}, {span.max:g}] s found where the goal is met within the "
+               f"limits, nor a plan at T = {r.T:g} s ({r.steps} steps)")
+    changes = {"optimizer": dataclasses.replace(plan.optimizer, message=message)}
+    if plan.limits is not None:
+        changes["limits"] = dataclasses.replace(plan.limits, status="not_converged", message=message)
+    point = TimePoint(T=r.T, J=plan.J, dJ_dT=r.dJ_dT, result=dataclasses.replace(plan, **changes))
+    return FreeTimeResult(T=r.T, J=plan.J, dJ_dT=r.dJ_dT, objective=plan.J + span.weight * r.T, weight=span.weight,
+                          bound=None, point=point, history=[point], converged=False)
 
 
 def _point(r) -> TimePoint:

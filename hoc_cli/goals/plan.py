@@ -216,7 +216,15 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                 callback(dataclasses.replace(log, iteration=totals["it"] + log.iteration,
                                              n_evals=totals["ev"] + log.n_evals, level=problem.mesh.N))
 
-        res = minimize(evaluate, x0, precondition=problem.newton, method=method, tol=tol_level,
+        def newton(ev):
+            try:
+                return problem.newton(ev)
+            except ValueError as exc:  # scipy's banded factorisation of a matrix beyond the floating-point range
+                if "infs or NaNs" not in str(exc):
+                    raise
+                raise NumericalError(f"the Newton matrix is not finite (cost {ev.J:.3g}): the goal plan diverged") from exc
+
+        res = minimize(evaluate, x0, precondition=newton, method=method, tol=tol_level,
                        max_iter=max(max_iter - totals["it"], 0), callback=report, noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]

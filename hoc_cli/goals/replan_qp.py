@@ -66,6 +66,7 @@ MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this 
 EXPAND_ROUNDS = 4  # per step: programmes re-solved with the kinematic rows the step would break added
 CORRECTION = True  # a step the goal rows' violation floor or the merit test would cut tries its second-order correction
 LAG_RTOL = 1e-10  # after a step whose model decrease was within ±this·|J|, the next QP keeps the step's Newton matrix
+RUNAWAY = 1e16  # a programme whose decrease exceeds this·max(|J|, 1) (1/ε: beyond what J resolves) ends the steps
 
 
 def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool,
@@ -284,6 +285,11 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             break
         row_violation = float(np.max(gA, initial=0.0))
         decrement = step.decrease
+        if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
+            status = Status.MAX_ITER if math.isfinite(decrement) and np.all(np.isfinite(step.d)) else Status.NOT_FINITE
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"qp step {steps}: the programme runs away (decrease {decrement:.2e}, J {pt.J:.6g})")
+            break
         if _log.isEnabledFor(logging.DEBUG):
             _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
@@ -481,6 +487,16 @@ class MeritTest:
             return phi <= phi0 + self.ARMIJO * alpha * slope
 
         return accept
+
+
+def _runs_away(step, decrement: float, J: float) -> bool:
+    """Whether the step's programme left what floating point resolves: a non-finite step, multiplier or decrease, or a
+    decrease beyond ``RUNAWAY``·max(|J|, 1). Steps at a T with no plan within the limits (the UR5's fast catch at its
+    guess) make programmes whose rows are almost inconsistent; their multipliers enter the next Newton matrix (Σλ∇²c)
+    and grow with it, ×1e4 a step, until the matrix overflows.
+    """
+    finite = math.isfinite(decrement) and all(np.all(np.isfinite(v)) for v in (step.d, step.nu, step.mu))
+    return not finite or abs(decrement) > RUNAWAY * max(abs(J), 1.0)
 
 
 def keeps_factor(decrement: float, J: float) -> bool:
