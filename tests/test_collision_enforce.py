@@ -137,6 +137,26 @@ def test_a_goal_task_is_planned_round_the_ball_meeting_its_goal_certified_and_co
     assert s["cost"] >= free["cost"]
 
 
+def test_a_link_goal_with_a_binding_velocity_limit_and_the_ball_meets_all_three(workdir):
+    """The goal rows, the joint limits' rounds and the collision loop together: the elbow's velocity limit binds (the
+    enforced plan without it swings faster), and the plan meets it, its goal, and the certified clearance."""
+    doc = two_link([BALL], N=4) | {"x1": {"link": "tool", "position": [1.2, 0.0, 1.4]}}
+    r, free = plan(workdir, doc)
+    assert r.exit_code == 0 and free["collision_mode"] == "enforce"
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) > 3.2
+    doc["limits"] = {"velocity": {"elbow": 3.0}}
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["limit_violations"] == [] and s["reached"]["position_error"] <= 1e-9
+    assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 3.0 * (1 + 1e-9)
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert s["cost"] > free["cost"]
+
+
 def test_enforce_refuses_a_free_T_in_one_line_and_the_default_falls_back_to_check(workdir):
     doc = two_link([BALL], N=4)
     doc["x1"] = {"link": "tool", "position": [1.2, 0.0, 1.4]}
