@@ -121,8 +121,8 @@ def solve(problem: OptimalControlProblem, options: SolveOptions | None = None,
     options = options or SolveOptions()
     if options.starts > 1 and (problem.has_goals or problem.N is None):
         raise TaskError("multi-start applies to joint goals in a fixed T and a fixed N", key="solver.starts")
-    if problem.constraint is not None and (problem.has_goals or problem.N is None or options.starts > 1):
-        raise TaskError("collision enforcement plans joint goals in a fixed T and N with one start (use "
+    if problem.constraint is not None and (problem.free_time is not None or problem.N is None or options.starts > 1):
+        raise TaskError("collision enforcement plans in a fixed T and N with one start (use "
                         "--collision check to plan without it and report the clearance)", key="collision.mode")
     from hoc_cli.optimize.blas import one_thread
 
@@ -229,8 +229,9 @@ def _solve_goals(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
     common = _common(problem, options) | {"callback": options.callback}
     if isinstance(problem.time, Fixed):
         C_init = None if warm is None else warm.coeffs
+        more = {} if problem.constraint is None else {"constraint": problem.constraint}
         result = plan_goals(problem.system, scaled_mesh(problem.order, problem.T, problem.N, fractions), problem.q0,
-                            problem.dq0, goals, limits=problem.limits, C_init=C_init, **common)
+                            problem.dq0, goals, limits=problem.limits, C_init=C_init, **common, **more)
         return Plan(result=result, goals=goals)
     if warm is not None:
         return _warm_replan(problem, goals, fractions, warm, common)

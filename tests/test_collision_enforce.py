@@ -1,5 +1,5 @@
 """Collision avoidance enforced: the penalty's gradient and curvature, plans certified clear (coal at 1 kHz),
-J against the margin, an infeasible task, and goal tasks refused."""
+J against the margin, an infeasible task, link goals and vias enforced, a free T refused."""
 from __future__ import annotations
 
 import csv
@@ -116,16 +116,59 @@ def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workd
     assert s["collision_enforce"]["outer_iterations"] <= 1 + RHO_RANGE_STEPS + 1
 
 
-def test_enforce_refuses_a_link_goal_in_one_line_and_the_default_falls_back_to_check(workdir):
-    doc = two_link([BALL], N=4)
-    doc["x1"] = {"link": "tool", "position": [1.2, 0.0, 1.4]}
-    r, _ = plan(workdir, doc, "--collision", "enforce")
-    assert r.exit_code == 2 and r.stderr.count("\n") == 1
-    assert "task.yaml: collision.mode: collision enforcement plans joint goals" in r.stderr and "--collision check" in r.stderr
+@pytest.mark.parametrize("goal", [
+    {"N": 4, "x1": {"link": "tool", "position": [1.2, 0.0, 1.4]}},                 # a link goal: the final q free
+    {"via": [{"t": 0.5, "link": "tool", "position": [1.6, 0.0, 0.9]}]},            # a link via: a goal row mid-way
+], ids=["link_goal", "link_via"])
+def test_a_goal_task_is_planned_round_the_ball_meeting_its_goal_certified_and_coal_agrees_at_1_khz(workdir, goal):
+    doc = two_link([BALL]) | goal
+    r, free = plan(workdir, doc, "--collision", "check")
+    assert r.exit_code == 0 and free["min_clearance"]["distance"] < 0  # the free plan drives the forearm through it
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
-    assert s["collision_mode"] == "check" and "min_clearance" in s
-    assert "hoc: warning: collision enforcement plans joint goals" in r.stderr and "planned with collision check" in r.stderr
+    assert "warning" not in r.stderr  # enforced, no fallback to check
+    assert s["collision_mode"] == "enforce" and s["converged"] and s["collisions"] == []
+    assert s["collision_enforce"]["status"] == "converged"
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9
+    met = [s["reached"]] if "x1" in goal else s["vias"]
+    assert met and all(g["position_error"] <= 1e-9 for g in met)
+    assert _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert s["cost"] >= free["cost"]
+
+
+def test_a_link_goal_with_a_binding_velocity_limit_and_the_ball_meets_all_three(workdir):
+    """The goal rows, the joint limits' rounds and the collision loop together: the elbow's velocity limit binds (the
+    enforced plan without it swings faster), and the plan meets it, its goal, and the certified clearance."""
+    doc = two_link([BALL], N=4) | {"x1": {"link": "tool", "position": [1.2, 0.0, 1.4]}}
+    r, free = plan(workdir, doc)
+    assert r.exit_code == 0 and free["collision_mode"] == "enforce"
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) > 3.2
+    doc["limits"] = {"velocity": {"elbow": 3.0}}
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["converged"] and s["limit_violations"] == [] and s["reached"]["position_error"] <= 1e-9
+    assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
+    with open(workdir / "out.csv") as f:
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 3.0 * (1 + 1e-9)
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert s["cost"] > free["cost"]
+
+
+def test_enforce_refuses_a_free_T_in_one_line_and_the_default_falls_back_to_check(workdir):
+    doc = two_link([BALL], N=4)
+    doc["x1"] = {"link": "tool", "position": [1.2, 0.0, 1.4]}
+    doc["T"] = {"free": True, "min": 1.0, "max": 2.0, "guess": 1.5}
+    r, _ = plan(workdir, doc, "--collision", "enforce")
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1
+    assert "task.yaml: collision.mode: collision enforcement plans in a fixed T and N with one start, not a free T" \
+        in r.stderr and "--collision check" in r.stderr
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert s["collision_mode"] == "check" and "min_clearance" in s and "collision_enforce" not in s
+    assert "hoc: warning: collision enforcement plans in a fixed T" in r.stderr and "planned with collision check" in r.stderr
 
 
 @pytest.fixture(scope="module")

@@ -305,3 +305,24 @@ def test_the_mcap_carries_the_clearance_at_every_sample_as_coal_measures_it(work
     assert heights[0] - heights[1] == round(2.2 * 110)  # CLEARANCE_HEIGHT inches at 110 dpi
     r = CliRunner().invoke(app, ["plan", "task.yaml", "-q", "--collision", "off", "-o", "plan.mcap"])
     assert r.exit_code == 0 and read_plan(workdir / "plan.mcap").clearance is None
+
+
+def test_the_free_T_catch_over_a_table_is_planned_with_check_saying_so_and_its_clearance_agrees_with_coal(workdir):
+    """A free T is not enforced yet: the catch (configs/catch_ball.yaml) over a table is planned with ``check``, one
+    warning line says what is and is not imposed, and its certified clearance holds for coal at 1 kHz."""
+    doc = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
+    doc["robot"] = "../robots/lbr7.urdf"
+    doc["output"] = {"rate": 1000.0}
+    doc["collision"] = {"margin": 0.01, "robot": table_task()["collision"]["robot"],
+                        "obstacles": [{"name": "table", "box": {"size": [0.6, 0.8, 0.04]}, "position": [0.65, 0.0, 0.23]}]}
+    r, s = plan(workdir, doc)
+    assert r.exit_code == 0, r.stderr
+    assert r.stderr.count("hoc: warning:") == 1
+    assert "not a free T: planned with collision check (the clearance is certified and reported, not imposed)" in r.stderr
+    assert s["collision_mode"] == "check" and "collision_enforce" not in s and s["collisions"] == []
+    assert s["reached"]["position_error"] <= 1e-9 and 0.3 <= s["T"] <= 0.5
+    c = s["min_clearance"]
+    assert c["certified"] and c["pair"] == ["lbr_flange", "table"] and c["lower_bound"] >= 0.01
+    obstacle, self_ = _coal_clearance(doc, workdir / "out.csv")
+    assert min(obstacle, self_) >= c["lower_bound"] - 1e-9
+    assert abs(obstacle - c["distance"]) <= 1e-6  # the flange's capsule against the table: the same exact shapes

@@ -129,12 +129,20 @@ def _per_element(mesh) -> int:
     return max(POINTS_PER_ELEMENT, -(-MIN_POINTS // mesh.N))
 
 
-def base_points(mesh) -> PointSet:
-    """``_per_element`` points per element at s = (j + ½)/S (neither t = 0 nor t = T)."""
+def base_points(mesh, end: bool = False) -> PointSet:
+    """``_per_element`` points per element at s = (j + ½)/S (not t = 0), and t = T when ``end`` (a free final q)."""
     S = _per_element(mesh)
     e = np.repeat(np.arange(mesh.N), S)
     s = np.tile((np.arange(S) + 0.5) / S, mesh.N)
+    if end:
+        e, s = np.append(e, mesh.N - 1), np.append(s, 1.0)
     return PointSet.build(mesh, e, s, mesh.hs[e] / S)
+
+
+def _free_q1(problem) -> bool:
+    """Whether the problem's final q is free (a link goal): its layout frees the last node's q."""
+    n = problem.layout.n
+    return bool(problem.layout.free.reshape(problem.mesh.N + 1, -1, n)[-1, 0].any())
 
 
 def _add_points(points: PointSet, intervals) -> PointSet:
@@ -223,7 +231,7 @@ class CollisionConstraint:
         """
         q0, _, q1, _ = problem.boundary
         margin = self.scene.margin
-        ends = distances(self.model, scene, np.stack([q0, q1])).min(axis=0)
+        ends = distances(self.model, scene, np.stack([q0] if _free_q1(problem) else [q0, q1])).min(axis=0)
         return margin + np.minimum(0.5 * (ends - margin), INFLATION)
 
     def _loop(self, problem, x: np.ndarray, *, tol: float, minimize: Callable, full: bool, limits,
@@ -232,7 +240,7 @@ class CollisionConstraint:
         lim = None if limits is None else LimitState(*limits, problem, None if warm is None else warm.limits)
         scene = self.rows_scene()  # the rows; the certificate takes the exact pairs
         bound = self._bounds(problem, scene)                            # (Q,)
-        points = base_points(mesh)
+        points = base_points(mesh, end=_free_q1(problem))
         J0 = problem.bare_cost(x)
         D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
         known = (x, points)  # D is at this plan and these points
@@ -244,6 +252,7 @@ class CollisionConstraint:
         refinements = 0
         tight = float(np.max(bound - D, initial=0.0)) <= VIOLATION_TOL  # the start is clear at the points already
         status, message, cert, res, rows = "not_converged", "", None, None, 0
+        own = problem.terms  # the problem's own terms (a goal's rows) stay; Φ joins them
         limits_met = True
         outer = 0
         try:
@@ -256,7 +265,7 @@ class CollisionConstraint:
                 start_rows = RowStart(point_configurations(points, problem.coefficients(x)), D[p, k],
                                       self._pair_reach()[k])  # rows that cannot reach their bound are skipped
                 terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows)
-                problem.terms = (terms,)
+                problem.terms = own + (terms,)
                 inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
                 if lim is None:
                     res = minimize(problem, x, inner_tol)
@@ -316,7 +325,7 @@ class CollisionConstraint:
             else:
                 message = f"not clear after {max_outer} outer iterations"
         finally:
-            problem.terms = ()
+            problem.terms = own
         C = problem.coefficients(x)
         if cert is None and full:
             cert = certify(model, exact, mesh, C)

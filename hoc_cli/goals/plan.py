@@ -186,19 +186,24 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None,
                G: int | None = None, limits=None, continuation: bool = True,
                callback: Callable[[IterLog], None] | None = None, terms: GoalTerms | None = None,
-               eq_tol: float = EQ_TOL, max_outer: int = 30) -> GoalResult:
+               eq_tol: float = EQ_TOL, max_outer: int = 30, constraint=None) -> GoalResult:
     """Solve the optimal-control problem with ``goals`` on ``mesh`` (see the module docstring).
 
     ``terms`` warm-starts the multipliers and ρ (e.g. from the plan of a nearby T; ρ <= 0: the
     default ρ = 10·|J| of the starting trajectory). The outer
     loop stops when every row is met to ``eq_tol`` after a converged inner solve; ρ grows ×10
     whenever max |c| did not fall to a quarter.
+
+    With ``constraint`` (e.g. ``hoc_cli.collision.enforce.CollisionConstraint``, as ``hoc_cli.planner.plan`` takes
+    it) every level's solve runs inside its outer loop, the goal rows' loop being its inner minimisation (the rows
+    stay in the problem's ``terms`` beside the constraint's: its polish and limits' rounds see them); the joint
+    limits are then terms of the constraint's loop, and the finest level's outcome is ``GoalResult.constraint``.
     """
     start = time.perf_counter()
     totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0, "outer": 0}
     history: list[IterLog] = []
     limited = limits is not None and limits.any
-    carry: dict = {"working": None}
+    carry: dict = {"working": None, "spent": 0, "warm": None, "outcome": None}
 
     def inner(problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         failures: list[NumericalError] = []
@@ -225,7 +230,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                 raise NumericalError(f"the Newton matrix is not finite (cost {ev.J:.3g}): the goal plan diverged") from exc
 
         res = minimize(evaluate, x0, precondition=newton, method=method, tol=tol_level,
-                       max_iter=max(max_iter - totals["it"], 0), callback=report, noise=lambda ev: ev.noise)
+                       max_iter=max(max_iter - totals["it"] + carry["spent"], 0), callback=report, noise=lambda ev: ev.noise)
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]
         for key, v in (("it", res.iterations), ("ev", res.n_evals), ("pre", res.n_precond), ("restarts", res.restarts)):
@@ -233,7 +238,8 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
         history.extend(dataclasses.replace(h, level=problem.mesh.N) for h in res.history)
         return res
 
-    def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float):
+    def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float,
+                    full: bool = True):
         """One mesh: the limits' outer loop (``enforce``) around the goal rows' loop around ``inner``.
 
         The goal multipliers live in ``pen.terms`` and carry over between the limits' iterations.
@@ -260,7 +266,22 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             return dataclasses.replace(res, x=x)
 
         er = None
-        if limited:
+        if constraint is not None:
+            def each(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:  # each inner solve has its own budget
+                carry["spent"] = totals["it"]
+                return goal_inner(p, x, tol_inner)
+
+            problem.terms = (_RowsOf(pen),) if problem.points else ()
+            try:
+                res, _, er, carry["outcome"] = constraint.solve(
+                    problem, x, tol_level, each, warm=carry["warm"], full=full, system=system,
+                    limits=limits if limited else None, working=carry["working"])
+            finally:
+                problem.terms = ()
+            carry["warm"] = carry["outcome"].warm
+            if er is not None:
+                carry["working"] = er.working
+        elif limited:
             er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"],
                          duals=carry.pop("duals", None))
             carry["working"] = er.working
@@ -290,7 +311,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             level = _level_mesh(mesh, N, goals)
             problem = build(level, G)
             x0 = problem.initial_guess() if C_coarse is None else problem.layout.pack(resample(coarse_mesh, C_coarse, level))
-            x, _, _, terms = solve_level(problem, x0, max(tol, 1e-6), terms, max(eq_tol, EQ_COARSE))
+            x, _, _, terms = solve_level(problem, x0, max(tol, 1e-6), terms, max(eq_tol, EQ_COARSE), full=False)
             coarse_mesh, C_coarse = level, problem.coefficients(x)
         if coarse_mesh is not None:
             C_init = resample(coarse_mesh, C_coarse, mesh)
@@ -311,7 +332,22 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     violation = terms.on(mesh).violation(C) if problem.points else 0.0
     return GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=er, terms=terms,
-                      violation=violation, outer_iterations=totals["outer"], goals=goals)
+                      violation=violation, outer_iterations=totals["outer"], goals=goals, constraint=carry["outcome"])
+
+
+class _RowsOf:
+    """The goal rows of a ``GoalPenalized`` as one of ``ControlProblem.terms``: its current ``terms`` (the
+    multipliers the goal loop updates), for an outer loop that adds terms of its own (``plan_goals``'s ``constraint``).
+    """
+
+    def __init__(self, pen: GoalPenalized) -> None:
+        self.pen = pen
+
+    def evaluate(self, C: np.ndarray, grad: bool = True):
+        return self.pen.terms.evaluate(C, grad=grad)
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        return self.pen.terms.newton_blocks(C)
 
 
 def _warm_state(system, problem: GoalProblem, C: np.ndarray, limits) -> tuple[list[np.ndarray], object]:

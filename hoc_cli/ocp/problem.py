@@ -84,7 +84,7 @@ class OptimalControlProblem:
     vias : rows to meet at fractions s of T (``hoc_cli.ocp.goals.joint_via``, ``link_via``)
     accuracy : the target relative error of J for ``N=None`` (None: the default)
     constraint : a further constraint imposed by an outer loop of its own around each solve (None:
-        none), e.g. ``hoc_cli.collision.enforce.CollisionConstraint``; joint goals in a fixed T and N only
+        none), e.g. ``hoc_cli.collision.enforce.CollisionConstraint``; a fixed T and N only
     """
 
     system: object
