@@ -78,8 +78,8 @@ def enforced_problem(task, model, scene: CollisionScene | None, problem, *, expl
     task with a free T, ``N: auto`` or several starts is planned with ``check`` instead when the mode is
     the default, and refused (TaskError, exit 2) when ``enforce`` is asked for (``collision.mode`` or
     ``--collision``: ``explicit``). Without pairs to check there is nothing to enforce: ``check``. With
-    ``announce`` the fallback to ``check`` says so in a warning line (``hoc plan``; ``hoc batch`` shows the
-    mode per row).
+    ``announce`` the fallback to ``check`` says so in a warning line (``hoc plan``; ``hoc batch`` does not
+    announce it: a plan's summary, in its MCAP, names the mode).
     """
     mode = task.collision.mode
     if mode != "enforce":
