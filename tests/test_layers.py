@@ -140,8 +140,9 @@ def test_a_fixed_time_plan_loads_no_module_it_does_not_use(tmp_path):
         f"    app(['plan', {str(root / 'configs' / 'lbr7_reach.yaml')!r}, '-o', 'none', '-q'])\n"
         "except SystemExit as e:\n"
         "    assert e.code == 0, e.code\n"
-        "heavy = ('scipy.optimize', 'dask', 'distributed', 'pyarrow', 'matplotlib', 'yourdfpy', 'pinocchio',\n"
-        "         'pydantic', 'rich', 'hoc_cli.io.mcap', 'hoc_cli.io.csv', 'hoc_cli.simulate')\n"
+        "heavy = ('scipy.optimize', 'scipy.sparse', 'dask', 'distributed', 'pyarrow', 'matplotlib', 'yourdfpy',\n"
+        "         'pinocchio', 'pydantic', 'rich', 'hoc_cli.io.mcap', 'hoc_cli.io.csv', 'hoc_cli.simulate',\n"
+        "         'hoc_cli.goals', 'hoc_cli.constraints.sqp', 'hoc_cli.constraints.qp', 'hoc_cli.constraints.prolong')\n"
         "print(sorted(m for m in heavy if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)

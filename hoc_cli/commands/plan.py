@@ -22,7 +22,6 @@ from hoc_cli.commands.common import (
 )
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import Infeasible, InputFileError, OutputError, TaskError, naming_file
-from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.io.task import Task, apply_overrides, load_task
 from hoc_cli.optimize import check_gradient
 from hoc_cli.problem import ControlProblem
@@ -68,6 +67,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     auto = task.N is None
     mesh = HermiteMesh(task.order, task.T, AUTO_START if auto else task.N)
     if has_goals and not auto:
+        from hoc_cli.goals.mesh import scaled_mesh  # the goal solvers load only for a task with goals
+
         mesh = _with_file(task, lambda: scaled_mesh(task.order, task.T, task.N, node_fractions(problem)))
     warm = None
     if init is not None and not auto:

@@ -48,16 +48,17 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
-from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
-from hoc_cli.constraints.sqp import kinematic_working, sqp
 from hoc_cli.errors import NumericalError
+
+if TYPE_CHECKING:  # the SQP and the multipliers' prolongation load when a solve reaches them (start-up)
+    from hoc_cli.constraints.prolong import Duals
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
@@ -122,6 +123,8 @@ class EnforceResult:
         """The plan's multipliers on its rows: the warm start of the next solve, on this or another mesh (None: no rows)."""
         if self.penalty is None or not self.working.any():
             return None
+        from hoc_cli.constraints.prolong import Duals
+
         return Duals(self.rows, self.penalty.mu_lo, self.penalty.mu_hi)
 
     def active_limits(self) -> list[dict]:
@@ -248,7 +251,12 @@ def _sqp_phase(base, system, limits: JointLimits, x: np.ndarray, tol: float,
         if res.status.value in ("max_iter", "not_finite"):
             return None, x, working | violated
         working = working | violated
-    if working[EFFORT].any() or not kinematic_working(limits).any():
+    if working[EFFORT].any():
+        return None, x, working
+    from hoc_cli.constraints.prolong import Duals, prolong
+    from hoc_cli.constraints.sqp import kinematic_working, sqp
+
+    if not kinematic_working(limits).any():
         return None, x, working
     x_start = x
     for _ in range(SQP_ROUNDS):  # the SQP imposes the working set's rows; pairs the check finds broken join
@@ -308,8 +316,11 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
         if isinstance(done, tuple):  # the SQP's point and multipliers start the augmented Lagrangian
             done, duals = done
         handed_over = done or ""
-    if duals is not None and not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
-        duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
+    if duals is not None:
+        from hoc_cli.constraints.prolong import same_mesh
+
+        if not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
+            duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
     result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals)
     if result.status == "not_converged" and duals is not None:
         # the warm start did not converge (its multipliers or penalty did not suit this solve):
@@ -327,6 +338,8 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
     lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
     warm = duals is not None and working.any()
     if warm:
+        from hoc_cli.constraints.prolong import prolong
+
         lam_lo, lam_hi = prolong(duals, rows)
     x_begin = x  # a start within the limits proves the task feasible (see the "infeasible" test below)
     rho = rho0 = None

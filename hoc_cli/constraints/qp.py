@@ -25,17 +25,20 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg.blas import dsbmv
 from scipy.linalg.lapack import dpbtrf
-from scipy.sparse import csr_matrix
 
 from hoc_cli.banded import BandedSPD, element_blocks
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, PenaltyValue, effective_bounds
 from hoc_cli.constraints.qp_steps import line_minimum, pseudo_solve, residuals
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.modify import gauss_newton_shift
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_matrix
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 QP_FEAS = 1e-11  # dimensionless violation (and gap of active rows) the QP's rows should reach
@@ -113,6 +116,8 @@ class QPRows:
         index = np.cumsum(free) - 1  # full index -> design index (fixed: unused)
         keep = free[cols]
         count = vals.shape[0]
+        from scipy.sparse import csr_matrix  # only a run with kinematic limits in play loads scipy.sparse (start-up)
+
         A = csr_matrix((vals[keep], (np.repeat(np.arange(count), 2 * m).reshape(count, 2 * m)[keep], index[cols[keep]])),
                        shape=(count, int(free.sum())))
         ia, ib = np.triu_indices(2 * m)

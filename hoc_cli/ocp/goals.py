@@ -6,10 +6,13 @@ A via is placed at a fraction s ∈ (0, 1) of the duration (with a fixed T, ``t`
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix
-from hoc_cli.goals.terms import GoalPoint
+if TYPE_CHECKING:  # the goal modules load when a goal is built (``import hoc_cli.ocp`` stays light)
+    from hoc_cli.goals.residuals import FrameResidual
+    from hoc_cli.goals.terms import GoalPoint
 
 
 def _vector(values, size: int, what: str) -> np.ndarray:
@@ -24,6 +27,8 @@ def link_goal(system, link: str, position, orientation=None, *, velocity=None, a
     """The pose of ``link`` at T: ``position`` (3,) [m], optional ``orientation`` (w, x, y, z); a moving
     target with ``velocity``/``acceleration`` (3,) and ``match_velocity`` (the link moves with it at T).
     """
+    from hoc_cli.goals.residuals import FrameResidual, quaternion_matrix
+
     model = system.model
     if link not in model.link_names:
         raise ValueError(f"unknown link {link!r} (links: {', '.join(model.link_names)})")
@@ -48,6 +53,9 @@ def _fraction(s: float | None, t: float | None, T: float | None) -> float:
 def joint_via(q, dq=None, *, s: float | None = None, t: float | None = None, T: float | None = None,
               label: str = "via") -> GoalPoint:
     """A joint state to pass: q (n,) [rad or m] and optionally q̇ (n,) at s·T (or at t [s] of a fixed T)."""
+    from hoc_cli.goals.residuals import JointResidual
+    from hoc_cli.goals.terms import GoalPoint
+
     q = np.array(q, dtype=float).reshape(-1)
     dq = None if dq is None else _vector(dq, q.size, "dq")
     return GoalPoint(_fraction(s, t, T), JointResidual(_vector(q, q.size, "q"), dq), label)
@@ -56,4 +64,6 @@ def joint_via(q, dq=None, *, s: float | None = None, t: float | None = None, T: 
 def link_via(system, link: str, position, orientation=None, *, s: float | None = None, t: float | None = None,
              T: float | None = None, label: str = "via") -> GoalPoint:
     """A link pose to pass at s·T (or at t [s] of a fixed T): ``position`` (3,) [m], optional (w, x, y, z)."""
+    from hoc_cli.goals.terms import GoalPoint
+
     return GoalPoint(_fraction(s, t, T), link_goal(system, link, position, orientation), label)

@@ -24,13 +24,16 @@ Build one with ``OptimalControlProblem(...)`` directly, or from a task file with
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hoc_cli.constraints.bounds import JointLimits
-from hoc_cli.goals.plan import Goals, inverse_kinematics
-from hoc_cli.goals.residuals import FrameResidual
-from hoc_cli.goals.terms import GoalPoint
+
+if TYPE_CHECKING:  # the goal modules load with a goal (``goals()``): a joint goal in a fixed T needs none
+    from hoc_cli.goals.plan import Goals
+    from hoc_cli.goals.residuals import FrameResidual
+    from hoc_cli.goals.terms import GoalPoint
 
 COSTS = ("covariant", "torque")
 ORDERS = ("cubic", "quintic")
@@ -152,6 +155,8 @@ class OptimalControlProblem:
         """
         if not self.has_goals:
             return None
+        from hoc_cli.goals.plan import Goals, inverse_kinematics
+
         if self.link_goal is None:
             return Goals(q1=self.q1, dq1=self.dq1, vias=self.vias)
         from hoc_cli.dynamics import frame_jacobian

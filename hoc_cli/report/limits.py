@@ -114,12 +114,12 @@ def reduced_gradient_norm(limits: JointLimits, result: PlanResult) -> float | No
     optimum, where g alone is not. None for other plans (an augmented-Lagrangian plan already reports
     the gradient of I + Φ, whose multiplier terms play Dᵀw's part; goal plans report their own).
     """
-    from hoc_cli.constraints.qp import QPRows
-    from hoc_cli.problem import ControlProblem
-
     er = result.limits
     if er is None or er.sqp != "converged" or er.penalty is None or not er.working.any():
         return None
+    from hoc_cli.constraints.qp import QPRows  # the QP loads only for a plan the SQP decided (start-up)
+    from hoc_cli.problem import ControlProblem
+
     problem = result.problem
     if type(problem) is not ControlProblem:  # a goal plan's problem has its own rows
         return None

@@ -7,14 +7,13 @@ a jerk limit on cubic elements) are
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from hoc_cli.constraints.bounds import JointLimits
 from hoc_cli.dynamics import frame_jacobian, link_poses
 from hoc_cli.errors import TaskError
-from hoc_cli.goals.mesh import NODE_TOL
-from hoc_cli.goals.residuals import FrameResidual, JointResidual, quaternion_matrix, rotation_angle
-from hoc_cli.goals.terms import GoalPoint
 from hoc_cli.io.task.checks import Checker
 from hoc_cli.io.task.document import Task
 from hoc_cli.io.task.goals import LinkGoal
@@ -22,6 +21,10 @@ from hoc_cli.io.task.resolve import ResolvedStates, joint_vector
 from hoc_cli.io.task.vias import VALUE_TOL
 from hoc_cli.ocp.problem import Fixed, Free, OptimalControlProblem
 from hoc_cli.system import RobotSystem
+
+if TYPE_CHECKING:
+    from hoc_cli.goals.residuals import FrameResidual
+    from hoc_cli.goals.terms import GoalPoint
 
 
 def task_limits(model, overrides) -> JointLimits:
@@ -63,6 +66,8 @@ def frame_goal(task: Task, model, link: str, key: str, position, orientation, ta
         raise TaskError(f"link {link[:60]!r} is not moved by any task joint (its pose depends on none of "
                         f"{', '.join(model.joint_names)}{locked}); expected a link downstream of a task joint",
                         file=task.path, key=key)
+    from hoc_cli.goals.residuals import FrameResidual, quaternion_matrix  # the goal modules load with a goal
+
     R = None if orientation is None else quaternion_matrix(orientation)
     _check_moved(task, model, link, key, None if target is not None else position, R)
     if target is not None:
@@ -94,6 +99,8 @@ def _check_moved(task: Task, model, link: str, key: str, position, R) -> None:
                             "(expected that position, or a link whose position the task joints move)",
                             file=task.path, key=key.removesuffix(".link") + ".position")
     if R is not None and np.max(np.abs(J[:, 3:])) <= 1e-12:
+        from hoc_cli.goals.residuals import rotation_angle
+
         angle = rotation_angle(pose[:3, :3], R)
         if angle > VALUE_TOL:
             raise TaskError(f"the orientation of link {link[:60]!r} is not turned by any task joint "
@@ -104,6 +111,11 @@ def _check_moved(task: Task, model, link: str, key: str, position, R) -> None:
 
 def task_vias(task: Task, model) -> tuple[GoalPoint, ...]:
     """The task's vias as goal rows at fractions s of T (``t`` gives s = t/T of the task's T)."""
+    if not task.via:
+        return ()
+    from hoc_cli.goals.residuals import JointResidual  # the goal modules load with a via (start-up)
+    from hoc_cli.goals.terms import GoalPoint
+
     c = Checker(task.path)
     joints = tuple(model.joint_names)
     vias = []
@@ -123,6 +135,9 @@ def check_same_instant(task: Task, model, vias: list[GoalPoint]) -> None:
     """TaskError when a joint via and a link via name the same instant (``NODE_TOL`` of T apart) and the link's
     pose at the joint via's q is not the link via's (the joint-only pairs: ``hoc_cli.io.task.vias``).
     """
+    from hoc_cli.goals.mesh import NODE_TOL
+    from hoc_cli.goals.residuals import FrameResidual, JointResidual, rotation_angle
+
     for a in vias:
         if not isinstance(a.residual, JointResidual):
             continue

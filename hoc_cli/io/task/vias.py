@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.goals.mesh import NODE_TOL
 from hoc_cli.io.task.checks import Checker
 
 #: joint values (rad or m, rad/s or m/s) and link positions (m) differing by more than this are different
@@ -70,6 +69,10 @@ def check_vias(c: Checker, task, vias: list[ResolvedVia], joints: tuple[str, ...
 
     ``task`` gives the link vias (``task.via``) and T (None when T is free: times as fractions).
     """
+    if not vias:
+        return
+    from hoc_cli.goals.mesh import NODE_TOL  # hoc_cli.goals loads only for a task with goals (start-up)
+
     T = None if task.time.free is not None else task.T
     for v in vias:
         spec = task.via[v.index]
