@@ -93,15 +93,22 @@ def test_a_binding_velocity_limit_and_the_ball_are_met_together_in_one_loop(work
         fastest = max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f))
     assert fastest > 2.5  # the enforced plan without the limit swings the elbow faster than it
     doc["limits"] = {"velocity": {"shoulder": 1.5, "elbow": 1.5}}
+    s = _plan_with_binding_elbow_limit(workdir, doc, 1.5)
+    assert s["cost"] > free["cost"]
+
+
+def _plan_with_binding_elbow_limit(workdir, doc: dict, limit: float) -> dict:
+    """``hoc plan`` of ``doc``, checked: converged within its limits, the elbow's velocity ``limit`` active and met
+    in the CSV, the clearance certified and coal's at the samples at least the margin; its summary."""
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
     assert s["converged"] and s["limit_violations"] == []
     assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
     with open(workdir / "out.csv") as f:
-        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 1.5 * (1 + 1e-9)
+        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= limit * (1 + 1e-9)
     c = s["min_clearance"]
     assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
-    assert s["cost"] > free["cost"]
+    return s
 
 
 def test_an_arm_that_must_pass_through_a_box_is_infeasible_naming_the_pair(workdir):
@@ -146,15 +153,8 @@ def test_a_link_goal_with_a_binding_velocity_limit_and_the_ball_meets_all_three(
     with open(workdir / "out.csv") as f:
         assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) > 3.2
     doc["limits"] = {"velocity": {"elbow": 3.0}}
-    r, s = plan(workdir, doc)
-    assert r.exit_code == 0, r.stderr
-    assert s["converged"] and s["limit_violations"] == [] and s["reached"]["position_error"] <= 1e-9
-    assert {"joint": "elbow", "kind": "velocity"} in [{k: a[k] for k in ("joint", "kind")} for a in s["active_limits"]]
-    with open(workdir / "out.csv") as f:
-        assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= 3.0 * (1 + 1e-9)
-    c = s["min_clearance"]
-    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
-    assert s["cost"] > free["cost"]
+    s = _plan_with_binding_elbow_limit(workdir, doc, 3.0)
+    assert s["reached"]["position_error"] <= 1e-9 and s["cost"] > free["cost"]
 
 
 def test_enforce_refuses_a_free_T_in_one_line_and_the_default_falls_back_to_check(workdir):

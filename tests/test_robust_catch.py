@@ -38,6 +38,19 @@ T_IPOPT, J_IPOPT = 0.5893715205, 99.0495892335  # K = 32 (module docstring)
 P0, V0, A0 = np.array([0.9, 0.6, 0.2]), np.array([-0.86, -0.3, 2.8]), np.array([0.0, 0.0, -9.81])
 
 
+def ur5_catch(N: int = 8):
+    """(model, arm, limits, problem) of the module's UR5 catch on N elements: T free in [0.3, 0.8] s from 0.5 s,
+    the URDF's limits."""
+    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+
+    model = load_robot(URDF)
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model)
+    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
+    return model, arm, limits, OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6),
+                                                     link_goal=ball, time=Free(0.3, 0.8, guess=0.5), N=N, limits=limits)
+
+
 def catch_task(path) -> None:
     path.write_text(f"""robot: {URDF}
 x0: {{q: [0, -1.57, 1.57, -1.57, -1.57, 0]}}
@@ -99,19 +112,13 @@ def test_the_restoration_finds_a_T_where_the_catch_meets_its_goal_within_the_kin
     (infeasible there, by IPOPT); over x and T it ends at a T in (0.5, T*] where the returned trajectory meets the
     goal (Pinocchio's forward kinematics, 1e-8 m) and the kinematic limits by hoc's exact extrema check (the
     restoration leaves effort to the steps that follow)."""
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
     from hoc_cli.constraints.bounds import KINEMATIC
     from hoc_cli.constraints.check import check_limits
     from hoc_cli.goals.replan import TimeRange
     from hoc_cli.goals.restoration import restore
     from hoc_cli.goals.time_solver import goal_solver
 
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    limits = JointLimits.from_model(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
-                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    model, arm, limits, problem = ur5_catch()
     goals = problem.goals()
     start = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits).initial(0.5)
     assert not restore(arm, start, goals, limits, max_steps=20).feasible
@@ -130,16 +137,10 @@ def test_the_restoration_on_the_coarse_elements_reaches_the_optimum_of_the_steps
     optimum of the restoration and the steps on the 8 elements alone (``coarse=0``, two plans: at the restored T and
     the steps in x and T), T to 1e-9 and J to 1e-10 relative. Restored on the mesh, the trajectory resampled to the
     coarse elements broke a limit and the coarse stage never ran."""
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
     from hoc_cli.goals.free_time_sqp import minimize_time_sqp
     from hoc_cli.goals.time_solver import goal_solver
 
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    limits = JointLimits.from_model(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
-                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=limits)
+    model, arm, limits, problem = ur5_catch()
     goals = problem.goals()
     solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
     fine, coarse = (minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=c) for c in (0, 4))
@@ -158,13 +159,9 @@ def test_from_the_guess_0_7_s_the_catch_reaches_the_optimum_from_0_5_s():
     import dataclasses
 
     import hoc_cli
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
+    from hoc_cli import Free
 
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
-                                    time=Free(0.3, 0.8, guess=0.5), N=8, limits=JointLimits.from_model(model))
+    model, arm, limits, problem = ur5_catch()
     ref, late = (hoc_cli.solve(dataclasses.replace(problem, time=Free(0.3, 0.8, guess=g))) for g in (0.5, 0.7))
     assert ref.converged and late.converged and late.details["T_bound"] is None
     assert late.T == pytest.approx(ref.T, rel=1e-9) and late.J == pytest.approx(ref.J, rel=1e-10)
@@ -180,15 +177,9 @@ def test_the_catch_on_finer_meshes_converges_by_way_of_the_coarse_elements(N):
     stage's 4 elements the catch converges in a few steps on the mesh: within 1 % of IPOPT's T and J (K = 32), the
     ball met by Pinocchio's forward kinematics, within the limits by the exact check."""
     import hoc_cli
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
     from hoc_cli.constraints.check import check_limits
 
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    limits = JointLimits.from_model(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6), link_goal=ball,
-                                    time=Free(0.3, 0.8, guess=0.5), N=N, limits=limits)
+    model, arm, limits, problem = ur5_catch(N)
     plan = hoc_cli.solve(problem)
     assert plan.converged and plan.details["T_solves"] == 1 and plan.details["T_bound"] is None
     assert abs(plan.T - T_IPOPT) <= 1e-2 * T_IPOPT and abs(plan.J - J_IPOPT) <= 1e-2 * J_IPOPT
