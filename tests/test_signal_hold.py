@@ -88,3 +88,21 @@ def test_a_signal_whose_exception_python_swallowed_is_raised_again_and_ends_the_
     err = capfd.readouterr().err
     assert "hung up (SIGHUP)" in err and "Exception ignored" not in err and "Traceback" not in err
     assert sys.unraisablehook is hook and signal.getsignal(signal.SIGHUP) is handler  # both restored
+
+
+def test_a_redelivery_still_pending_when_the_block_ends_is_cancelled():
+    """A signal swallowed in the block's last moment is not simulated after it, where other handlers are set."""
+    lost, after = [], []
+    old = signal.signal(signal.SIGUSR1, lambda signum, frame: after.append(signum))
+    try:
+        with files.redelivered_when_swallowed(lost.append):
+            class Swallowed:
+                def __del__(self):
+                    raise files.Terminated(signal.SIGUSR1)
+
+            obj = Swallowed()
+            del obj  # the exception goes to the hook, which schedules the redelivery REDELIVER_S later
+        time.sleep(10 * files.REDELIVER_S)
+    finally:
+        signal.signal(signal.SIGUSR1, old)
+    assert lost == [signal.SIGUSR1] and after == []

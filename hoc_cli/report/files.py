@@ -297,6 +297,7 @@ def redelivered_when_swallowed(on_lost: Callable[[int], None]) -> Iterator[None]
     import _thread
 
     previous = sys.unraisablehook
+    timers: list[threading.Timer] = []
 
     def hook(unraisable) -> None:
         exc = unraisable.exc_value
@@ -307,6 +308,7 @@ def redelivered_when_swallowed(on_lost: Callable[[int], None]) -> Iterator[None]
         on_lost(signum)
         timer = threading.Timer(REDELIVER_S, _thread.interrupt_main, (signum,))
         timer.daemon = True
+        timers.append(timer)
         timer.start()
 
     sys.unraisablehook = hook
@@ -314,6 +316,8 @@ def redelivered_when_swallowed(on_lost: Callable[[int], None]) -> Iterator[None]
         yield
     finally:
         sys.unraisablehook = previous
+        for timer in timers:  # a block that ended first took no redelivery: none reaches the code after it
+            timer.cancel()
 
 
 def _discard(pending: list[tuple[str, Path]]) -> None:
