@@ -26,41 +26,15 @@ import sys
 
 import numpy as np
 import pytest
-from _robots import ERD, PinocchioOracle
+from _robots import PinocchioOracle
+from _ur5_catch import A0, P0, URDF, V0, catch_task, ur5_catch
 
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 
-URDF = ERD / "ur_description/urdf/ur5_robot.urdf"
 pytestmark = pytest.mark.skipif(not URDF.is_file(), reason="example-robot-data is not installed")
 
 T_IPOPT, J_IPOPT = 0.5893715205, 99.0495892335  # K = 32 (module docstring)
-P0, V0, A0 = np.array([0.9, 0.6, 0.2]), np.array([-0.86, -0.3, 2.8]), np.array([0.0, 0.0, -9.81])
-
-
-def ur5_catch(N: int = 8):
-    """(model, arm, limits, problem) of the module's UR5 catch on N elements: T free in [0.3, 0.8] s from 0.5 s,
-    the URDF's limits."""
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
-
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    limits = JointLimits.from_model(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    return model, arm, limits, OptimalControlProblem(arm, q0=[0, -1.57, 1.57, -1.57, -1.57, 0], dq0=np.zeros(6),
-                                                     link_goal=ball, time=Free(0.3, 0.8, guess=0.5), N=N, limits=limits)
-
-
-def catch_task(path) -> None:
-    path.write_text(f"""robot: {URDF}
-x0: {{q: [0, -1.57, 1.57, -1.57, -1.57, 0]}}
-x1:
-  link: tool0
-  target: {{position: {P0.tolist()}, velocity: {V0.tolist()}, acceleration: {A0.tolist()}}}
-  match_velocity: true
-T: {{free: true, min: 0.3, max: 0.8, guess: 0.5}}
-N: 8
-""")
 
 
 def _plan(task, threads: int, numpy_first: bool = False) -> dict:

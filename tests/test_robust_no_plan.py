@@ -20,26 +20,14 @@ import time
 
 import numpy as np
 import pytest
-from _robots import ERD
+from _ur5_catch import URDF, catch_task, ur5_catch
 
-URDF = ERD / "ur_description/urdf/ur5_robot.urdf"
 pytestmark = pytest.mark.skipif(not URDF.is_file(), reason="example-robot-data is not installed")
-
-P0, V0, A0 = np.array([0.9, 0.6, 0.2]), np.array([-0.86, -0.3, 2.8]), np.array([0.0, 0.0, -9.81])
-Q0 = [0, -1.57, 1.57, -1.57, -1.57, 0]
 
 
 def _catch(N: int, T_max: float):
     """(arm, problem, goals, limits) of the UR5 catch on N elements, T free in [0.3, T_max] from the guess 0.5 s."""
-    from hoc_cli import Free, JointLimits, OptimalControlProblem, RobotSystem, link_goal
-    from hoc_cli.model import load_robot
-
-    model = load_robot(URDF)
-    arm = RobotSystem(model)
-    limits = JointLimits.from_model(model)
-    ball = link_goal(arm, "tool0", position=P0, velocity=V0, acceleration=A0, match_velocity=True)
-    problem = OptimalControlProblem(arm, q0=Q0, dq0=np.zeros(6), link_goal=ball, time=Free(0.3, T_max, guess=0.5),
-                                    N=N, limits=limits)
+    _, arm, limits, problem = ur5_catch(N, T_max)
     return arm, problem, problem.goals(), limits
 
 
@@ -83,15 +71,7 @@ def test_hoc_plan_reports_the_catch_with_no_T_in_its_range_on_4_elements_as_not_
     """The same from the command line on 4 elements (no coarse stage): exit 1, ``status: max_iter``; on main
     ``hoc: error: internal error (ValueError: array must not contain infs or NaNs)``."""
     task = tmp_path / "ur5_catch.yaml"
-    task.write_text(f"""robot: {URDF}
-x0: {{q: {Q0}}}
-x1:
-  link: tool0
-  target: {{position: {P0.tolist()}, velocity: {V0.tolist()}, acceleration: {A0.tolist()}}}
-  match_velocity: true
-T: {{free: true, min: 0.3, max: 0.5, guess: 0.5}}
-N: 4
-""")
+    catch_task(task, N=4, T_max=0.5)
     out = subprocess.run([sys.executable, "-c", "import sys; from hoc_cli.cli import app; sys.exit(app())", "plan", str(task), "-o", "none", "--json"],
                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert out.returncode == 1, out.stderr
