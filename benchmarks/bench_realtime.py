@@ -11,7 +11,8 @@ such cycle's IPOPT solution. Prints per-update wall time and thread CPU time (``
 grow too), so the load average is printed before and after the runs.
 ``--repeat R`` runs the real-time loop R times and pools their updates in the distributions (a run has few SQP
 updates: none while the estimate is uncertain, corrections in the last 0.1 s). The step rows count the updates that
-took a step (a skipped update costs nothing); the feedback rows the corrections.
+ran SQP work, whether their plan was applied, held (the limits' check) or abandoned at a checkpoint (a skipped update
+costs nothing); the feedback rows the corrections.
 ``--family K`` also runs the fixed family of K seeded throws (hoc_cli/realtime/throws.py) at the scenario's noise
 (seed = k) and prints how many were caught (the issue's 20 at σ = 5 mm: ``--family 20``, about a minute per 10);
 with the scenario's time budget the steps per update depend on the machine's speed, ``--steps S`` takes exactly S
@@ -82,20 +83,20 @@ def main() -> None:
             recs_all = [r for m in runs for r in m.records]
             print(f"  {name:20s} {run.status:8s} error {1e3 * run.position_error:5.2f} mm, {run.relative_speed:.4f} m/s; "
                   f"{len(runs)} run(s), {len(recs_all)} updates, overruns (discarded) {sum(m.overruns for m in runs)}, "
-                  f"skipped {sum(m.skipped for m in runs)}")
+                  f"skipped {sum(m.skipped for m in runs)}, abandoned {sum(m.abandoned for m in runs)}")
             for kind in ("step", "feedback"):
-                recs = [r for r in recs_all if r.kind == kind and (kind == "feedback" or r.plan.steps > 0)]
+                recs = [r for r in recs_all if r.kind == kind and (kind == "feedback" or r.plan.worked)]
                 if not recs:
                     continue
                 budget = 1e3 * recs[0].budget
-                what = "updates that took a step" if kind == "step" else "corrections"
+                what = "updates that ran SQP work" if kind == "step" else "corrections"
                 print(f"    {kind:8s} {len(recs)} {what}, steps/update {np.mean([r.plan.steps for r in recs]):.1f}, "
                       f"budget {budget:g} ms, over it {sum(r.late for r in recs)}")
                 print(f"      wall ms {dist([1e3 * r.plan.wall_time_s for r in recs])}")
                 print(f"      CPU ms  {dist([1e3 * r.cpu_s for r in recs])}")
-        med = {name: np.median([r.cpu_s for r in run.records if r.kind == "step" and r.plan.steps > 0])
+        med = {name: np.median([r.cpu_s for r in run.records if r.kind == "step" and r.plan.worked])
                for name, run in rows}
-        medw = {name: np.median([r.plan.wall_time_s for r in run.records if r.kind == "step" and r.plan.steps > 0])
+        medw = {name: np.median([r.plan.wall_time_s for r in run.records if r.kind == "step" and r.plan.worked])
                 for name, run in rows}
         print(f"  full re-convergence / real-time update, median: CPU {med['full re-convergence'] / med['real-time updates']:.1f}x, "
               f"wall {medw['full re-convergence'] / medw['real-time updates']:.1f}x")
@@ -109,7 +110,7 @@ def main() -> None:
         plan = solve(problem)
         goal = problem.link_goal
         caught, errors, est_errors = 0, [], []
-        overruns = skipped = updates = 0
+        overruns = skipped = abandoned = updates = 0
         cycle = sc.cycle if args.steps is None else dataclasses.replace(sc.cycle, steps=args.steps, budget=1e9)
         for k, throw in enumerate(family(goal.position, goal.velocity, args.family, goal.acceleration)):
             run = run_catch(problem, plan, throw, dataclasses.replace(sc.observer, seed=k), cycle, timed=args.steps is None)
@@ -126,16 +127,17 @@ def main() -> None:
             else:
                 what = "no update applied: the nominal plan"
             print(f"  throw {k:2d}: {run.status:11s} {1e3 * run.position_error:5.2f} mm {run.relative_speed:.4f} m/s; "
-                  f"{what}; {run.overruns} overruns, {run.skipped} skipped of {run.cycles} updates", flush=True)
+                  f"{what}; {run.overruns} overruns, {run.skipped} skipped, {run.abandoned} abandoned of {run.cycles} updates", flush=True)
             overruns += run.overruns
             skipped += run.skipped
+            abandoned += run.abandoned
             updates += run.cycles
         how = "the scenario's budget" if args.steps is None else f"{args.steps} steps per update"
         print(f"family of {args.family} (N = {task.N}, sigma {1e3 * sc.observer.noise:g} mm, {how}): {caught} caught; "
               f"position error median {1e3 * np.median(errors):.2f} mm, p90 {1e3 * np.percentile(errors, 90):.2f} mm, "
               f"max {1e3 * np.max(errors):.2f} mm; under 4 mm: {sum(e < 4e-3 for e in errors)}; the estimates at the catch "
               f"off by median {1e3 * np.median(est_errors):.2f} mm, max {1e3 * np.max(est_errors):.2f} mm; "
-              f"{overruns} overruns and {skipped} skipped of {updates} updates")
+              f"{overruns} overruns, {skipped} skipped and {abandoned} abandoned of {updates} updates")
     print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} (1, 5, 15 min)")
 
 

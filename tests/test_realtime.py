@@ -237,6 +237,73 @@ def test_a_budget_below_one_step_still_takes_exactly_one_and_a_long_one_converge
     assert up.steps > 1 and up.status == "converged" and up.violation < 1e-9
 
 
+def test_a_step_asks_at_each_checkpoint_in_order_and_stops_where_it_is_told(catch, monkeypatch):
+    """``qp_steps``' checkpoints: a free-T step passes newton, slope, then one programme per round, then trial; a
+    ``late`` that says True at a checkpoint raises ``OutOfTime`` there, before the work that follows it.
+    """
+    import hoc_cli.goals.replan_qp as replan_qp
+    import hoc_cli.realtime.replanner as replanner
+
+    problem, plan = catch
+    rp = Replanner(problem, plan, max_steps=1, warm_up=False)
+    seen: list[str] = []
+    real = replan_qp.qp_steps
+    monkeypatch.setattr(replanner, "qp_steps", lambda *args, **kwargs: real(
+        *args, **{**kwargs, "late": lambda name: seen.append(name) or False}))
+    cur = rp.current
+    up = rp.update(0.05, (cur.state(0.05)[0], cur.state(0.05, 1)[0]),
+                   Target(P0 + [0.01, 0.0, 0.0] + V0 * 0.05 + 0.5 * G * 0.0025, V0 + G * 0.05, G), 10.0)
+    monkeypatch.undo()
+    assert up.steps == 1 and seen[:2] == ["newton", "slope"] and seen[-1] == "trial"
+    assert set(seen[2:-1]) == {"programme"} and len(seen) >= 4
+    for name in replan_qp.CHECKPOINTS:
+        asked: list[str] = []
+
+        def late(at, name=name, asked=asked):
+            asked.append(at)
+            return at == name
+
+        cur = rp.current
+        x = (cur.state(0.07)[0], cur.state(0.07, 1)[0])
+        with pytest.raises(replan_qp.OutOfTime):
+            replan_qp.qp_steps(problem.system, _start(cur, x, rp), rp.goals, [np.zeros(6), np.zeros(0)],
+                               replan_qp.ActiveRows.empty(), free=rp.time_range(0.07), limits=problem.limits,
+                               tol=1e-12, max_steps=1, rho_aug=1.0, quick=True, late=late)
+        assert asked[-1] == name and asked.count(name) == 1
+
+
+def _start(cur, x, rp):
+    """The ``qp_steps`` start of the plan in force shifted to 0.07 s from the state x (as ``Replanner.update``'s)."""
+    from hoc_cli.realtime.replanner import _Boundary, _Start
+
+    shifted = shift_plan(cur.mesh, cur.coeffs, cur.t0, 0.07, cur.t_end - 0.07)
+    C = shifted.coeffs
+    C[0, 0], C[0, 1] = x
+    return _Start(mesh=shifted.mesh, problem=_Boundary(x, rp.problem.cost), G=rp.G, coeffs=C)
+
+
+def test_an_update_whose_measured_rest_does_not_fit_is_abandoned_and_keeps_the_plan_in_force(catch):
+    """The hard budget: with a measured time from the "programme" checkpoint to the step's end longer than the
+    budget, the update stops there ("abandoned"), returns the plan in force unchanged within the budget, and that
+    measurement is forgotten, so the next update with the same budget takes its step.
+    """
+    from collections import deque
+
+    problem, plan = catch
+    rp = Replanner(problem, plan, max_steps=1)
+    before = rp.current
+    rp.to_step_end["programme"] = deque([5.0])  # 5 s from the first programme to the step's end
+    tk = 0.05
+    target = Target(P0 + [0.01, 0.0, 0.0] + V0 * tk + 0.5 * G * tk**2, V0 + G * tk, G)
+    up = rp.update(tk, (before.state(tk)[0], before.state(tk, 1)[0]), target, budget_s=2.0)
+    assert up.status == "abandoned" and up.steps == 0 and up.worked and up.wall_time_s < 2.0
+    assert up.coeffs is before.coeffs and up.t0 == before.t0 and rp.active is not None
+    assert not rp.to_step_end["programme"]
+    again = rp.update(tk, (before.state(tk)[0], before.state(tk, 1)[0]), target, budget_s=2.0)
+    assert again.status in ("budget", "converged") and again.steps == 1 and again.worked
+    assert max(rp.to_step_end["programme"]) < 2.0  # measured by the step just taken
+
+
 def test_one_step_at_a_fixed_catch_time_keeps_every_kinematic_row_without_the_guard(catch, monkeypatch):
     """The guarantee of one step alone (docs/realtime.md): at a fixed T the Bernstein rows are linear in the
     coefficients, so the step from a plan within them, which imposes those within 5 % of their bound, stays within

@@ -102,11 +102,11 @@ def test_hoc_catch_prints_its_summary_and_writes_the_run(tmp_path, request):
     r = hoc("catch", str(sc), "--json", "-o", str(out), "--seed", "4", "--noise", "0.003")
     assert r.returncode in (0, 1), r.stderr
     s = json.loads(r.stdout)
-    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "skipped", "cycles"):
+    for key in ("caught", "position_error", "relative_speed", "T", "cycle_ms", "overruns", "skipped", "abandoned", "cycles"):
         assert key in s
     assert set(s["cycle_ms"]) == {"median", "p95", "p99", "max"} and s["seed"] == 4 and s["noise"] == 0.003
     assert r.returncode == (0 if s["caught"] else 1)
-    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] not in ("held", "skipped"))
+    assert len(s["updates"]) == s["cycles"] and all(u["steps"] >= 1 for u in s["updates"] if u["status"] not in ("held", "skipped", "abandoned"))
     assert s["overruns"] == sum(u["late"] for u in s["updates"])
     assert all(u["wall_ms"] > s["budget_ms"] for u in s["updates"] if u["late"])
     from mcap.reader import make_reader
@@ -184,16 +184,17 @@ def test_observations_count_only_once_they_have_arrived(catch):
 
 
 def test_an_update_over_its_budget_is_discarded_and_counted(catch):
-    """A budget no step fits: each update is either skipped (its predicted first step does not fit) or late (its
-    wall time over the budget): the arm stays on the first plan, and every such update is counted.
+    """A budget no step fits: each update is either skipped (its predicted first step does not fit), abandoned (the
+    measured rest of its step from a checkpoint does not fit) or late (its wall time over the budget): the arm stays
+    on the first plan, and every such update is counted.
     """
     problem, plan = catch
     throw = Throw(P0 + [0.01, 0.0, 0.0], V0)
     run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
                     Cycle(rate=20.0, budget=1e-5, steps=1, commit=0.03))
-    assert run.cycles >= 3 and run.overruns + run.skipped == run.cycles and run.overruns >= 1
+    assert run.cycles >= 3 and run.overruns + run.skipped + run.abandoned == run.cycles and run.overruns >= 1
     assert len(run.segments) == 1 and run.final is run.segments[0][1] and run.final.status == "cold"
-    assert all(r.late == (r.plan.status != "skipped" and r.plan.wall_time_s > 1e-5) for r in run.records)
+    assert all(r.late == (r.plan.status not in ("skipped", "abandoned") and r.plan.wall_time_s > 1e-5) for r in run.records)
     untimed = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
                         Cycle(rate=20.0, budget=1e9, steps=1, commit=0.03), timed=False)
     assert untimed.overruns == 0 and len(untimed.segments) == untimed.cycles + 1

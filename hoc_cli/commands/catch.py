@@ -95,6 +95,7 @@ def catch_summary(run, sc, plan) -> dict:
         "budget_ms": 1e3 * sc.cycle.budget,
         "overruns": run.overruns,
         "skipped": run.skipped,
+        "abandoned": run.abandoned,
         "feedback": sum(r.kind == "feedback" for r in recs),
         "cycles": run.cycles,
         "steps": {"total": int(sum(steps)), "max_per_cycle": int(max(steps, default=0))},
@@ -125,7 +126,7 @@ def _table(console, s: dict) -> None:
         ("catch time T", f"{s['T']:.4f} s"),
         ("closest approach", f"{1e3 * s['closest_approach']['distance']:.2f} mm at {s['closest_approach']['t']:.4f} s"),
         ("updates", f"{s['cycles'] - s['feedback']} SQP, {s['feedback']} corrections; {s['overruns']} over budget "
-                    f"and discarded, {s['skipped']} skipped, {s['held']} held"),
+                    f"and discarded, {s['skipped']} skipped, {s['abandoned']} abandoned, {s['held']} held"),
         ("cycle wall ms", f"median {ms['median']:.1f}, p95 {ms['p95']:.1f}, p99 {ms['p99']:.1f}, max {ms['max']:.1f}"),
         ("cycle CPU ms", f"median {s['cpu_ms']['median']:.1f}, p99 {s['cpu_ms']['p99']:.1f}"),
         ("SQP steps", f"{s['steps']['total']} in all, at most {s['steps']['max_per_cycle']} per cycle"),

@@ -66,6 +66,7 @@ MU_RTOL = 1e-10  # a row joins the working set when its multiplier exceeds this 
 EXPAND_ROUNDS = 4  # per step: programmes re-solved with the kinematic rows the step would break added
 CORRECTION = True  # a step the goal rows' violation floor or the merit test would cut tries its second-order correction
 LAG_RTOL = 1e-10  # after a step whose model decrease was within ±this·|J|, the next QP keeps the step's Newton matrix
+CHECKPOINTS = ("newton", "slope", "programme", "trial")  # where a step asks ``late`` (``qp_steps``)
 RUNAWAY = 1e16  # a programme whose decrease exceeds this·max(|J|, 1) (1/ε: beyond what J resolves) ends the steps
 
 
@@ -149,9 +150,14 @@ class QPReplan:
     check: object = None
 
 
+class OutOfTime(Exception):
+    """Raised by ``qp_steps`` when its ``late`` callback says the step under way would end after its deadline."""
+
+
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
-             stop: Callable[[int], bool] | None = None, quick: bool = False) -> QPReplan:
+             stop: Callable[[int], bool] | None = None, quick: bool = False,
+             late: Callable[[str], bool] | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -168,6 +174,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         positive definite the curvature's negative part is dropped at once (``_newton``; without it the cost's
         positive semi-definite part is first added in growing multiples, up to 13 more factorisations): the
         real-time replanner's steps, where time counts.
+    late : asked with a checkpoint's name (``CHECKPOINTS``) at each checkpoint of a step (before the Newton
+        matrix, before the T column's evaluation, before each programme, before the trial point); True abandons
+        the steps there: ``OutOfTime`` is raised (a hard time budget: the real-time replanner, which then keeps
+        the plan in force).
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -187,6 +197,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
     def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
         return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
+
+    def due(name: str) -> None:
+        if late is not None and late(name):
+            raise OutOfTime(name)
 
     pt = at(T, C, lam, active)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
@@ -210,6 +224,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         elif U_last is not None and keeps_factor(decrement, pt.J):
             U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
         else:
+            due("newton")
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
             def extra_of(indefinite: bool, held=held, C=C):  # away from the optimum: without the negative part
                 return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
@@ -228,6 +243,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
         grad, rhs_E = g_I, -cg
         if free is not None:
+            due("slope")
             delta = 1e-6 * T
             ph = at(T + delta, rescale(C, T, T + delta), lam, active)
             evals += 1
@@ -261,6 +277,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 bounds[0, -1], bounds[1, -1] = 1.0, -1.0
                 A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
                 rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+            due("programme")
             try:
                 if quick and kept is not None:  # the last programme's active rows and the rows added first
                     step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]))
@@ -324,6 +341,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             T_a = T + alpha * dT
             return goal_rows_at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a))
 
+        due("trial")
         accept = None
         if test is not None:
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)

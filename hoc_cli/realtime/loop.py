@@ -35,6 +35,7 @@ MIN_OBSERVATIONS = 3  # without a prior, the fit is used from this many observat
 REACH_SAMPLES = 200  # catch times at which an unreachable ball is confirmed out of the arm's reach
 NOISE_FLOOR = 1e-6  # [m] the fit's σ for noise-free observations (their weight stays finite)
 GATE = 2.0  # no update while the estimate's σ of a coordinate of the ball at the catch exceeds this × the noise σ
+KEPT = ("held", "skipped", "abandoned")  # an update of these statuses leaves the plan in force
 SAMPLES_PER_CYCLE = 4  # executed states recorded per cycle (closest approach, the MCAP's /tf)
 
 
@@ -181,9 +182,14 @@ class CatchRun:
         """Updates that took no step because the predicted step time did not fit in the budget."""
         return sum(r.plan.status == "skipped" for r in self.records)
 
+    @property
+    def abandoned(self) -> int:
+        """Updates whose step was stopped where its measured remaining time would have overrun the budget."""
+        return sum(r.plan.status == "abandoned" for r in self.records)
+
     def applied(self) -> list:
         """The records whose plans the arm executed (not late, not held or skipped)."""
-        return [r for r in self.records if not r.late and r.plan.status not in ("held", "skipped")]
+        return [r for r in self.records if not r.late and r.plan.status not in KEPT]
 
     @property
     def final(self) -> CyclePlan:
@@ -291,10 +297,10 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
         else:
             new = rp.update(t_next, x, Target(p, v, g), budget, free_time=not fixed)
         cpu = time.thread_time() - c0
-        late = timed and new.status not in ("held", "skipped") and new.wall_time_s > budget
+        late = timed and new.status not in KEPT and new.wall_time_s > budget
         if late:  # not ready at t_next: the arm keeps the plan in force
             rp.restore(saved)
-        elif new.status not in ("held", "skipped"):
+        elif new.status not in KEPT:
             if feedback:
                 rp.current = new
             segments.append((t_next, new))

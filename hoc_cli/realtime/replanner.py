@@ -15,7 +15,9 @@ converges. ``Replanner.update(t, x, target, budget_s)``:
    shifted plan, the goal rows' and the limits' multipliers carried from the last cycle, until the
    programme's convergence test holds or the budget would be overrun: the first step unless the median of the
    measured first steps would not fit (then none, "skipped"), a further one only when the time spent plus the largest of the last measured step times
-   (and of the wrap-up) fits in it;
+   (and of the wrap-up) fits in it; a step under way is stopped at the first of its checkpoints (``replan_qp.CHECKPOINTS``)
+   from which the largest measured time to the step's end (and the wrap-up) would overrun it ("abandoned": the plan
+   in force kept);
 4. returns a plan that passes ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the torque at 32 points
    per element): its kinematic Bernstein rows are made to hold (``limits_guard.guard``), which bounds the
    kinematic kinds on the whole plan, and ``limits_guard.within_limits`` checks it (the extrema only where a row
@@ -51,7 +53,7 @@ from hoc_cli.goals.active_limits import ActiveRows, from_multipliers
 from hoc_cli.goals.plan import Goals
 from hoc_cli.goals.replan import DECREMENT_TOL, RHO_AUG, TimeRange
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR
-from hoc_cli.goals.replan_qp import qp_steps
+from hoc_cli.goals.replan_qp import OutOfTime, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.ocp.problem import Free, OptimalControlProblem
 from hoc_cli.realtime.limits_guard import effort_only, guard, within_limits
@@ -79,12 +81,15 @@ class CyclePlan:
     Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
     replanner's ``max_steps``) |
     "stalled" (the steps stopped: a step could not be evaluated or its programme had no solution) | "skipped" (the
-    predicted first step did not fit in the budget: no step started, the plan in force kept) | "held" (no
+    predicted first step did not fit in the budget: no step started, the plan in force kept) | "abandoned" (a step
+    under way was stopped at a checkpoint from which its measured remaining time would have overrun the budget:
+    the plan in force kept) | "held" (no
     time left, the start could not be evaluated, or the result failed the limits' check: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
     [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
-    ``guarded`` whether the limits' guard had to project; ``wall_time_s`` the update [s].
+    ``guarded`` whether the limits' guard had to project; ``wall_time_s`` the update [s]; ``worked`` whether the
+    update ran SQP work (its plan may still have been held or abandoned: its time counts as compute).
     """
 
     t0: float
@@ -98,6 +103,7 @@ class CyclePlan:
     stationarity: float = math.nan
     guarded: bool = False
     wall_time_s: float = 0.0
+    worked: bool = False
 
     @property
     def T(self) -> float:
@@ -143,6 +149,7 @@ class Replanner:
         self.step_times: deque = deque(maxlen=HISTORY)  # between two steps of one update [s]
         self.first_times: deque = deque(maxlen=HISTORY)  # from the update's start to its first step's end [s]
         self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return [s]
+        self.to_step_end: dict[str, deque] = {}  # per checkpoint of a step (``CHECKPOINTS``): from it to the step's end [s]
         if warm_up:
             self.warm_up()
 
@@ -160,6 +167,7 @@ class Replanner:
         self.current, self.lam, self.active, self.mu = saved
         for times in (self.step_times, self.first_times, self.wrap_times):
             times.clear()
+        self.to_step_end.clear()
 
     def state(self) -> tuple:
         """What an update changes (the plan in force, the multipliers, the working set): for ``restore``."""
@@ -205,19 +213,35 @@ class Replanner:
         active, mu = carry_rows(self.active, self.mu, shifted.parent)
         lam.append(mu)
         marks = [start]
+        passed: dict[str, float] = {}  # the checkpoints the step under way has passed, and when
 
         def stop(steps: int) -> bool:
             now = time.perf_counter()
             (self.first_times if steps == 1 else self.step_times).append(now - marks[-1])
             marks.append(now)
+            for name, then in passed.items():
+                self.to_step_end.setdefault(name, deque(maxlen=HISTORY)).append(now - then)
+            passed.clear()
             return steps >= self.max_steps or self._late(now, deadline)
+
+        def late(name: str) -> bool:
+            now = time.perf_counter()
+            passed[name] = now
+            ahead = self.to_step_end.get(name)
+            wrap = max(self.wrap_times) if self.wrap_times else 0.0
+            if not ahead or now + max(ahead) + wrap <= deadline:
+                return False
+            ahead.remove(max(ahead))  # forgotten, so that one slow step cannot stop every later update
+            return True
 
         try:
             out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
                            tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J), 1.0),
-                           floor=VIOLATION_FLOOR, stop=stop, quick=True)
+                           floor=VIOLATION_FLOOR, stop=stop, quick=True, late=late)
+        except OutOfTime:
+            return self._hold(start, "abandoned", worked=True)
         except NumericalError:
-            return self._hold(start)
+            return self._hold(start, worked=True)
         pt = out.point
         npts = len(lam) - 1
         r = sum(v.size for v in out.lam[:npts])
@@ -233,8 +257,8 @@ class Replanner:
                     break
                 if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
                     break
-        if safe is None:
-            return self._hold(start)  # no projection found, or the effort limits (not rows of the steps) broken
+        if safe is None:  # no projection found, or the effort limits (not rows of the steps) broken
+            return self._hold(start, worked=True)
         guarded = safe is not C_new
         violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
         J = pt.J
@@ -243,7 +267,7 @@ class Replanner:
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
                                   pt.where).violation(safe)
         if guarded and violation > max(GUARD_VIOLATION, self._miss(mesh, C, goals)):
-            return self._hold(start)  # the projection gave up the goal for a plan no closer to it than the shifted one
+            return self._hold(start, worked=True)  # the projection gave up the goal for a plan no closer to it than the shifted one
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
@@ -252,7 +276,7 @@ class Replanner:
             self.wrap_times.append(now - marks[-1])
         self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, J=J, steps=out.steps, status=status,
                                  decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
-                                 stationarity=stationarity, guarded=guarded, wall_time_s=now - start)
+                                 stationarity=stationarity, guarded=guarded, wall_time_s=now - start, worked=True)
         return self.current
 
     def _late(self, now: float, deadline: float) -> bool:
@@ -287,8 +311,8 @@ class Replanner:
         self.first_times.remove(max(self.first_times))
         return True
 
-    def _hold(self, start: float, status: str = "held") -> CyclePlan:
-        self.current = dataclasses.replace(self.current, steps=0, status=status,
+    def _hold(self, start: float, status: str = "held", worked: bool = False) -> CyclePlan:
+        self.current = dataclasses.replace(self.current, steps=0, status=status, worked=worked,
                                            wall_time_s=time.perf_counter() - start)
         return self.current
 
