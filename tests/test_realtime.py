@@ -225,8 +225,17 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
 
 
 def test_a_budget_below_one_step_still_takes_exactly_one_and_a_long_one_converges(catch):
+    """Without measured step times (no warm-up) nothing predicts a step's time: the first update takes exactly one
+    step whatever its budget. With the warm-up's times the same budget skips the update.
+    """
     problem, plan = catch
-    rp = Replanner(problem, plan, max_steps=10)
+    warm = Replanner(problem, plan, max_steps=10)
+    assert len(warm.first_times) == 1 and set(warm.to_step_end) >= {"newton", "programme", "trial"}
+    cur = warm.current
+    up = warm.update(0.02, (cur.state(0.02)[0], cur.state(0.02, 1)[0]),
+                     Target(P0 + V0 * 0.02 + 0.5 * G * 0.0004, V0 + G * 0.02, G), budget_s=1e-6)
+    assert up.steps == 0 and up.status == "skipped" and up.coeffs is cur.coeffs
+    rp = Replanner(problem, plan, max_steps=10, warm_up=False)
     cur = rp.current
     up = rp.update(0.02, (cur.state(0.02)[0], cur.state(0.02, 1)[0]),
                    Target(P0 + V0 * 0.02 + 0.5 * G * 0.0004, V0 + G * 0.02, G), budget_s=1e-6)

@@ -184,19 +184,26 @@ def test_observations_count_only_once_they_have_arrived(catch):
 
 
 def test_an_update_over_its_budget_is_discarded_and_counted(catch):
-    """A budget no step fits: each update is either skipped (its predicted first step does not fit), abandoned (the
-    measured rest of its step from a checkpoint does not fit) or late (its wall time over the budget): the arm stays
-    on the first plan, and every such update is counted.
+    """A budget no step fits. Without measured times (no warm-up) the first update runs to its end: late, its plan
+    discarded. Then the measured times stop the others: skipped (the predicted first step does not fit) or
+    abandoned (the measured rest of the step from a checkpoint does not fit). With the warm-up's times no update
+    overruns. The arm stays on the first
+    plan, and every such update is counted.
     """
+    from hoc_cli.realtime.replanner import Replanner
+
     problem, plan = catch
     throw = Throw(P0 + [0.01, 0.0, 0.0], V0)
-    run = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
-                    Cycle(rate=20.0, budget=1e-5, steps=1, commit=0.03))
-    assert run.cycles >= 3 and run.overruns + run.skipped + run.abandoned == run.cycles and run.overruns >= 1
-    assert len(run.segments) == 1 and run.final is run.segments[0][1] and run.final.status == "cold"
-    assert all(r.late == (r.plan.status not in ("skipped", "abandoned") and r.plan.wall_time_s > 1e-5) for r in run.records)
-    untimed = run_catch(problem, plan, throw, Observer(rate=100.0, noise=0.0, seed=0),
-                        Cycle(rate=20.0, budget=1e9, steps=1, commit=0.03), timed=False)
+    observer, cycle = Observer(rate=100.0, noise=0.0, seed=0), Cycle(rate=20.0, budget=1e-5, steps=1, commit=0.03)
+    cold = run_catch(problem, plan, throw, observer, cycle, replanner=Replanner(problem, plan, max_steps=1, warm_up=False))
+    warm = run_catch(problem, plan, throw, observer, cycle)
+    for run in (cold, warm):
+        assert run.cycles >= 3 and run.overruns + run.skipped + run.abandoned == run.cycles
+        assert len(run.segments) == 1 and run.final is run.segments[0][1] and run.final.status == "cold"
+        assert all(r.late == (r.plan.status not in ("skipped", "abandoned") and r.plan.wall_time_s > 1e-5) for r in run.records)
+    assert cold.records[0].late and cold.skipped >= 1 and cold.abandoned >= 1
+    assert warm.overruns == 0 and warm.records[0].plan.status == "skipped" and warm.abandoned >= 1
+    untimed = run_catch(problem, plan, throw, observer, Cycle(rate=20.0, budget=1e9, steps=1, commit=0.03), timed=False)
     assert untimed.overruns == 0 and len(untimed.segments) == untimed.cycles + 1
 
 

@@ -33,8 +33,8 @@ def test_after_a_step_with_a_negative_decrease_the_next_programme_has_a_new_fact
     events: list = []
     solve_qp, dense_factor = replan_qp.solve_qp, replan_qp.dense_factor
 
-    def spy_qp(U, *args):
-        step = solve_qp(U, *args)
+    def spy_qp(U, *args, **kwargs):
+        step = solve_qp(U, *args, **kwargs)
         events.append(("qp", step.decrease))
         return step
 

@@ -54,8 +54,8 @@ def test_a_negative_model_decrease_is_not_an_optimum(catch, monkeypatch):
     assert again.converged and again.steps == 0
     solve = replan_qp.solve_qp
 
-    def raising(*args):
-        s = solve(*args)
+    def raising(*args, **kwargs):
+        s = solve(*args, **kwargs)
         return QPStep(d=s.d, nu=s.nu, mu=s.mu, decrease=-1.0)
 
     monkeypatch.setattr(replan_qp, "solve_qp", raising)

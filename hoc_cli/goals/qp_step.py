@@ -62,7 +62,8 @@ def bordered_factor(U: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
     return out
 
 
-def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray) -> QPStep:
+def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
+             programme: "Programme | None" = None) -> QPStep:
     """Min gᵀd + ½dᵀHd subject to E d = e and A d ≤ b (see the module docstring).
 
     Parameters
@@ -71,6 +72,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     g : (P,)
     E, e : (r, P), (r,) equality rows (r may be 0; dependent rows are allowed when consistent).
     A, b : (k, P), (k,) inequality rows (k may be 0).
+    programme : ``Programme(U, g, E)`` when the caller keeps one (its work is shared with the caller's other
+        programmes of the same U, g, E: the same result).
 
     Raises
     ------
@@ -78,12 +81,13 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
         The rows admit no step, or the least-distance programme did not converge in ``NNLS_ITER`` iterations per
         row (the callers end their steps there with a status, as after any failed step).
     """
-    el = _Eliminated(U, g, E, e)
+    el = programme if programme is not None else Programme(U, g, E)
+    y_p = el.particular(e)
     if not A.shape[0]:
-        return el.step(A, np.zeros(0), np.zeros(0), np.ones(0), 1.0)
-    M, scale, size = el.rows(A, b)
+        return el.step(A, np.zeros(0), np.zeros(0), np.ones(0), 1.0, y_p)
+    M, scale, size = el.rows(A, b, y_p)
     w = _cold_nnls(M)
-    return el.step(A, w, M @ w - _unit(M), scale, size)
+    return el.step(A, w, M @ w - _unit(M), scale, size, y_p)
 
 
 def _unit(M: np.ndarray) -> np.ndarray:
@@ -104,34 +108,55 @@ def _cold_nnls(M: np.ndarray) -> np.ndarray:
         raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
 
 
-class _Eliminated:
-    """The programme's equality rows eliminated (module docstring): y = U d = y_p + Z z, z = z0 + u; what every
-    set of inequality rows of the same U, g, E, e shares.
+class Programme:
+    """The programmes of one model (U, g) and one set of equality rows E (module docstring): the equality rows
+    eliminated once, y = U d = y_p + Z z, z = z0 + u (y_p, the particular part, per right-hand side e), and the
+    last inequality rows A transformed once (A U⁻¹, their least-distance rows): what a programme's rounds over
+    more rows and its second-order correction (other e and b, the same A) share. U, g, E and the A passed are
+    not to be changed while the object is in use.
     """
 
-    def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray) -> None:
+    def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray) -> None:
         P = g.size
         self.U, self.g, self.E = U, g, E
         y0 = -solve_triangular(U, g, trans="T", check_finite=False)
         if E.shape[0]:
-            Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
-            Q, R, _ = qr(Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
+            self.Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
+            Q, R, _ = qr(self.Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
             rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
-            self.y_p = lstsq(Eh, e, cond=1e-12, check_finite=False)[0]
             self.Z = Q[:, rank:]
         else:
-            self.y_p, self.Z = np.zeros(P), np.eye(P)
+            self.Eh, self.Z = None, np.eye(P)
         self.z0 = self.Z.T @ y0
+        self._A: np.ndarray | None = None
+        self._rows: tuple = ()
 
-    def rows(self, A: np.ndarray, b: np.ndarray, size: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-        """The least-distance rows G u ≥ h of A d ≤ b (k rows) as the NNLS matrix M = [Gᵀ; hᵀ] (P − rank + 1, k),
-        each row divided by its scale ‖G_j‖ (k,) and h by ``size`` (None: h's largest entry): (M, scale, size).
+    def particular(self, e: np.ndarray) -> np.ndarray:
+        """y_p (P,): the minimum-norm solution of E U⁻¹ y = e (orthogonal to Z)."""
+        if self.Eh is None:
+            return np.zeros(self.g.size)
+        return lstsq(self.Eh, e, cond=1e-12, check_finite=False)[0]
+
+    def _transformed(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A U⁻¹ (k, P), its part A U⁻¹ Z z0 (k,), the rows G = −A U⁻¹ Z normalised (k, P − rank), their norms (k,))."""
+        if A is not self._A:
+            Ah = solve_triangular(self.U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
+            G = -(Ah @ self.Z)
+            scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
+            self._A, self._rows = A, (Ah, Ah @ (self.Z @ self.z0), G / scale[:, None], scale)
+        return self._rows
+
+    def rows(self, A: np.ndarray, b: np.ndarray, y_p: np.ndarray, size: float | None = None,
+             idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """The least-distance rows G u ≥ h of A d ≤ b (k rows; ``idx``: of the rows A[idx] ≤ b[idx] only) as the
+        NNLS matrix M = [Gᵀ; hᵀ] (P − rank + 1, k), each row divided by its scale ‖G_j‖ (k,) and h by ``size``
+        (None: h's largest entry): (M, scale, size).
         """
-        Ah = solve_triangular(self.U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
-        G = -(Ah @ self.Z)
-        h = -(b - Ah @ self.y_p - Ah @ (self.Z @ self.z0))
-        scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
-        Gs, hs = G / scale[:, None], h / scale
+        Ah, AhZz0, Gs, scale = self._transformed(A)
+        if idx is not None:
+            Ah, AhZz0, Gs, scale, b = Ah[idx], AhZz0[idx], Gs[idx], scale[idx], b[idx]
+        h = -(b - Ah @ y_p - AhZz0)
+        hs = h / scale
         # and h to a unit largest entry: the test of r[-1] = −1/(1 + ‖u‖²) below then reads ‖u‖ relative to
         # the rows' own size, not to the model's units (a step of 1e11 in y is as feasible as one of 1)
         if size is None:
@@ -139,9 +164,9 @@ class _Eliminated:
         hs = hs / size
         return np.vstack([Gs.T, hs[None, :]]), scale, size
 
-    def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float) -> QPStep:
+    def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float, y_p: np.ndarray) -> QPStep:
         """The step from the NNLS solution w (k,) ≥ 0 of the rows A (k, P) (``rows``' scale and size) and its
-        residual r = M w − f.
+        residual r = M w − f, with the particular part y_p of the equality rows' right-hand side.
         """
         if A.shape[0]:
             if abs(r[-1]) < 1e-12:
@@ -151,7 +176,7 @@ class _Eliminated:
         else:
             u, mu = np.zeros(self.Z.shape[1]), np.zeros(0)
         U, g, E = self.U, self.g, self.E
-        y = self.y_p + self.Z @ (self.z0 + u)
+        y = y_p + self.Z @ (self.z0 + u)
         d = solve_triangular(U, y, check_finite=False)
         stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
         nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
@@ -160,7 +185,7 @@ class _Eliminated:
 
 
 def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
-                    rows: np.ndarray) -> QPStep:
+                    rows: np.ndarray, programme: "Programme | None" = None) -> QPStep:
     """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then with every left-out row its
     step breaks (A d > b) added, until the step breaks none: the step of ``solve_qp`` over all k rows (H is
     positive definite, so the programme's minimiser is unique; a left-out row the minimiser over the others keeps
@@ -175,15 +200,16 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
 
     Parameters as ``solve_qp``'s, with ``rows`` (k,) bool.
     """
-    el = _Eliminated(U, g, E, e)
+    el = programme if programme is not None else Programme(U, g, E)
+    y_p = el.particular(e)
     idx = np.flatnonzero(np.asarray(rows, bool))  # the rows in the programme, in M's column order
     if idx.size == 0:
-        step = el.step(A[idx], np.zeros(0), np.zeros(0), np.ones(0), 1.0)
+        step = el.step(A[idx], np.zeros(0), np.zeros(0), np.ones(0), 1.0, y_p)
         M = None
     else:
-        M, scale, size = el.rows(A[idx], b[idx])
+        M, scale, size = el.rows(A, b, y_p, idx=idx)
         w = _cold_nnls(M)
-        step = el.step(A[idx], w, M @ w - _unit(M), scale, size)
+        step = el.step(A[idx], w, M @ w - _unit(M), scale, size, y_p)
     used = np.zeros(b.size, bool)
     used[idx] = True
     while True:
@@ -198,11 +224,11 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         idx = np.concatenate([idx, new])
         used[new] = True
         if M is None:  # no row yet: the programme of the rows added, from no active row
-            M, scale, size = el.rows(A[new], b[new])
+            M, scale, size = el.rows(A, b, y_p, idx=new)
             w = _cold_nnls(M)
             r = M @ w - _unit(M)
         else:
-            M_new, scale_new, _ = el.rows(A[new], b[new], size)
+            M_new, scale_new, _ = el.rows(A, b, y_p, size, idx=new)
             M, scale = np.hstack([M, M_new]), np.concatenate([scale, scale_new])
             top = float(np.max(np.abs(M_new[-1])))
             if top > 1.0:  # h to a unit largest entry over the grown rows (the start repairs its passive set)
@@ -214,7 +240,7 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
             except NumericalError:
                 raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
             w, r = res.w, res.residual
-        step = el.step(A[idx], w, r, scale, size)
+        step = el.step(A[idx], w, r, scale, size, y_p)
     mu = np.zeros(A.shape[0])
     mu[idx] = step.mu
     return QPStep(d=step.d, nu=step.nu, mu=mu, decrease=step.decrease)

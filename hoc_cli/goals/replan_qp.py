@@ -49,7 +49,7 @@ from hoc_cli.free_time import rescale
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
-from hoc_cli.goals.qp_step import QPStep, bordered_factor, solve_qp, solve_qp_within
+from hoc_cli.goals.qp_step import Programme, QPStep, bordered_factor, solve_qp, solve_qp_within
 from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, point_problem, row_values
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
@@ -265,6 +265,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             grad = np.concatenate([g_I, [F_I]])
             E = np.hstack([E, cT[:, None]])
         failed, kept = False, None
+        prog = Programme(U, grad, E)  # the elimination of E shared by the rounds and the correction
         for rounds in range(EXPAND_ROUNDS + 1):
             cand = ActiveRows.where(lo_mask, hi_mask)
             A, A_full = cand.jacobian(pt.rows, limits, layout.free)
@@ -280,9 +281,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             due("programme")
             try:
                 if quick and kept is not None:  # the last programme's active rows and the rows added first
-                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]))
+                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
+                                           programme=prog)
                 else:
-                    step = solve_qp(U, grad, E, rhs_E, A, rhs_A)
+                    step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
             except NumericalError as exc:
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"qp step {steps}: {exc}")
@@ -347,7 +349,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
         corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
                                                                 violation, floor, accept, U, grad, E, A, rhs_A, cand,
-                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick)
+                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
+                                                                programme=prog)
         if corrected is not None:
             trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
         else:
@@ -400,7 +403,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
-                    cg, lam_goal, at_full, quick: bool = False):
+                    cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -410,6 +413,7 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     trial point: E d' = E d − c(x + d), A d' ≤ A d − g(x + d). Where the rows curve (the flange's pose along a long
     step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
     (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
+    ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -432,9 +436,9 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
         if quick:  # the step's active rows (and T's bounds) first: the same step, as in ``qp_steps``
             held_rows = step.mu > 0.0
             held_rows[k:] = True
-            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows)
+            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows, programme=programme)
         else:
-            step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2)
+            step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2, programme=programme)
     except NumericalError:
         return None
     dx2, dT2 = step2.d[:P], (float(step2.d[P]) if free is not None else 0.0)

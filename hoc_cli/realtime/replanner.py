@@ -148,26 +148,32 @@ class Replanner:
         self.current = CyclePlan(t0=t0, mesh=result.mesh, coeffs=np.array(result.coeffs), J=float(result.J))
         self.step_times: deque = deque(maxlen=HISTORY)  # between two steps of one update [s]
         self.first_times: deque = deque(maxlen=HISTORY)  # from the update's start to its first step's end [s]
-        self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return [s]
+        self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return, of updates the budget or
+        # ``max_steps`` ended (one that converged ends with the convergence test's Newton matrix and programme) [s]
         self.to_step_end: dict[str, deque] = {}  # per checkpoint of a step (``CHECKPOINTS``): from it to the step's end [s]
         if warm_up:
             self.warm_up()
 
     def warm_up(self) -> None:
-        """One update on a copy of the first plan (its own target, a long budget), its times forgotten: the first
-        call of the step functions loads modules and fills caches, which would make the first measured step
-        time (and so every budget prediction) far too long.
+        """Two updates of one step each on a copy of the first plan (its own target, a long budget): the first call of the step
+        functions loads modules and fills caches, which would make the first measured step time (and so every
+        budget prediction) far too long, so the first one's times are forgotten; the second one's are kept, so
+        that the first real update can already be skipped or abandoned by them (``update``).
         """
         saved = (self.current, self.lam, self.active, self.mu)
         cur = self.current
         t = cur.t0 + 0.01 * cur.T
         final = self.goals.final
         p, v = final.target(t - cur.t0)
-        self.update(t, (cur.state(t)[0], cur.state(t, 1)[0]), Target(p, v, np.zeros(3) if final.acceleration is None else final.acceleration), 10.0)
-        self.current, self.lam, self.active, self.mu = saved
-        for times in (self.step_times, self.first_times, self.wrap_times):
-            times.clear()
-        self.to_step_end.clear()
+        target = Target(p, v, np.zeros(3) if final.acceleration is None else final.acceleration)
+        max_steps, self.max_steps = self.max_steps, 1  # one step each: what a budget-bound update measures
+        for _ in range(2):
+            for times in (self.step_times, self.first_times, self.wrap_times):
+                times.clear()
+            self.to_step_end.clear()
+            self.update(t, (cur.state(t)[0], cur.state(t, 1)[0]), target, 10.0)
+            self.current, self.lam, self.active, self.mu = saved
+        self.max_steps = max_steps
 
     def state(self) -> tuple:
         """What an update changes (the plan in force, the multipliers, the working set): for ``restore``."""
@@ -213,6 +219,7 @@ class Replanner:
         active, mu = carry_rows(self.active, self.mu, shifted.parent)
         lam.append(mu)
         marks = [start]
+        ended: list[bool] = []  # the steps were ended by ``stop`` (not by the convergence test)
         passed: dict[str, float] = {}  # the checkpoints the step under way has passed, and when
 
         def stop(steps: int) -> bool:
@@ -222,7 +229,10 @@ class Replanner:
             for name, then in passed.items():
                 self.to_step_end.setdefault(name, deque(maxlen=HISTORY)).append(now - then)
             passed.clear()
-            return steps >= self.max_steps or self._late(now, deadline)
+            if steps >= self.max_steps or self._late(now, deadline):
+                ended.append(True)
+                return True
+            return False
 
         def late(name: str) -> bool:
             now = time.perf_counter()
@@ -272,7 +282,7 @@ class Replanner:
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
         stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
         now = time.perf_counter()
-        if len(marks) > 1:
+        if ended:
             self.wrap_times.append(now - marks[-1])
         self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, J=J, steps=out.steps, status=status,
                                  decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
