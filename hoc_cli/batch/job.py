@@ -109,7 +109,10 @@ def row_of(job: Job, reported: PlanReport, outputs: list[str]) -> dict:
         "limit_violations": json.dumps(viol, sort_keys=True) if viol else None,
         "outputs": list(outputs), "error": None,
     }
-    if summary.get("min_clearance"):  # a collision section: the certificate's smallest distance [m]
+    if summary.get("collision_mode", "off") != "off":  # a collision section: the mode in effect (a free T, N: auto or
+        # multi-start plans with check where the section's default enforce cannot apply: hoc plan warns, the row says)
+        row["collision_mode"] = str(summary["collision_mode"])
+    if summary.get("min_clearance"):  # the certificate's smallest distance [m]
         row["min_clearance"] = float(summary["min_clearance"]["distance"])
     if "dJ_dT" in summary:  # a free T: the optimal duration [s] (not "T": a sweep over T has that column)
         row["T_optimal"] = float(summary["T"])

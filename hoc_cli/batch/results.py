@@ -3,8 +3,9 @@
 Columns: ``id``, ``task``, one column per sweep key (its key path; a sweep over the task key
 ``cost`` is named ``cost_type``, as in ``hoc plan --json``), then ``status``, ``converged``,
 ``cost``, [``T_optimal``, the duration [s] found for a free T, when a plan has one], ``iterations``, ``evaluations``,
-``boundary_error``, ``limits`` (ok | violated), ``limit_violations`` (JSON text), [``min_clearance``,
-the smallest signed distance [m] of a plan with a ``collision:`` section], [``best_start``,
+``boundary_error``, ``limits`` (ok | violated), ``limit_violations`` (JSON text), [``collision_mode`` (enforce |
+check: the mode in effect) and ``min_clearance``, the smallest signed distance [m], of a plan with a ``collision:``
+section], [``best_start``,
 ``start_costs`` with multi-start],
 ``outputs`` (paths relative to the results directory), ``error``, ``solve_time_s``.
 
@@ -23,8 +24,8 @@ from typing import Any, Iterable
 PARQUET, CSV = "results.parquet", "results.csv"
 HEAD = ("id", "task")
 TAIL = ("status", "converged", "cost", "T_optimal", "iterations", "evaluations", "boundary_error", "limits",
-        "limit_violations", "min_clearance", "best_start", "start_costs", "outputs", "error", "solve_time_s")
-OPTIONAL = ("T_optimal", "min_clearance", "best_start", "start_costs")
+        "limit_violations", "collision_mode", "min_clearance", "best_start", "start_costs", "outputs", "error", "solve_time_s")
+OPTIONAL = ("T_optimal", "collision_mode", "min_clearance", "best_start", "start_costs")
 RENAMED = {"cost": "cost_type"}  # sweep key -> column, where the key is also a result column
 TIMING = ("solve_time_s",)  # the only columns that differ between runs of the same batch
 IDENTITY_KEY = b"hoc.batch.spec"  # Parquet metadata: the identity of the spec the rows come from
@@ -41,7 +42,7 @@ def _types() -> dict:
     return {"id": pa.string(), "task": pa.string(), "status": pa.string(), "converged": pa.bool_(),
             "cost": pa.float64(), "T_optimal": pa.float64(), "iterations": pa.int64(), "evaluations": pa.int64(),
             "boundary_error": pa.float64(), "limits": pa.string(), "limit_violations": pa.string(),
-            "min_clearance": pa.float64(),
+            "collision_mode": pa.string(), "min_clearance": pa.float64(),
             "best_start": pa.int64(), "start_costs": pa.list_(pa.float64()), "outputs": pa.list_(pa.string()),
             "error": pa.string(), "solve_time_s": pa.float64()}
 
