@@ -11,6 +11,7 @@ Which solver runs when (docs/design.md, "Which solver runs when"):
 | free T, joint goal | ``free_time.minimize_time`` over fixed-T solves (Brent on dJ*/dT) |
 | free T with a link goal or vias | ``goals.free_time_sqp``: the plan at the guess, then Newton steps in (x, T) |
 | free T with ``warm`` | ``goals.replan``: Newton steps from the earlier plan |
+| free T with a collision constraint | ``free_time.minimize_time`` over fixed-T plans with it (``warm`` not used) |
 
 The CLI (``hoc plan``) and ``hoc batch`` call this; so can any Python program (docs/api.md).
 Errors are ``HocError`` subclasses naming the key at fault (no file: the caller adds it).
@@ -29,6 +30,9 @@ from hoc_cli.errors import HocError, TaskError
 from hoc_cli.ocp.problem import Fixed, Free, OptimalControlProblem
 
 ESTIMATE_MIN_ITER = 50  # the error estimate's iteration budget: the plan's own iterations, at least this
+COLLISION_T_RTOL = 1e-5  # a free T with the collision constraint: |dJ/dT + weight| within this (relative), or the
+# bracket this narrow (the fixed-T plans with the constraint are converged to their certificate, which leaves dJ*/dT
+# uncertain by far more than the plain search's 1e-7: two-link around a ball, dJ/dT −1.00 against −0.84 from J*(T))
 REACH_SAMPLES = 400  # the free-T span is checked for reach at this many T
 
 
@@ -121,8 +125,8 @@ def solve(problem: OptimalControlProblem, options: SolveOptions | None = None,
     options = options or SolveOptions()
     if options.starts > 1 and (problem.has_goals or problem.N is None):
         raise TaskError("multi-start applies to joint goals in a fixed T and a fixed N", key="solver.starts")
-    if problem.constraint is not None and (problem.free_time is not None or problem.N is None or options.starts > 1):
-        raise TaskError("collision enforcement plans in a fixed T and N with one start (use "
+    if problem.constraint is not None and (problem.N is None or options.starts > 1):
+        raise TaskError("collision enforcement plans in a fixed N with one start (use "
                         "--collision check to plan without it and report the clearance)", key="collision.mode")
     from hoc_cli.optimize.blas import one_thread
 
@@ -233,7 +237,7 @@ def _solve_goals(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
         result = plan_goals(problem.system, scaled_mesh(problem.order, problem.T, problem.N, fractions), problem.q0,
                             problem.dq0, goals, limits=problem.limits, C_init=C_init, **common, **more)
         return Plan(result=result, goals=goals)
-    if warm is not None:
+    if warm is not None and problem.constraint is None:
         return _warm_replan(problem, goals, fractions, warm, common)
     return _solve_free_time(problem, goals, fractions, common)
 
@@ -241,7 +245,25 @@ def _solve_goals(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
 def _solve_free_time(problem: OptimalControlProblem, goals, fractions, common: dict) -> Plan:
     free: Free = problem.time  # type: ignore[assignment]
     system = problem.system
-    if goals.final is None and not goals.vias:  # a joint goal: the search over fixed-T solves
+    if problem.constraint is not None:
+        plain = _solve_free_time(dataclasses.replace(problem, constraint=None), goals, fractions, common)
+        if plain.converged and _clear(problem.constraint, plain.result):  # the constraint inactive: its optimum
+            return dataclasses.replace(plain, details={**plain.details, "collision_active": False})
+        # else the search over fixed-T plans with the constraint (dJ/dT with its rows' part)
+        from hoc_cli.collision.time_derivative import with_collision_slope
+        from hoc_cli.free_time import joint_goal_solver, minimize_time
+        from hoc_cli.goals.time_solver import goal_solver
+
+        more = common | {"limits": problem.limits, "constraint": problem.constraint}
+        if goals.final is None and not goals.vias:
+            solver = joint_goal_solver(system, problem.order, problem.N, problem.q0, problem.dq0, problem.q1,
+                                       problem.dq1, **more)
+        else:
+            solver = goal_solver(system, problem.order, problem.N, problem.q0, problem.dq0, goals, fractions=fractions,
+                                 **more)
+        ft = minimize_time(with_collision_slope(solver, problem.constraint), free.min, free.max, guess=free.guess,
+                           weight=free.weight, rtol=COLLISION_T_RTOL)
+    elif goals.final is None and not goals.vias:  # a joint goal: the search over fixed-T solves
         from hoc_cli.free_time import joint_goal_solver, minimize_time
 
         solver = joint_goal_solver(system, problem.order, problem.N, problem.q0, problem.dq0, problem.q1,
@@ -259,7 +281,16 @@ def _solve_free_time(problem: OptimalControlProblem, goals, fractions, common: d
     details = {"dJ_dT": ft.dJ_dT, "T_weight": free.weight, "T_objective": ft.objective,
                "T_bound": ft.bound, "T_solves": len(ft.history), "T_converged": ft.converged,
                "T_iterations": sum(o.iterations for o in solves), "T_evaluations": sum(o.n_evals for o in solves)}
+    if problem.constraint is not None:
+        details["collision_active"] = True
     return Plan(result=ft.result, details=details, goals=goals)
+
+
+def _clear(constraint, result) -> bool:
+    """Whether the plan ``result`` keeps ``constraint``'s margin on its whole trajectory (its certificate)."""
+    from hoc_cli.collision.certify import certify
+
+    return certify(constraint.model, constraint.scene, result.mesh, result.coeffs).certified
 
 
 def _warm_replan(problem: OptimalControlProblem, goals, fractions, warm: WarmStart, common: dict) -> Plan:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _collision_tasks import plan, task_folder
+from _collision_tasks import coal_two_link, plan, task_folder
 
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
@@ -38,35 +38,6 @@ def workdir(tmp_path, monkeypatch):
     return task_folder(tmp_path, monkeypatch, ("two_link.urdf", "lbr7.urdf"))
 
 
-def _coal_two_link(csv_path: Path, obstacle: dict) -> float:
-    """The smallest signed distance, forearm and upper arm against the obstacle, at every CSV sample, by coal and
-    Pinocchio (independent of hoc's collision code)."""
-    coal = pytest.importorskip("coal")
-    pin = pytest.importorskip("pinocchio")
-    model = pin.buildModelFromUrdf(str(ROOT / "robots" / "two_link.urdf"))
-    data = model.createData()
-    rows = list(csv.DictReader(csv_path.open()))
-    qs = np.array([[float(r["q.shoulder"]), float(r["q.elbow"])] for r in rows])
-    along_x = pin.SE3(np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]), np.array([0.5, 0, 0]))  # coal's z to x
-    capsule = coal.Capsule(0.05, 1.0)
-    if "sphere" in obstacle:
-        shape = coal.Sphere(obstacle["sphere"]["radius"])
-    else:
-        shape = coal.Box(*obstacle["box"]["size"])
-    place = coal.Transform3s(np.eye(3), np.array(obstacle["position"], float))
-    req = coal.DistanceRequest()
-    req.enable_signed_distance = True
-    worst = np.inf
-    for q in qs:
-        pin.framesForwardKinematics(model, data, q)
-        for link in ("upper_arm", "forearm"):
-            M = data.oMf[model.getFrameId(link)] * along_x
-            res = coal.DistanceResult()
-            coal.distance(capsule, coal.Transform3s(M.rotation, M.translation), shape, place, req, res)
-            worst = min(worst, res.min_distance)
-    return worst
-
-
 def test_the_arm_goes_round_a_ball_certified_and_coal_agrees_at_1_khz_and_J_grows_with_the_margin(workdir):
     r, free = plan(workdir, two_link([BALL]), "--collision", "check")
     assert r.exit_code == 0 and free["min_clearance"]["distance"] < -0.1  # the free optimum goes through it
@@ -77,7 +48,7 @@ def test_the_arm_goes_round_a_ball_certified_and_coal_agrees_at_1_khz_and_J_grow
         c = s["min_clearance"]
         assert s["collision_mode"] == "enforce" and s["converged"] and s["collisions"] == []
         assert c["certified"] and c["lower_bound"] >= margin - 1e-9
-        assert _coal_two_link(workdir / "out.csv", BALL) >= margin - 1e-9
+        assert coal_two_link(workdir / "out.csv", BALL) >= margin - 1e-9
         assert c["distance"] < margin + 0.005  # the constraint binds
         costs.append(s["cost"])
     assert free["cost"] < costs[0] <= costs[1] <= costs[2]
@@ -107,7 +78,7 @@ def _plan_with_binding_elbow_limit(workdir, doc: dict, limit: float) -> dict:
     with open(workdir / "out.csv") as f:
         assert max(abs(float(row["dq.elbow"])) for row in csv.DictReader(f)) <= limit * (1 + 1e-9)
     c = s["min_clearance"]
-    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
     return s
 
 
@@ -140,7 +111,7 @@ def test_a_goal_task_is_planned_round_the_ball_meeting_its_goal_certified_and_co
     assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9
     met = [s["reached"]] if "x1" in goal else s["vias"]
     assert met and all(g["position_error"] <= 1e-9 for g in met)
-    assert _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
     assert s["cost"] >= free["cost"]
 
 
@@ -157,18 +128,17 @@ def test_a_link_goal_with_a_binding_velocity_limit_and_the_ball_meets_all_three(
     assert s["reached"]["position_error"] <= 1e-9 and s["cost"] > free["cost"]
 
 
-def test_enforce_refuses_a_free_T_in_one_line_and_the_default_falls_back_to_check(workdir):
+def test_enforce_refuses_N_auto_in_one_line_and_the_default_falls_back_to_check(workdir):
     doc = two_link([BALL], N=4)
-    doc["x1"] = {"link": "tool", "position": [1.2, 0.0, 1.4]}
-    doc["T"] = {"free": True, "min": 1.0, "max": 2.0, "guess": 1.5}
+    doc["N"] = "auto"
     r, _ = plan(workdir, doc, "--collision", "enforce")
     assert r.exit_code == 2 and r.stderr.count("\n") == 1
-    assert "task.yaml: collision.mode: collision enforcement plans in a fixed T and N with one start, not a free T" \
+    assert "task.yaml: collision.mode: collision enforcement plans in a fixed N with one start, not N: auto" \
         in r.stderr and "--collision check" in r.stderr
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
     assert s["collision_mode"] == "check" and "min_clearance" in s and "collision_enforce" not in s
-    assert "hoc: warning: collision enforcement plans in a fixed T" in r.stderr and "planned with collision check" in r.stderr
+    assert "hoc: warning: collision enforcement plans in a fixed N" in r.stderr and "planned with collision check" in r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -354,4 +324,4 @@ def test_a_start_the_loop_cannot_free_is_replanned_from_vias(workdir, monkeypatc
     r, s = plan(workdir, two_link([BALL], N=4))
     assert r.exit_code == 0, r.stderr
     assert s["collision_enforce"]["start"] in ("guess", "via") and s["min_clearance"]["certified"]
-    assert _coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9
+    assert coal_two_link(workdir / "out.csv", BALL) >= 0.01 - 1e-9

@@ -307,9 +307,10 @@ def test_the_mcap_carries_the_clearance_at_every_sample_as_coal_measures_it(work
     assert r.exit_code == 0 and read_plan(workdir / "plan.mcap").clearance is None
 
 
-def test_the_free_T_catch_over_a_table_is_planned_with_check_saying_so_and_its_clearance_agrees_with_coal(workdir):
-    """A free T is not enforced yet: the catch (configs/catch_ball.yaml) over a table is planned with ``check``, one
-    warning line says what is and is not imposed, and its certified clearance holds for coal at 1 kHz."""
+def test_the_free_T_catch_over_a_table_is_enforced_and_its_clearance_agrees_with_coal(workdir):
+    """The catch (configs/catch_ball.yaml) over a table, a free T with the constraint enforced: its free-T optimum
+    keeps the margin (certified), so it is the plan (``collision_active`` false, no warning), and its certified
+    clearance holds for coal at 1 kHz."""
     doc = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
     doc["robot"] = "../robots/lbr7.urdf"
     doc["output"] = {"rate": 1000.0}
@@ -317,9 +318,8 @@ def test_the_free_T_catch_over_a_table_is_planned_with_check_saying_so_and_its_c
                         "obstacles": [{"name": "table", "box": {"size": [0.6, 0.8, 0.04]}, "position": [0.65, 0.0, 0.23]}]}
     r, s = plan(workdir, doc)
     assert r.exit_code == 0, r.stderr
-    assert r.stderr.count("hoc: warning:") == 1
-    assert "not a free T: planned with collision check (the clearance is certified and reported, not imposed)" in r.stderr
-    assert s["collision_mode"] == "check" and "collision_enforce" not in s and s["collisions"] == []
+    assert "hoc: warning:" not in r.stderr
+    assert s["collision_mode"] == "enforce" and s["collision_active"] is False and s["collisions"] == []
     assert s["reached"]["position_error"] <= 1e-9 and 0.3 <= s["T"] <= 0.5
     c = s["min_clearance"]
     assert c["certified"] and c["pair"] == ["lbr_flange", "table"] and c["lower_bound"] >= 0.01

@@ -74,8 +74,8 @@ def enforced_problem(task, model, scene: CollisionScene | None, problem, *, expl
                      starts: int = 1, announce: bool = True):
     """(the problem, with the collision constraint when enforced, and the mode in effect).
 
-    ``enforce`` (the section's default) applies in a fixed T and N with one start (joint or link goals, vias); a
-    task with a free T, ``N: auto`` or several starts is planned with ``check`` instead when the mode is
+    ``enforce`` (the section's default) applies in a fixed N with one start (joint or link goals, vias, a fixed or a
+    free T); a task with ``N: auto`` or several starts is planned with ``check`` instead when the mode is
     the default, and refused (TaskError, exit 2) when ``enforce`` is asked for (``collision.mode`` or
     ``--collision``: ``explicit``). Without pairs to check there is nothing to enforce: ``check``. With
     ``announce`` the fallback to ``check`` says so in a warning line (``hoc plan``; ``hoc batch`` does not
@@ -84,14 +84,14 @@ def enforced_problem(task, model, scene: CollisionScene | None, problem, *, expl
     mode = task.collision.mode
     if mode != "enforce":
         return problem, mode
-    if problem.free_time is not None or problem.N is None or starts > 1:
-        why = ("a free T" if problem.free_time is not None else "N: auto" if problem.N is None else "multi-start")
+    if problem.N is None or starts > 1:
+        why = "N: auto" if problem.N is None else "multi-start"
         if explicit or task.collision.mode_given:
-            raise TaskError(f"collision enforcement plans in a fixed T and N with one start, not {why} "
+            raise TaskError(f"collision enforcement plans in a fixed N with one start, not {why} "
                             "(use --collision check to plan without it and certify the clearance)",
                             file=task.path, key="collision.mode")
         if announce:
-            warn(f"collision enforcement plans in a fixed T and N with one start, not {why}: planned "
+            warn(f"collision enforcement plans in a fixed N with one start, not {why}: planned "
                  "with collision check (the clearance is certified and reported, not imposed)")
         return problem, "check"
     if scene is None or scene.size == 0:  # nothing to impose
