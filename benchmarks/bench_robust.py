@@ -1,6 +1,6 @@
 """Free-T and goal tasks on third-party robots (example-robot-data), hoc timed beside CasADi + IPOPT.
 
-    python benchmarks/bench_robust.py [--ipopt] [--K 8 32]
+    python benchmarks/bench_robust.py [--ipopt] [--K 8 32] [--tasks "panda reach" ...]
 
 The tasks of issue 23's independent check, the URDF's limits enforced:
 
@@ -88,6 +88,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ipopt", action="store_true", help="also solve each task with CasADi + IPOPT")
     ap.add_argument("--K", type=int, nargs="+", default=[8, 32], help="IPOPT's collocation intervals")
+    ap.add_argument("--tasks", nargs="+", default=None, choices=["ur5 catch", "ur5 moving", "panda reach"],
+                    help="run only these tasks (default all)")
     args = ap.parse_args()
     import scipy.optimize  # noqa: F401  (hoc's first-use import, before the timings: module docstring)
 
@@ -96,6 +98,8 @@ def main() -> None:
     print(f"{'task':>12} {'solver':>6} {'mesh':>5} {'status':>24} {'T [s]':>12} {'J':>16} {'wall [s]':>9} "
           f"{'CPU [s]':>8} {'ratio wall':>10} {'ratio CPU':>9}")
     for name, (model, problem, target) in tasks().items():
+        if args.tasks is not None and name not in args.tasks:
+            continue
         cpu = time.process_time()
         plan = hoc_cli.solve(problem)
         cpu = time.process_time() - cpu

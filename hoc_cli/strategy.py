@@ -7,7 +7,8 @@ Which solver runs when (docs/design.md, "Which solver runs when"):
 | joint goal, fixed T, fixed N | ``planner.plan`` (coarse to fine; limits by the SQP / augmented Lagrangian), then |
 |                              | the error estimate of J on 2N and N/2 elements; ``starts`` > 1: the best seeded start |
 | joint goal, fixed T, ``N=None`` | ``accuracy.plan_auto``: refine until the estimate meets ``accuracy`` |
-| link goal or vias, fixed T | ``goals.plan_goals`` on a mesh with every via a node |
+| link goal or vias, fixed T | with enforced limits ``goals.free_time_sqp.plan_fixed_time`` (SQP steps from the |
+|                            | initial trajectory), else or when they fail ``goals.plan_goals``; every via a node |
 | free T, joint goal | ``free_time.minimize_time`` over fixed-T solves (Brent on dJ*/dT) |
 | free T with a link goal or vias | ``goals.free_time_sqp``: the plan at the guess, then Newton steps in (x, T) |
 | free T with ``warm`` | ``goals.replan``: Newton steps from the earlier plan |
@@ -232,6 +233,10 @@ def _solve_goals(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
     fractions = node_fractions(problem)
     common = _common(problem, options) | {"callback": options.callback}
     if isinstance(problem.time, Fixed):
+        if problem.constraint is None and problem.limits is not None and problem.limits.any:
+            result = _fixed_time_sqp(problem, goals, fractions, warm)
+            if result is not None:
+                return Plan(result=result, goals=goals)
         C_init = None if warm is None else warm.coeffs
         more = {} if problem.constraint is None else {"constraint": problem.constraint}
         result = plan_goals(problem.system, scaled_mesh(problem.order, problem.T, problem.N, fractions), problem.q0,
@@ -240,6 +245,24 @@ def _solve_goals(problem: OptimalControlProblem, options: SolveOptions, warm: Wa
     if warm is not None and problem.constraint is None:
         return _warm_replan(problem, goals, fractions, warm, common)
     return _solve_free_time(problem, goals, fractions, common)
+
+
+def _fixed_time_sqp(problem: OptimalControlProblem, goals, fractions, warm: WarmStart | None):
+    """A goal plan in a fixed T within enforced limits by SQP steps from the initial trajectory
+    (``goals.free_time_sqp.plan_fixed_time``) or from ``warm`` (``replan_fixed_time``, its multipliers and working
+    set by least squares), or None when they do not converge (``plan_goals`` then solves).
+    """
+    from hoc_cli.goals.free_time_sqp import plan_fixed_time, replan_fixed_time
+    from hoc_cli.goals.mesh import scaled_mesh
+    from hoc_cli.goals.warm import initial_plan, previous_plan
+
+    mesh = scaled_mesh(problem.order, problem.T, problem.N, fractions)
+    if warm is not None:
+        previous = previous_plan(problem.system, mesh, warm.coeffs, problem.q0, problem.dq0, goals, cost=problem.cost,
+                                 G=warm.G, limits=problem.limits)
+        return replan_fixed_time(problem.system, previous, goals, problem.limits)
+    start = initial_plan(problem.system, mesh, problem.q0, problem.dq0, goals, cost=problem.cost)
+    return plan_fixed_time(problem.system, start, goals, problem.limits)
 
 
 def _solve_free_time(problem: OptimalControlProblem, goals, fractions, common: dict) -> Plan:

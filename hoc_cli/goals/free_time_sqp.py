@@ -164,6 +164,16 @@ def _coarsens(mesh, goals, coarse: int) -> bool:
 
 def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int, max_steps: int,
                   coarse: int, level=None) -> FreeTimeResult | None:
+    """``_coarse_replan`` as the free-T optimum (a ``FreeTimeResult``), or None."""
+    r = _coarse_replan(system, start, goals, limits, span, cold_steps, max_steps, coarse, level=level)
+    if r is None:
+        return None
+    point = _point(r)
+    return _result(point, [point], span.min, span.max, span.weight)
+
+
+def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_steps: int, max_steps: int,
+                   coarse: int, level=None, record: list | None = None):
     """The free-T optimum on the mesh of ``start`` (the initial trajectory at the guess, or the restored one) by way of
     ``coarse`` elements: ``start`` resampled to them (zero multipliers), the steps from scratch at its T and the steps in x and T there (each step a small
     programme; the goal rows' violation floor ``COLD_FLOOR``, as far from the optimum), then the coarse optimum
@@ -172,7 +182,8 @@ def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int
     it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
     than 2·``coarse`` elements, the goals have vias, the resampled start breaks a limit (the UR5's fast catch after its
     restoration on the mesh), or a stage does not converge (the steps on the mesh itself then run). ``level``: the start on
-    the ``coarse`` elements when it is given there (``_restored``), else ``start`` resampled.
+    the ``coarse`` elements when it is given there (``_restored``), else ``start`` resampled. ``span`` None: T fixed
+    (no steps in T). Returns the converged ``ReplanResult`` on the mesh, or None.
     """
     from hoc_cli.goals.warm import previous_plan
 
@@ -188,31 +199,85 @@ def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int
                              multipliers="zeros")
     if _breaks_limits(system, plan, limits):
         return None
-    r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=COLD_FLOOR,
+    r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=COLD_FLOOR,
                merit=True)
-    if r.converged:
-        r = replan(system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
+    if r.converged and span is not None:
+        r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
                    violation_floor=COLD_FLOOR)
     if not r.converged:
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
     plan = previous_plan(system, fine, resample(r.plan.mesh, r.plan.coeffs, fine), q0, dq0, goals, cost=cost, G=G,
                          limits=limits)
-    r = replan(system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
+    r = _run(record, system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
     if not r.converged:  # far from the mesh's optimum (the torque cost): steps at the coarse T first, as from scratch
-        r = replan(system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
+        r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
-        if r.converged:
-            r = replan(system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
-    r = _with_quadrature(r, system, goals, span, limits, max_steps) if r.converged else None
+        if r.converged and span is not None:
+            r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+    r = _with_quadrature(r, system, goals, span, limits, max_steps, record) if r.converged else None
     if r is None:
         return None
-    r = _canonical_multipliers(system, r, goals, limits, span)
-    point = _point(r)
-    return _result(point, [point], span.min, span.max, span.weight)
+    return _canonical_multipliers(system, r, goals, limits, span, record)
 
 
-def _canonical_multipliers(system, r, goals, limits, span: TimeRange):
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
+def plan_fixed_time(system, start, goals, limits, *, cold_steps: int = COLD_STEPS, max_steps: int = MAX_STEPS,
+                    coarse: int = COARSE_N):
+    """A goal plan in a fixed T within kinematic ``limits`` by the SQP steps from the initial trajectory ``start`` (a
+    ``GoalResult`` with zero multipliers, ``GoalSolver.initial``): step 1. of the module docstring at T, first on
+    ``coarse`` elements where ``_coarse_replan`` applies (then steps on the mesh from the coarse optimum), the quadrature
+    test at the end and the limit multipliers re-estimated by least squares (``_canonical_multipliers``). The
+    ``GoalResult`` (its ``quadrature_change`` J's relative change with G + 4 Gauss points), or None when the steps do not
+    converge (an effort limit broken, no plan within the limits found): the caller then solves by ``plan_goals``.
+
+    Steps of a local model, as IPOPT's, follow the nearest optimum from the initial trajectory, where a first
+    augmented-Lagrangian subproblem minimised to convergence may leave it for any other: docs/goals.md.
+    """
+    record: list = []  # every replan's outcome: the plan reports their steps and evaluations together
+    r = _coarse_replan(system, start, goals, limits, None, cold_steps, max_steps, coarse, record=record) if coarse else None
+    if r is None:
+        r = _run(record, system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
+                 violation_floor=COLD_FLOOR, merit=True)
+        r = _with_quadrature(r, system, goals, None, limits, max_steps, record) if r.converged else None
+        if r is None:
+            return None
+        r = _canonical_multipliers(system, r, goals, limits, None, record)
+    return _fixed_plan(r, record, "SQP steps from the initial trajectory: converged")
+
+
+@one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
+def replan_fixed_time(system, previous, goals, limits, *, max_steps: int = MAX_STEPS):
+    """A goal plan in a fixed T within kinematic ``limits`` by SQP steps from an earlier plan on the same mesh
+    (``previous``: a ``GoalResult`` with least-squares multipliers and working set, ``hoc_cli.goals.warm.previous_plan``;
+    ``hoc plan --init``), as ``plan_fixed_time`` ends; None when they do not converge.
+    """
+    record: list = []
+    r = _run(record, system, previous, goals, limits=limits, fallback=False, max_steps=max_steps)
+    r = _with_quadrature(r, system, goals, None, limits, max_steps, record) if r.converged else None
+    if r is None:
+        return None
+    r = _canonical_multipliers(system, r, goals, limits, None, record)
+    return _fixed_plan(r, record, "SQP steps from the initial plan: converged")
+
+
+def _fixed_plan(r, record: list, message: str):
+    """The ``GoalResult`` of the converged fixed-T replan ``r``: ``message``, the steps and evaluations of every replan in
+    ``record``, and J's relative change with G + 4 Gauss points as its ``quadrature_change``.
+    """
+    plan = r.plan
+    problem = plan.problem
+    J4 = problem.with_quadrature(problem.G + 4).value(problem.layout.pack(plan.coeffs))
+    work = [x.plan.optimizer for x in record]
+    optimizer = dataclasses.replace(plan.optimizer, message=message, iterations=sum(o.iterations for o in work),
+                                    n_evals=sum(o.n_evals for o in work), n_precond=sum(o.n_precond for o in work))
+    changes = {"quadrature_change": abs(J4 - plan.J) / max(abs(J4), 1e-300), "optimizer": optimizer}
+    if plan.limits is not None:
+        changes["limits"] = dataclasses.replace(plan.limits, message=message)
+    return dataclasses.replace(plan, **changes)
+
+
+def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, record: list | None = None):
     """The converged replan ``r`` with its limit multipliers re-estimated at its optimum by least squares
     (``hoc_cli.goals.warm.previous_plan``, μ ≥ 0 over the rows within 1e-3 of their bound) and confirmed by steps in
     x and T from there that take none; ``r`` itself when they take a step or do not converge.
@@ -229,8 +294,16 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange):
     q0, dq0 = plan.problem.boundary[:2]
     again = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G,
                           limits=limits)
-    confirmed = replan(system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
+    confirmed = _run(record, system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
     return confirmed if confirmed.converged and confirmed.steps == 0 else r
+
+
+def _run(record: list | None, *args, **options):
+    """``replan(*args, **options)``, its outcome appended to ``record`` (when given)."""
+    r = replan(*args, **options)
+    if record is not None:
+        record.append(r)
+    return r
 
 
 def _breaks_limits(system, plan, limits) -> bool:
@@ -272,7 +345,7 @@ def _result(point: TimePoint, history: list, T_min: float, T_max: float, weight:
                           bound=bound, point=point, history=history, converged=True)
 
 
-def _with_quadrature(r, system, goals, span: TimeRange | None, limits, max_steps: int):
+def _with_quadrature(r, system, goals, span: TimeRange | None, limits, max_steps: int, record: list | None = None):
     """The converged replan ``r`` with G raised by 4 (and the steps resumed) until its quadrature converges
     (``_quadrature_converged``; G ≤ 32 as ``plan_goals``), or None when resumed steps do not converge; ``span``:
     the free T's range, or None for a fixed T.
@@ -284,7 +357,7 @@ def _with_quadrature(r, system, goals, span: TimeRange | None, limits, max_steps
         q0, dq0 = plan.problem.boundary[:2]
         start = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G + 4,
                               limits=limits)
-        r = replan(system, start, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+        r = _run(record, system, start, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
         if not r.converged:
             return None
     return r
