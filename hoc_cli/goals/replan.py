@@ -123,7 +123,8 @@ def _start(previous) -> tuple[GoalResult, float | None]:
 @one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
-           fallback: bool = True, violation_floor: float = VIOLATION_FLOOR, merit: bool = False) -> ReplanResult:
+           fallback: bool = True, violation_floor: float = VIOLATION_FLOOR, merit: bool = False,
+           accuracy: float | None = None) -> ReplanResult:
     """Re-solve ``goals`` warm from ``previous`` (see the module docstring).
 
     Parameters
@@ -145,6 +146,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         the steps follow curved rows with fewer halvings.
     merit : with kinematic limits as the steps' rows, also halve a step while it does not decrease the ℓ1
         merit function (``replan_qp.MeritTest``): for steps from far away (the initial trajectory).
+    accuracy : with kinematic limits as the steps' rows, the looser stopping test of a coarse stage
+        (``replan_qp.qp_steps``); None: the full one.
 
     Returns
     -------
@@ -184,7 +187,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     rho_aug = RHO_AUG * max(abs(plan0.J), 1.0)
     if active is not None:
         out = qp_steps(system, plan0, goals, lam, active, free=free, limits=limits, tol=tol, max_steps=max_steps,
-                       rho_aug=rho_aug, floor=violation_floor, merit=merit)
+                       rho_aug=rho_aug, floor=violation_floor, merit=merit, accuracy=accuracy)
     else:
         out = _penalty_steps(system, plan0, goals, lam, state, free=free, limits=limits if limited else None,
                              tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start, floor=violation_floor)

@@ -157,7 +157,7 @@ class OutOfTime(Exception):
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
-             late: Callable[[str], bool] | None = None) -> QPReplan:
+             late: Callable[[str], bool] | None = None, accuracy: float | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -178,6 +178,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         matrix, before the T column's evaluation, before each programme, before the trial point); True abandons
         the steps there: ``OutOfTime`` is raised (a hard time budget: the real-time replanner, which then keeps
         the plan in force).
+    accuracy : when given, the stopping test's decrement (relative to |J|), goal rows (m, rad, m/s) and |∂ℒ/∂T|
+        (relative to |J|/T + weight) are met to it instead of ``tol``, ``EQ_ACCEPT`` and ``SLOPE_RTOL`` (the imposed
+        rows still to ``ROW_ACCEPT``, the check still exact; when the check finds a limit broken there, the steps go on
+        to the full test): a coarse stage whose optimum only starts the mesh's steps.
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -203,6 +207,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             raise OutOfTime(name)
 
     pt = at(T, C, lam, active)
+    full = (tol, EQ_ACCEPT, SLOPE_RTOL)  # the stopping test's decrement, goal rows and T slope
+    tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
@@ -313,16 +319,20 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
                   f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
                   + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
-        t_done = free is None or abs(pt.F) <= SLOPE_RTOL * (abs(pt.J) / T + weight) or (
+        t_done = free is None or abs(pt.F) <= slope_rtol * (abs(pt.J) / T + weight) or (
             (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
-        if abs(decrement) <= tol * max(abs(pt.J), 1.0) and violation <= EQ_ACCEPT and row_violation <= ROW_ACCEPT and t_done:
+        if abs(decrement) <= tol * max(abs(pt.J), 1.0) and violation <= eq_tol and row_violation <= ROW_ACCEPT and t_done:
             if lm > 0.0:  # a shifted matrix understates the decrease: test again with the Newton matrix itself
                 lm, decrement, U_last = 0.0, math.inf, None
                 continue
             check = check_limits(system, limits, problem.mesh, C)
             if check.feasible:
                 status = Status.CONVERGED
-            break
+                break
+            if accuracy is None:
+                break
+            check = None  # stopped early with a limit broken between the held rows: the steps go on to the full test
+            tol, eq_tol, slope_rtol = full
         if steps == max_steps:
             break
         steps += 1
