@@ -211,6 +211,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     U_last = check = None
+    previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
     lm = 0.0  # with the merit test: a Levenberg-Marquardt shift of the Newton matrix (relative, as BandedSPD's)
@@ -289,6 +290,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 if quick and kept is not None:  # the last programme's active rows and the rows added first
                     step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
                                            programme=prog)
+                elif not quick and previous is not None and kept is None:  # the last step's active rows, new rows
+                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
+                                           programme=prog)
                 else:
                     step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
             except NumericalError as exc:
@@ -308,6 +312,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             lo_mask, hi_mask = beyond
         if failed:
             break
+        previous = step, cand
         row_violation = float(np.max(gA, initial=0.0))
         decrement = step.decrease
         if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
