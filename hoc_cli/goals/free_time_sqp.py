@@ -1,4 +1,4 @@
-"""A free final time by Newton (SQP) steps in (x, T) together.
+"""A free final time by Newton (SQP) steps in (x, T) together; and the same steps at a fixed T (``plan_fixed_time``).
 
 ``hoc_cli.free_time.minimize_time`` finds the optimal T by a one-dimensional search over fixed-T solves
 (each a full solve with its goal and limit loops: 7 solves and ~50 s for the lbr7 catch). Here the warm
@@ -39,6 +39,16 @@ reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7�
 1e-10 to 5e-9 relative on the catch, measured). Its limit multipliers are then re-estimated by least squares
 (``_canonical_multipliers``: those of a limit held along whole elements are not unique, and the programme's pick
 depends on the path). When a coarse stage does not converge, 1. and 2. run on the mesh.
+
+The coarse stage stops at a relative accuracy of ``COARSE_ACCURACY`` (the model decrease, the goal rows and ∂ℒ/∂T;
+the limit rows and the exact check as on the mesh), as ``plan_goals``' coarse levels: its optimum differs from the
+mesh's by the discretisation anyway (the lbr7 catch: 18 + 14 steps there instead of 21 + 15, the same optimum).
+
+``plan_fixed_time`` is 1. alone at a fixed T (no restoration: T cannot move), coarse first where that applies, with
+the quadrature test and ``_canonical_multipliers``: ``hoc_cli.solve``'s fixed-T goal plan within enforced limits
+(``replan_fixed_time`` from an earlier plan, ``--init``). The steps follow the optimum nearest the initial
+trajectory, as IPOPT's do, where ``plan_goals``' first augmented-Lagrangian subproblem may leave it for any other
+(docs/goals.md, "Goal rows").
 
 Moving T only once the plan at the guess has converged keeps the search's local optimum: steps in x
 and T from the initial trajectory reached the catch's optimum in fewer steps, but on a two-link link
