@@ -21,6 +21,10 @@ added (at most ``EXPAND_ROUNDS`` times): the rows are linear in x, so at a fixed
 On the real-time path (``quick``) that programme, whose least-distance solve costs in proportion to its rows, not
 its active ones, is solved over the last programme's active rows and the rows added first, then with any left-out
 row its step breaks (``solve_qp_within``): the same step (multipliers of dependent rows may be shared otherwise).
+Off it, each step's first programme is solved so over the last step's active rows and the candidates new to it:
+the multipliers of dependent rows (a limit held along an element) are then shared as the last step shared them,
+so the working set does not change from step to step with the programme's pick (from every row and no active one,
+the Panda reach's steps on 4 elements cycled between 29 and 31 active rows: 44 steps there, 38 so).
 When the goal rows' violation floor (the step may not raise the violation above max(violation, 1e-3)) or the
 merit test would cut the full step, its second-order correction is tried first (``_corrected_step``); when that
 too is cut, the step is halved (``damped_trial``). On the lbr7 catch's steps from scratch (4 elements) the two
@@ -58,8 +62,6 @@ from hoc_cli.optimize.modify import gauss_newton_shift
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 CANDIDATE_GAP = 0.05  # a Bernstein row within this fraction of its limit's size (g > −gap) enters the step's QP
 ROW_ACCEPT = 1e-9  # the imposed rows' violation (relative to the limit's size) of a converged replan
-WARM_ROWS = 256  # candidate rows from which a programme is solved first over the last step's active rows (the
-# catch at N = 32, 544 rows: 5 % less CPU; at N = 8, 138 rows, the warm Lawson-Hanson's Python costs 5 % more)
 SLOPE_RTOL = 1e-7  # |F| = |dℒ/dT| relative to |J|/T + weight at a free T's optimum (as the search's)
 LM_START = 1e-8  # the first Levenberg-Marquardt shift after a step the merit test cut below a quarter
 LM_MAX = 1e3  # the Levenberg-Marquardt shift stops growing here (the diagonal raised a thousandfold: steps far shorter than
@@ -292,8 +294,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 if quick and kept is not None:  # the last programme's active rows and the rows added first
                     step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
                                            programme=prog)
-                elif not quick and previous is not None and kept is None and cand.size >= WARM_ROWS:
-                    # a large programme: over the last step's active rows and the new rows first
+                elif not quick and previous is not None and kept is None:
+                    # over the last step's active rows and the new rows first: the same step, and the multipliers of
+                    # dependent rows shared as the last step shared them (from every row, the programme's split changed
+                    # from step to step and the working set with it: the Panda reach's coarse steps cycled 29 ↔ 31 rows)
                     step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
                                            programme=prog)
                 else:
