@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _robots import ERD
+from _robots import ERD, ROBOTS
 
 import hoc_cli
 from hoc_cli import Fixed, JointLimits, OptimalControlProblem, RobotSystem, link_goal, load_robot
@@ -42,3 +42,29 @@ def test_a_panda_reach_ends_at_the_optimum_ipopt_finds_from_the_same_start(targe
     assert check_limits(arm, limits, plan.mesh, plan.coeffs).feasible
     assert plan.result.violation <= 1e-9
     assert 0.0 <= plan.result.quadrature_change <= 1e-12
+
+
+def test_a_binding_effort_limit_ends_the_steps_early_and_the_loops_plan():
+    """The SQP steps impose the kinematic limits only: with an effort limit that binds, their end fails the exact
+    check, and a coarse stage's early stop (``accuracy``) goes on once to the full test, then stops (not after
+    ``max_steps``); ``hoc_cli.solve`` then plans by ``plan_goals``, whose loops hold the effort limit.
+    """
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals.free_time_sqp import COLD_FLOOR
+    from hoc_cli.goals.replan import replan
+    from hoc_cli.goals.warm import initial_plan
+
+    model = load_robot(ROBOTS / "two_link.urdf")
+    arm = RobotSystem(model)
+    limits = JointLimits.from_model(model).with_overrides(effort={"shoulder": 18.0, "elbow": 18.0})
+    problem = OptimalControlProblem(arm, q0=[0.0, 0.0], dq0=[0.0, 0.0], time=Fixed(1.5), N=16, limits=limits,
+                                    link_goal=link_goal(arm, "tool", position=[1.0, 0.0, 1.2]))
+    goals = problem.goals()
+    start = initial_plan(arm, HermiteMesh("quintic", 1.5, 4), problem.q0, problem.dq0, goals)
+    r = replan(arm, start, goals, limits=limits, fallback=False, max_steps=200, violation_floor=COLD_FLOOR,
+               merit=True, accuracy=1e-6)
+    assert not r.converged and r.steps < 50
+    plan = hoc_cli.solve(problem)
+    assert plan.converged and not plan.result.optimizer.message.startswith("SQP steps")
+    assert any(a["kind"] == "effort" for a in plan.result.limits.active_limits())
+    assert check_limits(arm, limits, plan.mesh, plan.coeffs).feasible

@@ -343,7 +343,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 break
             if accuracy is None:
                 break
-            check = None  # stopped early with a limit broken between the held rows: the steps go on to the full test
+            check = accuracy = None  # stopped early with a limit broken between the held rows: on to the full test
             tol, eq_tol, slope_rtol = full
         if steps == max_steps:
             break
