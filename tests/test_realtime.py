@@ -348,3 +348,41 @@ def test_the_python_example_of_docs_realtime_runs_as_printed(request, capsys):
     exec(compile(code, "docs/realtime.md", "exec"), {})
     steps, status = capsys.readouterr().out.split()[:2]
     assert int(steps) >= 1 and status in ("budget", "converged")
+
+
+def test_an_update_runs_on_one_blas_thread_when_numpy_loaded_its_blas_first():
+    """numpy imported first with two OpenBLAS threads (the docs' example's order): the replanner's steps and the
+    loop's updates run on one, and the counts are restored after (``optimize.blas.one_thread``)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy, scipy.linalg
+import json
+from _robots import lbr7_catch_problem
+import hoc_cli
+import hoc_cli.realtime.replanner as replanner
+from hoc_cli.optimize.blas import thread_counts
+from hoc_cli.realtime import Replanner, Target
+before = thread_counts()
+problem = lbr7_catch_problem()
+plan = hoc_cli.solve(problem)
+seen = []
+steps = replanner.qp_steps
+replanner.qp_steps = lambda *a, **k: seen.append(thread_counts()) or steps(*a, **k)
+rp = Replanner(problem, plan, max_steps=1)
+cur = rp.current
+p, v = rp.goals.final.target(0.05)
+up = rp.update(0.05, (cur.state(0.05)[0], cur.state(0.05, 1)[0]), Target(p + 0.01, v, rp.goals.final.acceleration), 10.0)
+print(json.dumps([before, sorted(set(map(tuple, seen))), thread_counts(), up.steps]))
+"""
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    tests = os.path.dirname(__file__)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tests,
+                         env=env | {"OPENBLAS_NUM_THREADS": "2", "PYTHONPATH": tests})
+    assert out.returncode == 0, out.stderr
+    before, seen, after, steps = json.loads(out.stdout)
+    assert before and all(n == 2 for n in before) and steps == 1
+    assert seen == [[1] * len(before)] and after == before

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hoc_cli.dynamics import frame_jacobian, link_poses
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.realtime.ballistic import BallisticFit
 from hoc_cli.realtime.feedback import correct
 from hoc_cli.realtime.replanner import CyclePlan, Replanner, Target
@@ -250,6 +251,11 @@ def run_catch(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, *,
     nominal target) for the true ``throw``. ``on_cycle`` is called with each ``CycleRecord``. ``timed`` False: no
     update is judged late on its wall time (a reproducible run; give a large ``cycle.budget`` too).
     """
+    with one_thread():  # (the corrections' solves too: see ``Replanner.update``)
+        return _run(problem, plan, throw, observer, cycle, on_cycle, replanner, timed)
+
+
+def _run(problem, plan, throw: Throw, observer: Observer, cycle: Cycle, on_cycle, replanner, timed: bool) -> CatchRun:
     rp = replanner if replanner is not None else Replanner(problem, plan, max_steps=cycle.steps)
     goal = problem.link_goal
     p_nom, v_nom = np.asarray(goal.position, float), np.zeros(3) if goal.velocity is None else np.asarray(goal.velocity, float)

@@ -56,6 +56,7 @@ from hoc_cli.goals.replan_point import VIOLATION_FLOOR
 from hoc_cli.goals.replan_qp import OutOfTime, qp_steps
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.ocp.problem import Free, OptimalControlProblem
+from hoc_cli.optimize.blas import one_thread
 from hoc_cli.realtime.limits_guard import effort_only, guard, within_limits
 from hoc_cli.realtime.shift import shift_plan
 
@@ -198,8 +199,14 @@ class Replanner:
         """The plan from the state x = (q (n,), q̇ (n,)) at absolute time t [s] towards ``target`` (its estimate
         at t), computed within ``budget_s`` [s] of wall time as far as the measured step times predict (the
         first step unless the median of the measured first steps does not fit: "skipped"). ``free_time`` False keeps the catch time of the plan in force
-        (T = its remaining time): near the catch, where a step in T is far from linear.
+        (T = its remaining time): near the catch, where a step in T is far from linear. On one BLAS thread
+        (``optimize.blas.one_thread``), as ``hoc_cli.solve``: numpy imported before hoc would otherwise run the
+        step's small dense solves on several (the docs' example's step: about 4 times slower on 2 cores).
         """
+        with one_thread():
+            return self._update(t, x, target, budget_s, free_time)
+
+    def _update(self, t: float, x, target: Target, budget_s: float, free_time: bool) -> CyclePlan:
         start = time.perf_counter()
         deadline = start + budget_s
         cur = self.current
