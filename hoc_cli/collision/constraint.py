@@ -12,8 +12,11 @@ multiplier λ_r ≥ 0 and the penalty per row ρ_r = ρ·w_r (w_r the time the p
 with ∂Φ/∂d_r = −μ_r and the multiplier update λ ← μ (Nocedal & Wright §17.4). The gradient in
 the coefficients is Σ_r −μ_r (∂d_r/∂q)ᵀ mapped through the Hermite values at the point
 (``PointSet.transpose``); ∂d/∂q is exact through the frame Jacobians (``evaluate.pair_gradient``).
-The Gauss-Newton curvature Σ_r ρ_r ∇d_r ∇d_rᵀ over the rows with λ_r + ρ_r c_r > 0 lies in the
-element of the point, so the Newton matrix stays block-banded (``PointSet.sample_blocks``).
+Φ's Hessian on the rows with λ_r + ρ_r c_r > 0 is Σ_r ρ_r ∇d_r ∇d_rᵀ − μ_r ∇²d_r: the first
+(Gauss-Newton, positive semi-definite) part is ``newton_blocks``, the second, the distances' own
+curvature (``evaluate.pair_hessian``; indefinite), ``curvature_blocks`` (with ``curvature``: the
+collision loop asks it on the levels it certifies). Each lies in the element of its point, so the
+Newton matrix stays block-banded (``PointSet.sample_blocks``).
 """
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import pair_gradient, row_contacts
+from hoc_cli.collision.evaluate import pair_gradient, pair_hessian, row_contacts
 from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
@@ -129,6 +132,8 @@ class CollisionTerms:
     to Φ, its gradient or its curvature. Such rows are not evaluated (their distance is reported as +inf).
     When more than ``REANCHOR`` of the rows may reach their bound, every row is evaluated and (q, d) there
     replaces (q0, d0) for the next evaluations (the line search's trials lie near the last ones).
+
+    curvature : whether ``curvature_blocks`` gives −Σ μ_r ∇²d_r (else None: the Gauss-Newton matrix alone).
     """
 
     model: RobotModel
@@ -140,6 +145,7 @@ class CollisionTerms:
     rho: float
     bound: float
     start: RowStart | None = None
+    curvature: bool = False
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
     _anchor: list = field(default_factory=list, repr=False)  # [RowStart]: the last configurations with every row evaluated
 
@@ -225,6 +231,28 @@ class CollisionTerms:
         G = np.zeros((3, self.points.size, n))
         np.add.at(G[0], self.rows, -mu[:, None] * dd)
         return value, self.points.transpose(G)
+
+    def curvature_blocks(self, C: np.ndarray) -> np.ndarray | None:
+        """Element blocks (N, 2mn, 2mn) of −Σ_r μ_r ∇²d_r over the rows with μ_r > 0 and d_r > 0 at C (None without
+        ``curvature`` or such rows): the part of Φ's Hessian the Gauss-Newton matrix leaves out, where a contact is
+        an edge, a corner or two capsules, and the kinematics' own curvature (``evaluate.pair_hessian``; indefinite).
+        """
+        if not self.curvature or self.rows.size == 0:
+            return None
+        d, _ = self._gradient(C)
+        mu = self.multipliers(d)
+        on = np.flatnonzero((mu > 0) & (d > 0))
+        if on.size == 0:
+            return None
+        used, inverse = self._used
+        q = point_configurations(self.points, C)[used]
+        n = q.shape[1]
+        Hq = np.zeros((used.size, n, n))
+        np.add.at(Hq, inverse[on], -mu[on, None, None] * pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on]))
+        which = np.unique(inverse[on])
+        Hs = np.zeros((which.size, 3 * n, 3 * n))
+        Hs[:, :n, :n] = Hq[which]
+        return self.points.sample_blocks(Hs, used[which])
 
     def newton_blocks(self, C: np.ndarray) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of Φ's Gauss-Newton Hessian at C."""

@@ -264,7 +264,7 @@ class CollisionConstraint:
                 rows = p.size
                 start_rows = RowStart(point_configurations(points, problem.coefficients(x)), D[p, k],
                                       self._pair_reach()[k])  # rows that cannot reach their bound are skipped
-                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows)
+                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows, curvature=full)
                 problem.terms = own + (terms,)
                 inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
                 if lim is None:
