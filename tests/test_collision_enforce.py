@@ -318,6 +318,18 @@ def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_c
     # skipped again near the far plan, more than from the start
     fresh = dataclasses.replace(full, start=start, _last=[], _anchor=[])
     assert skipped[0] > 0 and skipped[3] > int(np.isinf(fresh.distances(C)).sum())
+    # each row's bound starts where it was last evaluated: after a plan that moves the end of the path only,
+    # the rows evaluated there are bounded from it, the others still from the start
+    part = C0.copy()
+    part[-2:] += 0.5 * rng.normal(size=part[-2:].shape)
+    pruned = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    first = np.isinf(pruned.distances(part))
+    assert 0.5 * first.size < first.sum() < first.size  # some rows evaluated, not most
+    near = part + 1e-4 * rng.normal(size=C0.shape)
+    again = np.isinf(pruned.distances(near))
+    fresh = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    assert again.sum() > np.isinf(fresh.distances(near)).sum()
+    assert np.array_equal(pruned.evaluate(near)[1], full.evaluate(near)[1])
 
 
 def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):

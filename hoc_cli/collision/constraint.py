@@ -31,7 +31,6 @@ from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
-REANCHOR = 0.5       # more rows than this fraction may reach their bound: all evaluated, and the anchor moves
 PRUNE_SLACK = 1e-9    # relative and absolute (m) slack of the test that skips a row (rounding of d0 and the bound)
 SPHERE_PADDING = 2e-3  # m: how far the spheres standing for a capsule against obstacles may reach beyond it
 
@@ -130,8 +129,8 @@ class CollisionTerms:
     most Σ_j R0_j |q_j − q0_j| from q0 to q (``robot.reach``; the straight path in joint space), so a row
     with λ = 0 and d0 − Σ_j reach_j |q_j − q0_j| ≥ bound has d ≥ bound at q: μ = 0, and it adds nothing
     to Φ, its gradient or its curvature. Such rows are not evaluated (their distance is reported as +inf).
-    When more than ``REANCHOR`` of the rows may reach their bound, every row is evaluated and (q, d) there
-    replaces (q0, d0) for the next evaluations (the line search's trials lie near the last ones).
+    Each row's bound starts from where it was last evaluated: an evaluated row's (q, d) there replaces its
+    (q0, d0) (the line search's trials lie near the last ones), while the rows skipped keep theirs.
 
     curvature : whether ``curvature_blocks`` gives −Σ μ_r ∇²d_r (else None: the Gauss-Newton matrix alone).
     """
@@ -147,7 +146,7 @@ class CollisionTerms:
     start: RowStart | None = None
     curvature: bool = False
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
-    _anchor: list = field(default_factory=list, repr=False)  # [RowStart]: the last configurations with every row evaluated
+    _anchor: list = field(default_factory=list, repr=False)  # [q (M, n), d (M,)]: where each row was last evaluated
 
     @cached_property
     def _used(self) -> tuple[np.ndarray, np.ndarray]:
@@ -163,31 +162,43 @@ class CollisionTerms:
         live = self._live(q)
         if live is None:
             d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
-            self._anchor_at(q, d)
         else:
             d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
             if live.any():
                 d[live], dd[live] = pair_gradient(self.model, self.scene, q[used], inverse[live], self.pairs[live])
+        self._anchor_at(q, d, live)
         self._last[:] = [np.array(C), d, dd]
         return d, dd
 
-    def _anchor_at(self, q: np.ndarray, d: np.ndarray) -> None:
-        """Every row was evaluated at q (P, n), its distances d (M,): the next evaluations bound their moves from here."""
-        if self.start is not None:
-            self._anchor[:] = [RowStart(q, d, self.start.reach)]
+    def _anchor_at(self, q: np.ndarray, d: np.ndarray, live: np.ndarray | None) -> None:
+        """The rows ``live`` (None: every row) were evaluated at configurations q (P, n) of the points, their distances
+        in d (M,): each one's next moves are bounded from here.
+        """
+        if self.start is None:
+            return
+        if not self._anchor:  # per row: the configuration at its point (M, n) and its distance there (M,)
+            self._anchor[:] = [self.start.q0[self.rows].copy(), self.start.d0.copy()]
+        q_anchor, d_anchor = self._anchor
+        if live is None:
+            q_anchor[:], d_anchor[:] = q[self.rows], d
+        else:
+            q_anchor[live], d_anchor[live] = q[self.rows[live]], d[live]
 
     def _live(self, q: np.ndarray) -> np.ndarray | None:
-        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points (None: every row,
-        when more than ``REANCHOR`` of them may: they are all evaluated and q becomes the anchor).
+        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points, from where each was
+        last evaluated (None: every row).
         """
         if self.start is None:
             return None
-        start = self._anchor[0] if self._anchor else self.start
+        if self._anchor:
+            q_anchor, d_anchor = self._anchor
+        else:
+            q_anchor, d_anchor = self.start.q0[self.rows], self.start.d0
         with np.errstate(invalid="ignore"):  # inf · 0 (a prismatic joint that did not move): NaN, kept as a live row
-            move = np.einsum("mj,mj->m", start.reach, np.abs(q - start.q0)[self.rows])
+            move = np.einsum("mj,mj->m", self.start.reach, np.abs(q[self.rows] - q_anchor))
         move = np.where(np.isnan(move), np.inf, move)
-        live = (self.lam > 0) | (start.d0 - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
-        return None if live.mean() > REANCHOR else live
+        live = (self.lam > 0) | (d_anchor - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
+        return None if live.all() else live
 
     @property
     def rho_rows(self) -> np.ndarray:
@@ -207,11 +218,11 @@ class CollisionTerms:
         live = self._live(q)
         if live is None:
             d = row_contacts(self.model, self.scene, q[used], inverse, self.pairs).distance
-            self._anchor_at(q, d)
-            return d
-        d = np.full(self.rows.size, np.inf)
-        if live.any():
-            d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+        else:
+            d = np.full(self.rows.size, np.inf)
+            if live.any():
+                d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+        self._anchor_at(q, d, live)
         return d
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
