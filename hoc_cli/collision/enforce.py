@@ -271,7 +271,7 @@ class CollisionConstraint:
                     res = minimize(problem, x, inner_tol)
                     x = res.x
                 else:  # the joint limits' rounds, from their multipliers of the previous outer iteration
-                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full)
+                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full, polish=not full)
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
                 known = (x, points)
                 lam = np.zeros_like(D)
