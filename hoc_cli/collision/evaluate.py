@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -223,7 +223,7 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
         moved = anc[np.where(body < 0, n, body)]                      # (M, n)
         if not moved.any():
             continue
-        turn = np.einsum("mi,mij->mj", c.normal, np.cross(Zr, point[:, :, None] - Or, axis=1))
+        turn = np.einsum("mi,mij->mj", c.normal, cross(Zr, point[:, :, None] - Or, axis=1))
         slide = np.einsum("mi,mij->mj", c.normal, Zr)
         grad += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
     return c.distance, grad
@@ -293,7 +293,7 @@ def _kinematic_curvature(normal: np.ndarray, Z: np.ndarray, J: np.ndarray, moved
     for such i, so the entry is (n × z_i)·J_j, mirrored.
     """
     n = Z.shape[-1]
-    K = np.where(before, np.einsum("mki,mkj->mij", np.cross(normal[:, :, None], Z, axis=1), J), 0.0)
+    K = np.where(before, np.einsum("mki,mkj->mij", cross(normal[:, :, None], Z, axis=1), J), 0.0)
     K = K + np.swapaxes(np.where(before & ~np.eye(n, dtype=bool), K, 0.0), 1, 2)
     return np.where(moved[:, :, None] & moved[:, None, :], K, 0.0)
 
@@ -348,8 +348,8 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np
     body_b = np.full(M, n)
     body_b[self_rows] = np.where(robot.body[other[self_rows]] < 0, n, robot.body[other[self_rows]])
     moved_b = anc[body_b] & revolute
-    JP = np.where(moved_a[:, None, :], np.cross(Zr, P[:, :, None] - Or, axis=1), 0.0)      # (M, 3, n)
-    JQ = np.where(moved_b[:, None, :], np.cross(Zr, Qp[:, :, None] - Or, axis=1), 0.0)
+    JP = np.where(moved_a[:, None, :], cross(Zr, P[:, :, None] - Or, axis=1), 0.0)      # (M, 3, n)
+    JQ = np.where(moved_b[:, None, :], cross(Zr, Qp[:, :, None] - Or, axis=1), 0.0)
     before = anc[:n].T                                                       # before[i, j]: i on j's chain
     H = _kinematic_curvature(normal, Zr, JP, moved_a, before) - _kinematic_curvature(normal, Zr, JQ, moved_b, before)
     box = kind == KIND_BOX
@@ -368,8 +368,8 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np
         H[seg] += np.einsum("mki,mkl,mlj->mij", Jv, Pi, Jv)
         E = np.stack([e1, -e2], axis=2)                                          # (m, 3, 2): ∂v/∂(s, t)
         Fqy = np.einsum("mki,mkl,mly->miy", Jv, Pi, E)
-        Fqy[:, :, 0] += np.where(moved_a[seg], np.einsum("mk,mkj->mj", nn, np.cross(Zr[seg], e1[:, :, None], axis=1)), 0.0)
-        Fqy[:, :, 1] -= np.where(moved_b[seg], np.einsum("mk,mkj->mj", nn, np.cross(Zr[seg], e2[:, :, None], axis=1)), 0.0)
+        Fqy[:, :, 0] += np.where(moved_a[seg], np.einsum("mk,mkj->mj", nn, cross(Zr[seg], e1[:, :, None], axis=1)), 0.0)
+        Fqy[:, :, 1] -= np.where(moved_b[seg], np.einsum("mk,mkj->mj", nn, cross(Zr[seg], e2[:, :, None], axis=1)), 0.0)
         Fyy = np.einsum("mkx,mkl,mly->mxy", E, Pi, E)
 
         def parameter(x, a, e):
