@@ -16,7 +16,7 @@ the coefficients is Σ_r −μ_r (∂d_r/∂q)ᵀ mapped through the Hermite val
 (Gauss-Newton, positive semi-definite) part is ``newton_blocks``, the second, the distances' own
 curvature (``evaluate.pair_hessian``; indefinite), ``curvature_blocks`` (with ``curvature``: the
 collision loop asks it on the levels it certifies). Each lies in the element of its point, so the
-Newton matrix stays block-banded (``PointSet.sample_blocks``).
+Newton matrix stays block-banded (``q_blocks``).
 """
 from __future__ import annotations
 
