@@ -189,8 +189,9 @@ class CollisionTerms:
             d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
         else:
             d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
-            if live.any():
-                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used], inverse[live], self.pairs[live])
+            if live.any():  # only the configurations the live rows use are placed
+                at, local = np.unique(inverse[live], return_inverse=True)
+                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used[at]], local, self.pairs[live])
         self._anchor_at(q, d, live)
         self._last[:] = [np.array(C), d, dd]
         return d, dd
@@ -246,7 +247,8 @@ class CollisionTerms:
         else:
             d = np.full(self.rows.size, np.inf)
             if live.any():
-                d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+                at, local = np.unique(inverse[live], return_inverse=True)
+                d[live] = row_contacts(self.model, self.scene, q[used[at]], local, self.pairs[live]).distance
         self._anchor_at(q, d, live)
         return d
 
