@@ -30,7 +30,9 @@ cost) to element blocks, which ``positive_definite`` turns into the banded Newto
 ``ControlProblem.terms`` holds extra objective terms that ``evaluate`` and ``newton`` add (an
 outer loop's penalties, e.g. ``hoc_cli.collision.constraint.CollisionTerms``): each has
 ``evaluate(C, grad) -> (value, ∂/∂C (N+1, m, n) or None)`` and ``newton_blocks(C) -> (N, 2mn, 2mn)``
-(positive semi-definite element blocks). ``ControlProblem.bare_cost`` is I(q_h) without them.
+(positive semi-definite element blocks), and may have ``curvature_blocks(C) -> (N, 2mn, 2mn) or None``
+(the rest of its Hessian, possibly indefinite: added to the Hessian, not to the positive semi-definite
+part ``positive_definite`` falls back on). ``ControlProblem.bare_cost`` is I(q_h) without them.
 """
 from __future__ import annotations
 
@@ -369,13 +371,17 @@ class ControlProblem:
         Element blocks of the per-sample Hessians (``hessian_samples``) through ``positive_definite``;
         the blocks of the positive semi-definite part are only formed when needed. ``extra``
         (N, 2mn, 2mn): positive semi-definite element blocks of other terms (limit penalties),
-        added to both.
+        added to both; the ``terms``' ``curvature_blocks`` (if any) to the Hessian only.
         """
         Hb, GNs = self._element_hessians(ev)
         if self.terms:
             C = self.coefficients(ev.x)
             more = sum(term.newton_blocks(C) for term in self.terms)
             extra = more if extra is None else extra + more
+            for term in self.terms:
+                curvature = term.curvature_blocks(C) if hasattr(term, "curvature_blocks") else None
+                if curvature is not None:
+                    Hb = Hb + curvature
         if extra is None:
             return self.positive_definite(Hb, lambda: element_blocks(self.op_h, GNs), shift)
         return self.positive_definite(Hb + extra, lambda: element_blocks(self.op_h, GNs) + extra, shift)

@@ -169,3 +169,35 @@ def test_pair_gradient_on_chosen_rows_and_pairs_equals_the_full_grid(panda):
     rows, pairs = rng.integers(0, 4, 50), rng.integers(0, scene.size, 50)
     d1, g1 = pair_gradient(model, scene, q, rows, pairs)
     assert np.array_equal(d1, d[rows, pairs]) and np.allclose(g1, g[rows, pairs], rtol=0, atol=1e-15)
+
+
+def test_pair_hessian_matches_central_differences_of_the_gradient(panda):
+    """∇²d of every kind of row the penalty takes (spheres against a box, a ball and a floor; capsule self pairs;
+    capsules against the ball) equals the central differences of ∂d/∂q, where d is twice differentiable."""
+    from hoc_cli.collision.constraint import sphere_rows_scene
+    from hoc_cli.collision.evaluate import pair_hessian
+
+    model, scene = panda
+    rng = np.random.default_rng(7)
+    q = rng.uniform(np.maximum(model.lower, -2.0), np.minimum(model.upper, 2.0), (16, model.n))
+    kinds = set()
+    for sc in (sphere_rows_scene(scene), scene):
+        rows, pairs = np.repeat(np.arange(len(q)), sc.size), np.tile(np.arange(sc.size), len(q))
+        d, _ = pair_gradient(model, sc, q, rows, pairs)
+        capsule_box = (sc.kind[pairs] == 2) & np.any(sc.robot.a[sc.prim[pairs]] != sc.robot.b[sc.prim[pairs]], axis=1)
+        keep = (d > 0) & (d < 0.4) & ~capsule_box  # a capsule against a box: its witness's slide is left out
+        rows, pairs = rows[keep], pairs[keep]
+        H = pair_hessian(model, sc, q, rows, pairs)
+        h = 1e-6
+        fd = np.zeros_like(H)
+        for j, e in enumerate(np.eye(model.n)):
+            fd[:, j] = (pair_gradient(model, sc, q + h * e, rows, pairs)[1]
+                        - pair_gradient(model, sc, q - h * e, rows, pairs)[1]) / (2 * h)
+        fd = 0.5 * (fd + np.swapaxes(fd, 1, 2))
+        err = np.abs(H - fd).max(axis=(1, 2)) / np.maximum(np.abs(fd).max(axis=(1, 2)), 1e-2)
+        assert np.allclose(H, np.swapaxes(H, 1, 2))
+        for k in np.unique(sc.kind[pairs]):
+            e = err[sc.kind[pairs] == k]
+            assert np.median(e) < 1e-6 and np.mean(e < 1e-5) > 0.97, (k, np.median(e), np.max(e))  # the rest: kinks
+            kinds.add(int(k))
+    assert kinds == {0, 1, 2, 3}

@@ -233,6 +233,28 @@ def test_the_curvature_blocks_are_the_gauss_newton_matrix_of_the_active_rows(lbr
     assert quad == pytest.approx(ref, rel=1e-5)
 
 
+def test_the_distance_curvature_blocks_are_minus_mu_times_the_second_derivative_of_the_active_rows(lbr7_scene):
+    model, scene = lbr7_scene
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    terms, _ = _terms(model, sphere_rows_scene(scene), mesh, C)
+    assert terms.curvature_blocks(C) is None  # asked for only
+    terms = dataclasses.replace(terms, curvature=True, _last=[])
+    blocks = terms.curvature_blocks(C)                                # (N, 2mn, 2mn)
+    assert np.allclose(blocks, np.swapaxes(blocks, 1, 2))
+    delta = np.random.default_rng(2).normal(size=C.shape) * 0.1
+    loc = mesh.local_coefficients(delta).reshape(mesh.N, -1)
+    quad = float(np.einsum("ea,eab,eb->", loc, blocks, loc))
+    h = 1e-4  # −Σ μ_r δᵀ∇²d_r δ over the active rows clear of contact: second differences (q is linear in C)
+    d = terms.distances(C)
+    second = (terms.distances(C + h * delta) - 2 * d + terms.distances(C - h * delta)) / h ** 2
+    on = (terms.multipliers(d) > 0) & (d > 0)
+    assert on.sum() >= 5 and (~on & (terms.multipliers(d) > 0)).sum() >= 1  # penetrating rows are left out
+    ref = float(-np.sum(terms.multipliers(d)[on] * second[on]))
+    assert quad == pytest.approx(ref, rel=1e-4) and abs(ref) > 0
+
+
 def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_changing_phi(lbr7_scene):
     """Skipped rows (``RowStart``: the reach bound from the inner solve's start, or from the last plan where every
     row was evaluated) add exactly nothing: Φ, its gradient and its blocks equal those of every row evaluated, at
@@ -266,6 +288,18 @@ def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_c
     # skipped again near the far plan, more than from the start
     fresh = dataclasses.replace(full, start=start, _last=[], _anchor=[])
     assert skipped[0] > 0 and skipped[3] > int(np.isinf(fresh.distances(C)).sum())
+    # each row's bound starts where it was last evaluated: after a plan that moves the end of the path only,
+    # the rows evaluated there are bounded from it, the others still from the start
+    part = C0.copy()
+    part[-2:] += 0.5 * rng.normal(size=part[-2:].shape)
+    pruned = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    first = np.isinf(pruned.distances(part))
+    assert 0.5 * first.size < first.sum() < first.size  # some rows evaluated, not most
+    near = part + 1e-4 * rng.normal(size=C0.shape)
+    again = np.isinf(pruned.distances(near))
+    fresh = dataclasses.replace(full, start=start, _last=[], _anchor=[])
+    assert again.sum() > np.isinf(fresh.distances(near)).sum()
+    assert np.array_equal(pruned.evaluate(near)[1], full.evaluate(near)[1])
 
 
 def test_a_batch_plans_a_collision_task_as_hoc_plan_does_with_its_clearance_column(workdir):

@@ -12,8 +12,11 @@ multiplier λ_r ≥ 0 and the penalty per row ρ_r = ρ·w_r (w_r the time the p
 with ∂Φ/∂d_r = −μ_r and the multiplier update λ ← μ (Nocedal & Wright §17.4). The gradient in
 the coefficients is Σ_r −μ_r (∂d_r/∂q)ᵀ mapped through the Hermite values at the point
 (``PointSet.transpose``); ∂d/∂q is exact through the frame Jacobians (``evaluate.pair_gradient``).
-The Gauss-Newton curvature Σ_r ρ_r ∇d_r ∇d_rᵀ over the rows with λ_r + ρ_r c_r > 0 lies in the
-element of the point, so the Newton matrix stays block-banded (``PointSet.sample_blocks``).
+Φ's Hessian on the rows with λ_r + ρ_r c_r > 0 is Σ_r ρ_r ∇d_r ∇d_rᵀ − μ_r ∇²d_r: the first
+(Gauss-Newton, positive semi-definite) part is ``newton_blocks``, the second, the distances' own
+curvature (``evaluate.pair_hessian``; indefinite), ``curvature_blocks`` (with ``curvature``: the
+collision loop asks it on the levels it certifies). Each lies in the element of its point, so the
+Newton matrix stays block-banded (``q_blocks``).
 """
 from __future__ import annotations
 
@@ -22,13 +25,12 @@ from functools import cached_property
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import pair_gradient, row_contacts
+from hoc_cli.collision.evaluate import pair_gradient, pair_hessian, row_contacts
 from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
 from hoc_cli.model.tree import RobotModel
 
-REANCHOR = 0.5       # more rows than this fraction may reach their bound: all evaluated, and the anchor moves
 PRUNE_SLACK = 1e-9    # relative and absolute (m) slack of the test that skips a row (rounding of d0 and the bound)
 SPHERE_PADDING = 2e-3  # m: how far the spheres standing for a capsule against obstacles may reach beyond it
 
@@ -85,6 +87,31 @@ def sphere_rows_scene(scene: CollisionScene, padding: float = SPHERE_PADDING) ->
                           kind=np.array(kind, dtype=int), names=tuple(names))
 
 
+def group_sum(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """(size, ...) the sums of ``values`` (M, ...) by ``index`` (M,) in [0, size) (``np.add.at`` into zeros, by one
+    sort and ``np.add.reduceat``: a fraction of its time on these small arrays).
+    """
+    out = np.zeros((size,) + values.shape[1:])
+    if index.size == 0:
+        return out
+    order = np.argsort(index, kind="stable")
+    idx = index[order]
+    starts = np.flatnonzero(np.concatenate([[True], idx[1:] != idx[:-1]]))
+    out[idx[starts]] = np.add.reduceat(values[order], starts, axis=0)
+    return out
+
+
+def q_blocks(points: PointSet, Hq: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Element blocks (N, 2mn, 2mn) of per-point Hessians Hq (P', n, n) in q alone at the points ``which`` (P',):
+    ``PointSet.sample_blocks`` of (3n, 3n) Hessians whose q̇ and q̈ rows and columns are zero, without them.
+    """
+    mesh = points.mesh
+    N, m, n = mesh.N, mesh.m, Hq.shape[-1]
+    B = points.B[0, which]                                               # (P', 2m)
+    per = (B[:, :, None, None, None] * Hq[:, None, :, None, :]) * B[:, None, None, :, None]  # (P', 2m, n, 2m, n)
+    return group_sum(points.e[which], per, N).reshape(N, 2 * m * n, 2 * m * n)
+
+
 def point_configurations(points: PointSet, C: np.ndarray) -> np.ndarray:
     """The configurations q (P, n) at the points for coefficients C (N+1, m, n)."""
     loc = points.mesh.local_coefficients(points.mesh.check_coefficients(C))[points.e]  # (P, 2m, n)
@@ -127,8 +154,10 @@ class CollisionTerms:
     most Σ_j R0_j |q_j − q0_j| from q0 to q (``robot.reach``; the straight path in joint space), so a row
     with λ = 0 and d0 − Σ_j reach_j |q_j − q0_j| ≥ bound has d ≥ bound at q: μ = 0, and it adds nothing
     to Φ, its gradient or its curvature. Such rows are not evaluated (their distance is reported as +inf).
-    When more than ``REANCHOR`` of the rows may reach their bound, every row is evaluated and (q, d) there
-    replaces (q0, d0) for the next evaluations (the line search's trials lie near the last ones).
+    Each row's bound starts from where it was last evaluated: an evaluated row's (q, d) there replaces its
+    (q0, d0) (the line search's trials lie near the last ones), while the rows skipped keep theirs.
+
+    curvature : whether ``curvature_blocks`` gives −Σ μ_r ∇²d_r (else None: the Gauss-Newton matrix alone).
     """
 
     model: RobotModel
@@ -140,8 +169,9 @@ class CollisionTerms:
     rho: float
     bound: float
     start: RowStart | None = None
+    curvature: bool = False
     _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
-    _anchor: list = field(default_factory=list, repr=False)  # [RowStart]: the last configurations with every row evaluated
+    _anchor: list = field(default_factory=list, repr=False)  # [q (M, n), d (M,)]: where each row was last evaluated
 
     @cached_property
     def _used(self) -> tuple[np.ndarray, np.ndarray]:
@@ -157,31 +187,44 @@ class CollisionTerms:
         live = self._live(q)
         if live is None:
             d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
-            self._anchor_at(q, d)
         else:
             d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
-            if live.any():
-                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used], inverse[live], self.pairs[live])
+            if live.any():  # only the configurations the live rows use are placed
+                at, local = np.unique(inverse[live], return_inverse=True)
+                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used[at]], local, self.pairs[live])
+        self._anchor_at(q, d, live)
         self._last[:] = [np.array(C), d, dd]
         return d, dd
 
-    def _anchor_at(self, q: np.ndarray, d: np.ndarray) -> None:
-        """Every row was evaluated at q (P, n), its distances d (M,): the next evaluations bound their moves from here."""
-        if self.start is not None:
-            self._anchor[:] = [RowStart(q, d, self.start.reach)]
+    def _anchor_at(self, q: np.ndarray, d: np.ndarray, live: np.ndarray | None) -> None:
+        """The rows ``live`` (None: every row) were evaluated at configurations q (P, n) of the points, their distances
+        in d (M,): each one's next moves are bounded from here.
+        """
+        if self.start is None:
+            return
+        if not self._anchor:  # per row: the configuration at its point (M, n) and its distance there (M,)
+            self._anchor[:] = [self.start.q0[self.rows].copy(), self.start.d0.copy()]
+        q_anchor, d_anchor = self._anchor
+        if live is None:
+            q_anchor[:], d_anchor[:] = q[self.rows], d
+        else:
+            q_anchor[live], d_anchor[live] = q[self.rows[live]], d[live]
 
     def _live(self, q: np.ndarray) -> np.ndarray | None:
-        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points (None: every row,
-        when more than ``REANCHOR`` of them may: they are all evaluated and q becomes the anchor).
+        """(M,) bool: the rows that may reach their bound at configurations q (P, n) of the points, from where each was
+        last evaluated (None: every row).
         """
         if self.start is None:
             return None
-        start = self._anchor[0] if self._anchor else self.start
+        if self._anchor:
+            q_anchor, d_anchor = self._anchor
+        else:
+            q_anchor, d_anchor = self.start.q0[self.rows], self.start.d0
         with np.errstate(invalid="ignore"):  # inf · 0 (a prismatic joint that did not move): NaN, kept as a live row
-            move = np.einsum("mj,mj->m", start.reach, np.abs(q - start.q0)[self.rows])
+            move = np.einsum("mj,mj->m", self.start.reach, np.abs(q[self.rows] - q_anchor))
         move = np.where(np.isnan(move), np.inf, move)
-        live = (self.lam > 0) | (start.d0 - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
-        return None if live.mean() > REANCHOR else live
+        live = (self.lam > 0) | (d_anchor - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
+        return None if live.all() else live
 
     @property
     def rho_rows(self) -> np.ndarray:
@@ -201,11 +244,12 @@ class CollisionTerms:
         live = self._live(q)
         if live is None:
             d = row_contacts(self.model, self.scene, q[used], inverse, self.pairs).distance
-            self._anchor_at(q, d)
-            return d
-        d = np.full(self.rows.size, np.inf)
-        if live.any():
-            d[live] = row_contacts(self.model, self.scene, q[used], inverse[live], self.pairs[live]).distance
+        else:
+            d = np.full(self.rows.size, np.inf)
+            if live.any():
+                at, local = np.unique(inverse[live], return_inverse=True)
+                d[live] = row_contacts(self.model, self.scene, q[used[at]], local, self.pairs[live]).distance
+        self._anchor_at(q, d, live)
         return d
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
@@ -223,8 +267,27 @@ class CollisionTerms:
         if not grad:
             return value, None
         G = np.zeros((3, self.points.size, n))
-        np.add.at(G[0], self.rows, -mu[:, None] * dd)
+        G[0] = group_sum(self.rows, -mu[:, None] * dd, self.points.size)
         return value, self.points.transpose(G)
+
+    def curvature_blocks(self, C: np.ndarray) -> np.ndarray | None:
+        """Element blocks (N, 2mn, 2mn) of −Σ_r μ_r ∇²d_r over the rows with μ_r > 0 and d_r > 0 at C (None without
+        ``curvature`` or such rows): the part of Φ's Hessian the Gauss-Newton matrix leaves out, where a contact is
+        an edge, a corner or two capsules, and the kinematics' own curvature (``evaluate.pair_hessian``; indefinite).
+        """
+        if not self.curvature or self.rows.size == 0:
+            return None
+        d, _ = self._gradient(C)
+        mu = self.multipliers(d)
+        on = np.flatnonzero((mu > 0) & (d > 0))
+        if on.size == 0:
+            return None
+        used, inverse = self._used
+        q = point_configurations(self.points, C)[used]
+        Hq = group_sum(inverse[on], -mu[on, None, None] * pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on]),
+                       used.size)
+        which = np.unique(inverse[on])
+        return q_blocks(self.points, Hq[which], used[which])
 
     def newton_blocks(self, C: np.ndarray) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of Φ's Gauss-Newton Hessian at C."""
@@ -238,9 +301,6 @@ class CollisionTerms:
         on = self.lam + rr * (self.bound - d) > 0
         if not on.any():
             return np.zeros((mesh.N, size, size))
-        Hq = np.zeros((used.size, n, n))
-        np.add.at(Hq, inverse[on], rr[on, None, None] * dd[on, :, None] * dd[on, None, :])
+        Hq = group_sum(inverse[on], rr[on, None, None] * dd[on, :, None] * dd[on, None, :], used.size)
         which = np.flatnonzero(np.abs(Hq).sum(axis=(1, 2)) > 0)
-        Hs = np.zeros((which.size, 3 * n, 3 * n))
-        Hs[:, :n, :n] = Hq[which]
-        return self.points.sample_blocks(Hs, used[which])
+        return q_blocks(self.points, Hq[which], used[which])

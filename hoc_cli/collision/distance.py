@@ -45,6 +45,17 @@ def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", x, y)
 
 
+def cross(a: np.ndarray, b: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The cross product a × b along ``axis`` (length 3; −1 or a leading axis) of broadcastable arrays: ``np.cross``'s
+    products and differences, without its axis moves (a hot path's small arrays).
+    """
+    lead = (Ellipsis,) if axis == -1 else (slice(None),) * axis
+    tail = () if axis == -1 else (Ellipsis,)
+    a0, a1, a2 = (a[lead + (i,) + tail] for i in range(3))
+    b0, b1, b2 = (b[lead + (i,) + tail] for i in range(3))
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=axis)
+
+
 def _unit(v: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(v / |v| where |v| > 0 else the unit fallback, |v|)."""
     n = np.linalg.norm(v, axis=-1)
@@ -56,7 +67,7 @@ def _unit(v: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _perpendicular(d: np.ndarray) -> np.ndarray:
     """A unit vector perpendicular to each d (S, 3) (any unit vector where d = 0)."""
     e = np.where((np.abs(d[..., 0]) < 0.9 * np.linalg.norm(d, axis=-1))[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    u, _ = _unit(np.cross(d, e), np.array([0.0, 0.0, 1.0]))
+    u, _ = _unit(cross(d, e), np.array([0.0, 0.0, 1.0]))
     return u
 
 
@@ -96,7 +107,7 @@ def capsule_capsule(a1, b1, r1, a2, b2, r2) -> Contact:
     s, t = segment_segment(a1, b1, a2, b2)
     x1 = a1 + s[..., None] * (b1 - a1)
     x2 = a2 + t[..., None] * (b2 - a2)
-    fallback, _ = _unit(np.cross(b1 - a1, b2 - a2), _perpendicular(b1 - a1 + (b2 - a2)))
+    fallback, _ = _unit(cross(b1 - a1, b2 - a2), _perpendicular(b1 - a1 + (b2 - a2)))
     n, gap = _unit(x1 - x2, fallback)
     r1, r2 = np.asarray(r1, dtype=float), np.asarray(r2, dtype=float)
     return Contact(distance=gap - r1 - r2, normal=n, point_a=x1 - r1[..., None] * n, point_b=x2 + r2[..., None] * n)

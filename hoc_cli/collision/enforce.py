@@ -87,8 +87,9 @@ COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close t
 
 @dataclass(frozen=True, eq=False)
 class CollisionWarm:
-    """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ (reported only: each
-    level starts at its own ρ0); the joint limits' state (``limit_rounds.LimitWarm``), if any.
+    """A level's multipliers for the next: point times t (P,) s, weights w (P,) s, λ (P, Q), ρ (each level starts at
+    its own ρ0; a re-solve on the same mesh N and points at this ρ, if larger); the joint limits' state
+    (``limit_rounds.LimitWarm``), if any.
     """
 
     t: np.ndarray
@@ -96,6 +97,7 @@ class CollisionWarm:
     lam: np.ndarray
     rho: float
     limits: LimitWarm | None = None
+    N: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,6 +249,8 @@ class CollisionConstraint:
         c0 = max(float(np.max(bound - D, initial=0.0)), MIN_VIOLATION)
         rho0 = RHO_START * max(abs(J0), 1e-6) / (mesh.T * c0 ** 2)
         lam, rho = np.zeros((points.size, scene.size)) if warm is None else _transfer(warm, points), rho0
+        if warm is not None and warm.N == mesh.N and np.array_equal(warm.t, points.t):  # a re-solve on the same mesh
+            rho = max(rho0, warm.rho)                                                   # and points: ρ goes on with λ
         prev = math.inf
         grown = 0  # how many times ρ has grown (counted: ρ0·10⁴ computed by products is not ρ0·1e4 exactly)
         refinements = 0
@@ -264,14 +268,14 @@ class CollisionConstraint:
                 rows = p.size
                 start_rows = RowStart(point_configurations(points, problem.coefficients(x)), D[p, k],
                                       self._pair_reach()[k])  # rows that cannot reach their bound are skipped
-                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows)
+                terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows, curvature=full)
                 problem.terms = own + (terms,)
                 inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
                 if lim is None:
                     res = minimize(problem, x, inner_tol)
                     x = res.x
                 else:  # the joint limits' rounds, from their multipliers of the previous outer iteration
-                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full)
+                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full, polish=not full)
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
                 known = (x, points)
                 lam = np.zeros_like(D)
@@ -344,7 +348,7 @@ class CollisionConstraint:
                            f"(margin {scene.margin:g} m)")
         J = problem.bare_cost(x)
         er = None if lim is None else lim.result(res, x, J, outer)
-        warm_next = CollisionWarm(points.t, points.weight, lam, rho, None if lim is None else lim.warm())
+        warm_next = CollisionWarm(points.t, points.weight, lam, rho, None if lim is None else lim.warm(), mesh.N)
         outcome = CollisionOutcome(status=status, message=message, certificate=cert if full else None,
                                    outer_iterations=outer, rho=rho, rows=rows, points=points.size, start=start,
                                    warm=warm_next)

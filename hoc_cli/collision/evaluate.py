@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -223,7 +223,7 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
         moved = anc[np.where(body < 0, n, body)]                      # (M, n)
         if not moved.any():
             continue
-        turn = np.einsum("mi,mij->mj", c.normal, np.cross(Zr, point[:, :, None] - Or, axis=1))
+        turn = np.einsum("mi,mij->mj", c.normal, cross(Zr, point[:, :, None] - Or, axis=1))
         slide = np.einsum("mi,mij->mj", c.normal, Zr)
         grad += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
     return c.distance, grad
@@ -237,3 +237,156 @@ def distance_gradient(model: RobotModel, scene: CollisionScene, q) -> tuple[np.n
     K, Q = len(q), scene.size
     d, g = pair_gradient(model, scene, q, np.repeat(np.arange(K), Q), np.tile(np.arange(Q), K))
     return d.reshape(K, Q), g.reshape(K, Q, model.n)
+
+
+def _point_curvature(scene: CollisionScene, x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """∇²φ (M, 3, 3), 1/m: the Hessian of the distance φ from a point x (M, 3) to obstacle ``scene.other[pairs]``
+    (box or capsule obstacle; zeros for a half-space, a self pair, or a point inside the obstacle).
+
+    Outside a box, in its frame, φ = |p − clip(p)| and ∇²φ = (D − n nᵀ)/φ, D the diagonal of the coordinates
+    clipped (zero in a face's region: φ is linear there; an edge's or a corner's region curves). Off a
+    segment, ∇²φ = (I − n nᵀ − u uᵀ)/φ beside it (u its direction) and (I − n nᵀ)/φ beyond an end.
+    """
+    M = pairs.size
+    out = np.zeros((M, 3, 3))
+    kind, other = scene.kind[pairs], scene.other[pairs]
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+    box = np.flatnonzero(kind == KIND_BOX)
+    if box.size:
+        o = other[box]
+        R = obs["rot"][o]
+        p = np.einsum("mji,mj->mi", R, x[box] - obs["center"][o])          # Rᵀ(x − centre)
+        h = obs["half"][o]
+        y = np.clip(p, -h, h)
+        v = p - y
+        gap = np.linalg.norm(v, axis=1)
+        ok = gap > 0
+        nb = v / np.where(ok, gap, 1.0)[:, None]
+        Hb = (np.eye(3)[None] * (p != y)[:, None, :] - nb[:, :, None] * nb[:, None, :]) / np.where(ok, gap, 1.0)[:, None, None]
+        Hb[~ok] = 0.0
+        out[box] = np.einsum("mij,mjk,mlk->mil", R, Hb, R)
+    cap = np.flatnonzero(kind == KIND_CAPSULE)
+    if cap.size:
+        o = other[cap]
+        a, b = obs["ca"][o], obs["cb"][o]
+        d = b - a
+        L2 = np.einsum("mi,mi->m", d, d)
+        s = np.clip(np.einsum("mi,mi->m", x[cap] - a, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        v = x[cap] - (a + s[:, None] * d)
+        gap = np.linalg.norm(v, axis=1)
+        ok = gap > 0
+        nv = v / np.where(ok, gap, 1.0)[:, None]
+        u = d / np.sqrt(np.where(L2 > 0, L2, 1.0))[:, None]
+        beside = ((s > 0) & (s < 1) & (L2 > 0)).astype(float)
+        H = (np.eye(3)[None] - nv[:, :, None] * nv[:, None, :]
+             - beside[:, None, None] * u[:, :, None] * u[:, None, :]) / np.where(ok, gap, 1.0)[:, None, None]
+        H[~ok] = 0.0
+        out[cap] = H
+    return out
+
+
+def _kinematic_curvature(normal: np.ndarray, Z: np.ndarray, J: np.ndarray, moved: np.ndarray,
+                         before: np.ndarray) -> np.ndarray:
+    """n·∂²x/∂q² (M, n, n) of a point x of a body, from the unit vectors n (M, 3), the joint axes Z (M, 3, n), x's
+    Jacobian columns J_j = z_j × (x − o_j) (M, 3, n), the revolute joints moving the body ``moved`` (M, n) and
+    ``before`` (n, n) bool (joint i on the chain from the root to joint j, j included): ∂²x/∂q_i∂q_j = z_i × J_j
+    for such i, so the entry is (n × z_i)·J_j, mirrored.
+    """
+    n = Z.shape[-1]
+    K = np.where(before, np.einsum("mki,mkj->mij", cross(normal[:, :, None], Z, axis=1), J), 0.0)
+    K = K + np.swapaxes(np.where(before & ~np.eye(n, dtype=bool), K, 0.0), 1, 2)
+    return np.where(moved[:, :, None] & moved[:, None, :], K, 0.0)
+
+
+def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np.ndarray:
+    """∇²d (M, n, n), m/rad², of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (rows with d > 0): the curvature
+    the Newton matrix of the penalty takes (−μ ∇²d). Revolute joints only (a prismatic joint adds nothing).
+
+    Two segments (capsules; a sphere's is a point): d = min over s, t of f = |P(s) − Q(t)| − r_1 − r_2, P and Q
+    points of the bodies (Q fixed for an obstacle). With v = P − Q, δ = |v|, n = v/δ, Π = I − n nᵀ,
+    J_v = J_P − J_Q (columns z_j × (x − o_j)), e_1 = b_1 − a_1, e_2 = b_2 − a_2:
+    f_qq = J_vᵀ Π J_v/δ + n·∂²P/∂q² − n·∂²Q/∂q² (``_kinematic_curvature``), f_qs = J_vᵀ Π e_1/δ + n·(z_j × e_1),
+    f_qt = −J_vᵀ Π e_2/δ − n·(z_j × e_2), f_ss = e_1ᵀΠe_1/δ, f_tt = e_2ᵀΠe_2/δ, f_st = −e_1ᵀΠe_2/δ, and for the
+    parameters y strictly inside (0, 1) the minimum's Hessian is f_qq − f_qy f_yy⁻¹ f_yq (implicit function);
+    a parameter at an end stays there. A sphere against a box: d = φ(c) − r, φ the centre's distance to the
+    box, ∇²d = J_cᵀ ∇²φ J_c + n·∂²c/∂q² (``_point_curvature``). A half-space: the kinematic part alone (φ is
+    linear). Exact wherever d is twice differentiable (tested against central differences of ``pair_gradient``),
+    except for a capsule (a ≠ b) against a box, whose witness's slide along the segment is left out (the
+    penalty's rows against boxes are spheres: ``constraint.sphere_rows_scene``).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    n = model.n
+    M = rows.size
+    H = np.zeros((M, n, n))
+    if n == 0 or M == 0:
+        return H
+    robot = scene.robot
+    T = _poses(model, q)
+    prim, other, kind = scene.prim[pairs], scene.other[pairs], scene.kind[pairs]
+    self_rows = kind == KIND_SELF
+    a1, b1 = _row_ends(model, scene, T, rows, prim)
+    a2, b2 = np.zeros_like(a1), np.zeros_like(b1)
+    if self_rows.any():
+        a2[self_rows], b2[self_rows] = _row_ends(model, scene, T, rows[self_rows], other[self_rows])
+    c = _contacts(scene, a1, b1, a2, b2, pairs)
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+    capsule_obstacle = kind == KIND_CAPSULE
+    a2[capsule_obstacle], b2[capsule_obstacle] = obs["ca"][other[capsule_obstacle]], obs["cb"][other[capsule_obstacle]]
+    r1 = robot.radius[prim]
+    r2 = np.zeros(M)
+    r2[self_rows] = robot.radius[other[self_rows]]
+    r2[capsule_obstacle] = obs["cr"][other[capsule_obstacle]]
+    normal = c.normal
+    P = c.point_a + r1[:, None] * normal          # the witness on A's segment
+    Qp = c.point_b - r2[:, None] * normal         # ... on B's segment (or the obstacle's witness)
+    Z, O = _axes(T, n)
+    Zr, Or = Z[rows], O[rows]
+    revolute = ~np.asarray(model.is_prismatic, dtype=bool)
+    anc = _cached("ancestors", model, lambda: _ancestors(model))
+    moved_a = anc[np.where(robot.body[prim] < 0, n, robot.body[prim])] & revolute
+    body_b = np.full(M, n)
+    body_b[self_rows] = np.where(robot.body[other[self_rows]] < 0, n, robot.body[other[self_rows]])
+    moved_b = anc[body_b] & revolute
+    JP = np.where(moved_a[:, None, :], cross(Zr, P[:, :, None] - Or, axis=1), 0.0)      # (M, 3, n)
+    JQ = np.where(moved_b[:, None, :], cross(Zr, Qp[:, :, None] - Or, axis=1), 0.0)
+    before = anc[:n].T                                                       # before[i, j]: i on j's chain
+    H = _kinematic_curvature(normal, Zr, JP, moved_a, before) - _kinematic_curvature(normal, Zr, JQ, moved_b, before)
+    box = kind == KIND_BOX
+    if box.any():  # the segment of A is a point here (a sphere row): its distance to the box curves at edges
+        s = np.flatnonzero(box & np.all(a1 == b1, axis=1))
+        Hp = _point_curvature(scene, P[s], pairs[s])
+        H[s] += np.einsum("mki,mkl,mlj->mij", JP[s], Hp, JP[s])
+    seg = np.flatnonzero(self_rows | capsule_obstacle)
+    if seg.size:
+        Jv = JP[seg] - JQ[seg]
+        nn = normal[seg]
+        delta = np.einsum("mi,mi->m", P[seg] - Qp[seg], nn)
+        delta = np.where(delta > 0, delta, np.inf)
+        Pi = (np.eye(3)[None] - nn[:, :, None] * nn[:, None, :]) / delta[:, None, None]
+        e1, e2 = b1[seg] - a1[seg], b2[seg] - a2[seg]
+        H[seg] += np.einsum("mki,mkl,mlj->mij", Jv, Pi, Jv)
+        E = np.stack([e1, -e2], axis=2)                                          # (m, 3, 2): ∂v/∂(s, t)
+        Fqy = np.einsum("mki,mkl,mly->miy", Jv, Pi, E)
+        Fqy[:, :, 0] += np.where(moved_a[seg], np.einsum("mk,mkj->mj", nn, cross(Zr[seg], e1[:, :, None], axis=1)), 0.0)
+        Fqy[:, :, 1] -= np.where(moved_b[seg], np.einsum("mk,mkj->mj", nn, cross(Zr[seg], e2[:, :, None], axis=1)), 0.0)
+        Fyy = np.einsum("mkx,mkl,mly->mxy", E, Pi, E)
+
+        def parameter(x, a, e):
+            L2 = np.einsum("mi,mi->m", e, e)
+            return np.einsum("mi,mi->m", x - a, e) / np.where(L2 > 0, L2, 1.0), L2 > 0
+
+        s_, has_s = parameter(P[seg], a1[seg], e1)
+        t_, has_t = parameter(Qp[seg], a2[seg], e2)
+        tol = 1e-9
+        free = np.stack([has_s & (s_ > tol) & (s_ < 1 - tol), has_t & (t_ > tol) & (t_ < 1 - tol)], axis=1)  # (m, 2)
+        det = Fyy[:, 0, 0] * Fyy[:, 1, 1] - Fyy[:, 0, 1] ** 2
+        scale = np.abs(Fyy[:, 0, 0] * Fyy[:, 1, 1]) + 1e-300
+        free[:, 1] &= ~(free[:, 0] & (np.abs(det) <= 1e-9 * scale))  # parallel segments: one parameter is enough
+        Fqy = np.where(free[:, None, :], Fqy, 0.0)
+        Fyy = np.where(free[:, :, None] & free[:, None, :], Fyy, 0.0) + np.where(free, 0.0, 1.0)[:, :, None] * np.eye(2)
+        ok = np.abs(Fyy[:, 0, 0] * Fyy[:, 1, 1] - Fyy[:, 0, 1] ** 2) > 0
+        Fyy[~ok] = np.eye(2)
+        Fqy[~ok] = 0.0
+        H[seg] -= np.einsum("miy,myx,mjx->mij", Fqy, np.linalg.inv(Fyy), Fqy)
+    return H

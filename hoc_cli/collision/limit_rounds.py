@@ -30,6 +30,7 @@ from hoc_cli.constraints.bounds import EFFORT, KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms, PenaltyValue
 from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
+from hoc_cli.errors import NumericalError
 
 _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
 
@@ -93,8 +94,21 @@ class LimitState:
 
     @staticmethod
     def polish(problem, x: np.ndarray) -> np.ndarray:
-        """One full Newton step on I + Φ after a converged inner solve (``augmented_lagrangian.polish``)."""
-        return polish(problem, x) if isinstance(problem, PenalizedProblem) else x
+        """One full Newton step on I + Φ after a converged inner solve (``augmented_lagrangian.polish``), from the
+        inner solve's last evaluation when it was at x (its accepted point: no second evaluation there).
+        """
+        if not isinstance(problem, PenalizedProblem):
+            return x
+        ev = problem.last
+        if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
+            return polish(problem, x)
+        trial = x - problem.newton(ev).solve(ev.grad)
+        try:
+            if np.isfinite(problem.evaluate(trial, grad=False).J):
+                return trial
+        except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
+            pass
+        return x
 
     def update(self, terms: LimitTerms, C: np.ndarray, J: float, tol: float) -> bool:
         """Check the plan C (J its cost), update λ, the working set and ρ; True when the limits are met."""
@@ -125,18 +139,25 @@ class LimitState:
         """The plan's worst excess over a limit is within ``SETTLED``·σ (the collision loop may judge its own progress)."""
         return self.check is not None and float(np.max(self.check.relative_excess(), initial=0.0)) <= SETTLED
 
-    def rounds(self, problem, x: np.ndarray, tol: float, minimize, *, exact: bool):
+    def rounds(self, problem, x: np.ndarray, tol: float, minimize, *, exact: bool, polish: bool = True):
         """Inner solves of ``problem`` (a ControlProblem with the collision's terms) plus the limits' terms, each
         followed by the polish and the limits' update, until the limits are met (``exact``) or settled, at most
         ``EXACT_ROUNDS`` or ``ROUNDS`` of them. Returns (the last inner result, x, whether the limits are met).
         """
         self.prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
+        known: list = [None, math.nan]  # [x, I(x)]: the cost of the last plan, for the next round's start
+
+        def bare(v: np.ndarray) -> float:
+            if known[0] is not v:
+                known[:] = [v, problem.bare_cost(v)]
+            return known[1]
+
         for _ in range(EXACT_ROUNDS if exact else ROUNDS):
-            lt = self.terms(problem.bare_cost(x))
+            lt = self.terms(bare(x) if self.working.any() and self.rho is None else math.nan)  # J prices ρ0 only
             inner = self.problem(problem, lt)
             res = minimize(inner, x, tol)
-            x = self.polish(inner, res.x) if res.converged else res.x
-            met = self.update(lt, problem.coefficients(x), problem.bare_cost(x), tol)
+            x = self.polish(inner, res.x) if res.converged and (polish or exact) else res.x
+            met = self.update(lt, problem.coefficients(x), bare(x), tol)
             if _log.isEnabledFor(logging.DEBUG):
                 _log.debug(f"limits round N {self.mesh.N} it {res.iterations} ev {res.n_evals} met {met} "
                            f"excess {np.max(self.check.relative_excess()):.2e} rho {self.rho or 0:.3g}")
