@@ -177,9 +177,12 @@ def time_column(pt: LagrangianPoint, lam: list, active: ActiveRows | None, Hs: n
     ``active`` and no limit terms), from Hs (K, 3n, 3n), the cost's per-sample Hessians at pt's samples
     (``problem.hessian_samples(pt.ev)``: ``op_h`` is ``op`` here): the cost's part by ``free_time.cost_time_column``,
     the goal rows' by ``GoalTerms.time_column``, the working set's rows (linear in x, T^−k along the family) by
-    ``free_time.row_time_derivatives``: b gains −Aᵀ(μ·k)/T, h gains Σ μ g''. Hs None: the rows' columns alone.
+    ``free_time.row_time_derivatives``: b gains −Aᵀ(μ·k)/T, h gains Σ μ g''. Hs None (or the Newton matrix on another
+    quadrature than the cost's): the rows' columns alone.
     """
     problem = pt.problem
+    if problem.op_h is not problem.op:
+        Hs = None
     T, free = problem.mesh.T, problem.layout.free
     V1, V2 = fixed_coefficient_motion(free, pt.C, T)
     column, h = None, math.nan
