@@ -89,6 +89,68 @@ def fixed_coefficient_correction(free: np.ndarray, C: np.ndarray, G: np.ndarray,
     return float(np.sum(np.where(fixed, d * C * G, 0.0))) / T
 
 
+def fixed_coefficient_motion(free: np.ndarray, C: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """(V1, V2) (N+1, m, n): the first and second T derivatives of C along the rescaled family minus those of the
+    scaled family itself, nonzero at the fixed coefficients only: d·C/T and d(d−1)·C/T² there (a fixed coefficient of
+    derivative order d keeps its t-domain value, i.e. its s-domain value C·T^d grows, while the family keeps every
+    s-domain value). Applied by the t-domain operators at T, they give the samples' departures from the scaled
+    family's motion (``cost_time_column``). free (P,) bool, C (N+1, m, n), T [s].
+    """
+    d = np.arange(C.shape[1], dtype=float)[None, :, None]
+    fixed = ~np.asarray(free, bool).reshape(C.shape)
+    return np.where(fixed, d * C / T, 0.0), np.where(fixed, d * (d - 1.0) * C / T**2, 0.0)
+
+
+def cost_time_column(op, T: float, samples: tuple[np.ndarray, np.ndarray, np.ndarray], s, Hs: np.ndarray,
+                     V1: np.ndarray, V2: np.ndarray) -> tuple[np.ndarray, float]:
+    """(∂/∂T of ∂I/∂C (N+1, m, n), d²I/dT²) along the rescaled family (``rescale``: fixed s-domain free coefficients,
+    the fixed coefficients at their t-domain values): the T column of I's Hessian in (x, T).
+
+    With s = t/T, q = q̃(s), q̇ = q̃'(s)/T, q̈ = q̃''(s)/T² and the weights w_k = T·ŵ_k, I = T Σ ŵ_k L(z_k): along the
+    family the samples z = (q, q̇, q̈) move by Δ = (0, −q̇/T, −2q̈/T) + op(V1) and z'' = op(V2) + (0, 2q̇/T² − 2 op(V1)₁/T,
+    6q̈/T² − 4 op(V1)₂/T), so that
+
+        ∂(∂I/∂C)/∂T = opᵀ(w·[∂L/∂q / T + (HΔ)_q,  (HΔ)_q̇,  (HΔ)_q̈ − ∂L/∂q̈ / T])          (the scaled shape functions
+                                                                                      and weights, then H·Δ)
+        d²I/dT² = Σ w [2 ∇L·Δ / T + Δᵀ H Δ + ∇L·z'']
+
+    (the free coefficients' x-derivative is the t-domain gradient at T: the column of the Hessian in (x, T) of
+    ``replan_qp``'s steps, whose x is scaled with T). op : the ``QuadratureOperator`` of the samples (K points,
+    weights ``op.w`` [s]); samples : (q, q̇, q̈) (K, n) there; s : their ``SampleGradients`` (L, ∂L/∂q, ∂L/∂q̇, ∂L/∂q̈);
+    Hs (K, 3n, 3n): the per-sample Hessians of L on the same samples (``ControlProblem.hessian_samples`` with
+    ``op_h`` = op); V1, V2 : ``fixed_coefficient_motion``.
+    """
+    q, dq, ddq = samples
+    n = q.shape[1]
+    p = op.apply(V1)
+    p2 = op.apply(V2)
+    delta = np.concatenate([p[0], p[1] - dq / T, p[2] - 2.0 * ddq / T], axis=1)  # (K, 3n)
+    curve = np.concatenate([p2[0], p2[1] + 2.0 * dq / T**2 - 2.0 * p[1] / T,
+                            p2[2] + 6.0 * ddq / T**2 - 4.0 * p[2] / T], axis=1)
+    grad = np.concatenate([s.gq, s.gdq, s.gddq], axis=1)
+    Hd = np.einsum("kij,kj->ki", Hs, delta)
+    w = op.w
+    W = w[:, None]
+    column = op.transpose(W * (s.gq / T + Hd[:, :n]), W * Hd[:, n:2 * n], W * (Hd[:, 2 * n:] - s.gddq / T))
+    second = float(np.dot(w, 2.0 * np.einsum("ki,ki->k", grad, delta) / T + np.einsum("ki,ki->k", Hd, delta)
+                          + np.einsum("ki,ki->k", grad, curve)))
+    return column, second
+
+
+def row_time_derivatives(values: np.ndarray, kind: np.ndarray, T: float, moved: np.ndarray,
+                         moved2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(g', g'') of linear rows along the rescaled family: a row of the d^k q/dt^k of the s-domain trajectory scales
+    as T^−k, so g' = −k·V/T + A·V1 and g'' = k(k+1)·V/T² − 2k·A·V1/T + A·V2 (the fixed coefficients' motion V1, V2
+    of ``fixed_coefficient_motion``). values (a,) = A·C (without the rows' offsets); kind (a,) the derivative order
+    k; moved, moved2 (a,) = A·V1, A·V2 (g'' is None without moved2).
+    """
+    k = np.asarray(kind, float)
+    first = -k * values / T + moved
+    if moved2 is None:
+        return first, None
+    return first, k * (k + 1.0) * values / T**2 - 2.0 * k * moved / T + moved2
+
+
 def plan_time_derivative(result, system, limits=None, goals=None) -> float:
     """dJ*/dT of a ``PlanResult`` (its problem, coefficients, limits outcome; ``goals`` the goal terms
     with their multipliers, an object with ``time_derivative(C, T) -> (dT, G)``, or None).

@@ -22,7 +22,13 @@ from hoc_cli.constraints.penalty import LimitRows, LimitTerms, effective_bounds
 from hoc_cli.constraints.prolong import Duals
 from hoc_cli.elements import HermiteMesh, QuadratureOperator
 from hoc_cli.errors import NumericalError
-from hoc_cli.free_time import fixed_coefficient_correction, limits_time_derivative
+from hoc_cli.free_time import (
+    cost_time_column,
+    fixed_coefficient_correction,
+    fixed_coefficient_motion,
+    limits_time_derivative,
+    row_time_derivatives,
+)
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.goals.plan import GoalProblem
@@ -54,6 +60,8 @@ class LagrangianPoint:
     res: list | None
     F_I: float = 0.0
     where: object = None
+    samples: object = None  # the cost's ``SampleGradients`` at ev's samples
+    held: np.ndarray | None = None  # A_full (a, P) of the working set's rows (``ActiveRows.jacobian``), when given
 
 
 def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
@@ -133,6 +141,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         if slope:
             dg, Gg = terms.time_derivative(C, T, res)
             dT, Gc = dT + dg, Gc + Gg
+    A_full = None
     if active is not None:  # the working set's limit rows, linear equalities g = A x + const
         A, A_full = active.jacobian(rows, limits, problem.layout.free)
         c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
@@ -147,7 +156,57 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         g = g + D.T @ np.concatenate(lam)
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
-    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where)
+    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where, s, A_full)
+
+
+@dataclass(frozen=True, eq=False)
+class TimeColumn:
+    """The T row and column of the Hessian of ℒ in (x, T) at a ``LagrangianPoint`` and the rows' T columns, along the
+    rescaled family (fixed s-domain free coefficients): b = ∂∇ℒ/∂T (P,), h = ∂²ℒ/∂T² (the T derivative of F), the goal
+    rows' c_T (r,) and the working set's rows' (a,); b None and h NaN when only the rows' columns were asked for.
+    """
+
+    b: np.ndarray | None
+    h: float
+    c_T: np.ndarray
+    held_T: np.ndarray
+
+
+def time_column(pt: LagrangianPoint, lam: list, active: ActiveRows | None, Hs: np.ndarray | None) -> TimeColumn:
+    """The exact ``TimeColumn`` of ℒ = I + λ·c + μ·g_A (+ weight·T) at ``pt`` (``evaluate_point`` with ``lam``,
+    ``active`` and no limit terms), from Hs (K, 3n, 3n), the cost's per-sample Hessians at pt's samples
+    (``problem.hessian_samples(pt.ev)``: ``op_h`` is ``op`` here): the cost's part by ``free_time.cost_time_column``,
+    the goal rows' by ``GoalTerms.time_column``, the working set's rows (linear in x, T^−k along the family) by
+    ``free_time.row_time_derivatives``: b gains −Aᵀ(μ·k)/T, h gains Σ μ g''. Hs None (or the Newton matrix on another
+    quadrature than the cost's): the rows' columns alone.
+    """
+    problem = pt.problem
+    if problem.op_h is not problem.op:
+        Hs = None
+    T, free = problem.mesh.T, problem.layout.free
+    V1, V2 = fixed_coefficient_motion(free, pt.C, T)
+    column, h = None, math.nan
+    if Hs is not None:
+        column, h = cost_time_column(problem.op, T, (pt.ev.q, pt.ev.dq, pt.ev.ddq), pt.samples, Hs, V1, V2)
+    npts = len(problem.points)
+    c_T = np.zeros(0)
+    if problem.points:
+        terms = GoalTerms(problem.mesh, problem.points, lam[:npts], 0.0, pt.where)
+        if Hs is None:
+            c_T = terms.time_slopes(pt.C, T, V1, pt.res)
+        else:
+            c_T, goal_column, goal_h = terms.time_column(pt.C, T, V1, V2, pt.res)
+            column, h = column + goal_column, h + goal_h
+    b = None if column is None else problem.layout.pack(column)
+    held_T = np.zeros(0)
+    if active is not None and active.size:
+        A_full, mu = pt.held, np.asarray(lam[npts], float)
+        held_T, second = row_time_derivatives(A_full @ pt.C.ravel(), active.kind, T, A_full @ V1.ravel(),
+                                              A_full @ V2.ravel())
+        if b is not None:
+            b = b - A_full[:, free].T @ (mu * active.kind) / T
+            h += float(mu @ second)
+    return TimeColumn(b, h, c_T, held_T)
 
 
 @dataclass(frozen=True, eq=False)

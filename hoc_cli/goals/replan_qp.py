@@ -12,8 +12,10 @@ H: the banded Newton matrix of ℒ (the cost's exact Hessian on its own quadratu
 Σλ∇²c; the limit rows are linear in x) plus ρDᵀD, which makes it positive definite where the final q is
 held by the goal rows alone without changing the step (the multipliers absorb −ρc), and ρAᵀA over the
 working set's rows (the limits hold the motion there; zero along steps that keep them); its T row and
-column b = ∂∇ℒ/∂T, h = ∂²ℒ/∂T² and c_T, a_T come from a forward difference of the exact gradient and rows
-at T + δ, as in ``replan``. The programme's multipliers are the next ones: the rows with μ > 0 are the
+column b = ∂∇ℒ/∂T, h = ∂²ℒ/∂T² along the rescaled family are exact (``replan_point.time_column``: from the
+cost's per-sample Hessians the Newton matrix was made of, so one evaluation of ℒ per step), and so are the rows'
+T columns c_T, a_T (a Bernstein row of d^k q/dt^k scales as T^−k); only at a step whose Newton matrix was made
+elsewhere (the previous replan's last) are b and h a forward difference at T + δ. The programme's multipliers are the next ones: the rows with μ > 0 are the
 next working set (their μ·g_A enters ℒ's T derivatives). Since every step's working set is that of its
 own programme, a change of the active limits costs no extra rounds. A step that would break a Bernstein row
 outside the programme (g > 0 at the step's end; far from the optimum, steps are long) is re-solved with those rows
@@ -49,12 +51,21 @@ from scipy.linalg import solve_triangular
 from hoc_cli.banded import element_blocks
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.errors import NumericalError
-from hoc_cli.free_time import rescale
+from hoc_cli.free_time import fixed_coefficient_motion, rescale, row_time_derivatives
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.plan import EQ_ACCEPT
 from hoc_cli.goals.qp_step import Programme, QPStep, bordered_factor, solve_qp, solve_qp_within
-from hoc_cli.goals.replan_point import VIOLATION_FLOOR, damped_trial, dense_factor, evaluate_point, goal_violation, point_problem, row_values
+from hoc_cli.goals.replan_point import (
+    VIOLATION_FLOOR,
+    damped_trial,
+    dense_factor,
+    evaluate_point,
+    goal_violation,
+    point_problem,
+    row_values,
+    time_column,
+)
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import Status
 from hoc_cli.optimize.modify import gauss_newton_shift
@@ -87,9 +98,9 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
     """
     if problem.terms:
         try:
-            return problem.newton(ev, extra=extra_of(True), shift=shift)
+            return problem.newton(ev, extra=extra_of(True), shift=shift), None
         except NumericalError:
-            return problem.newton(ev, extra=extra_of(False), shift=shift)
+            return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
     Hs, GNs = problem.hessian_samples(ev)
     Hb = element_blocks(problem.op_h, Hs)
@@ -100,7 +111,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
             raise NumericalError("the Newton matrix is not positive definite")
         H = Hb if extra is None else Hb + extra
         try:
-            return problem.banded(H, shift)
+            return problem.banded(H, shift), Hs
         except NumericalError:
             if quick and indefinite:
                 continue
@@ -117,8 +128,8 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
                                           start=None if last is None else 0.1 * last)
         if factored is not None:
             weights[indefinite] = mu
-            return factored
-        return limit
+            return factored, Hs
+        return limit, Hs
     raise NumericalError("the Newton matrix is not positive definite")
 
 
@@ -214,7 +225,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     full = (tol, EQ_ACCEPT, SLOPE_RTOL)  # the stopping test's decrement, goal rows and T slope
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
-    U_last = check = None
+    U_last = check = Hs_last = None
     previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
@@ -230,10 +241,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         r = sum(v.size for v in lam[:npts])
         E, cg = pt.D[:r], pt.c[:r]
         g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
+        Hs = None  # the cost's per-sample Hessians of the Newton matrix U (the T column's b, h come from them)
         if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
-            U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x
+            U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x (no samples: b, h differenced)
         elif U_last is not None and keeps_factor(decrement, pt.J):
             U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
+            Hs = Hs_last  # and its sample Hessians the T column (with this point's gradients)
         else:
             due("newton")
             held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
@@ -241,13 +254,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
 
             try:
-                W = _newton(problem, pt.ev, extra_of, lm, quick, weights)
+                W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights)
             except NumericalError:
                 if _log.isEnabledFor(logging.DEBUG):
                     _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
                 break
             U = dense_factor(W)
-        U_last = U
+        U_last, Hs_last = U, Hs
         everything = row_values(limits, pt.rows, C)
         lo_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_lo)
         hi_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_hi)
@@ -255,14 +268,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         grad, rhs_E = g_I, -cg
         if free is not None:
             due("slope")
-            delta = 1e-6 * T
-            ph = at(T + delta, rescale(C, T, T + delta), lam, active)
-            evals += 1
-            scale = layout.pack(rescale(np.ones_like(C), T, T + delta))
-            b = (scale * ph.g - pt.g) / delta
-            h = (ph.F - pt.F) / delta
-            cT = (ph.c[:r] - cg) / delta
-            act_T = (ph.c[r:] - pt.c[r:]) / delta  # the working set's rows' T column (ρAᵀA's T part)
+            col = time_column(pt, lam, active, Hs)  # act_T: the working set's rows' T column (ρAᵀA's T part)
+            b, h, cT, act_T = col.b, col.h, col.c_T, col.held_T
+            if b is None:  # a Newton matrix made elsewhere (no sample Hessians here): b, h by the difference at T + δ
+                b, h = _difference_column(pt, T, at, lam, active)
+                evals += 1
+            V1 = fixed_coefficient_motion(layout.free, C, T)[0]
             b = b + E.T @ (rho_aug * cT) + pt.D[r:].T @ (rho_aug * act_T)
             h = h + rho_aug * float(cT @ cT + act_T @ act_T)
             v = solve_triangular(U, b, trans="T", check_finite=False)
@@ -280,11 +291,11 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         for rounds in range(EXPAND_ROUNDS + 1):
             cand = ActiveRows.where(lo_mask, hi_mask)
             A, A_full = cand.jacobian(pt.rows, limits, layout.free)
-            gA = A_full @ C.ravel() + cand.offsets(limits)
+            values = A_full @ C.ravel()
+            gA = values + cand.offsets(limits)
             rhs_A = -gA
-            if free is not None:
-                A2, A2_full = cand.jacobian(ph.rows, limits, layout.free)
-                aT = (A2_full @ ph.C.ravel() + cand.offsets(limits) - gA) / delta
+            if free is not None:  # rows of d^k q/dt^k: T^−k along the family (``row_time_derivatives``)
+                aT = row_time_derivatives(values, cand.kind, T, A_full @ V1.ravel())[0]
                 bounds = np.zeros((2, P + 1))
                 bounds[0, -1], bounds[1, -1] = 1.0, -1.0
                 A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
@@ -388,6 +399,19 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         pt, T, lam, active = trial, T_try, lam_new, new_active
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
+
+
+def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:
+    """(b, h) of the ``TimeColumn`` at ``pt`` by a forward difference along the rescaled family: ℒ's gradient and F at
+    T + δ, δ = 1e-6·T (``at``: ``evaluate_point`` at (T, C) with ``lam`` and ``active``). One more evaluation; used
+    where the Newton matrix, hence the sample Hessians, were not made at pt (the rows' T columns stay exact: the
+    programme's T row must hold the same rows' slopes as F, or its optimum is off F = 0 by their difference).
+    """
+    delta = 1e-6 * T
+    C = pt.C
+    ph = at(T + delta, rescale(C, T, T + delta), lam, active)
+    scale = pt.problem.layout.pack(rescale(np.ones_like(C), T, T + delta))
+    return (scale * ph.g - pt.g) / delta, (ph.F - pt.F) / delta
 
 
 def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int) -> np.ndarray:

@@ -145,6 +145,49 @@ class GoalTerms:
                 Hs[i, :2 * n, :2 * n] += H
         return self._where().sample_blocks(Hs)
 
+    def time_slopes(self, C: np.ndarray, T: float, V1: np.ndarray, res: list | None = None) -> np.ndarray:
+        """The rows' T derivatives c' (r,) along the rescaled family (``time_column``'s first part, exact)."""
+        res = self.residuals(C) if res is None else res
+        Y1 = self._where().apply(V1)
+        rows = [r[1] @ Y1[0, i] + r[2] @ (Y1[1, i] - r[5] / T) + r[3] for i, r in enumerate(res)]
+        return np.concatenate(rows) if rows else np.zeros(0)
+
+    def time_column(self, C: np.ndarray, T: float, V1: np.ndarray, V2: np.ndarray, res: list | None = None,
+                    rel_step: float = 1e-5) -> tuple[np.ndarray, np.ndarray, float]:
+        """(c' (r,), ∂/∂T of ∂Λ/∂C (N+1, m, n), Λ'') of Λ = Σ λ·c (the multipliers as they are, ρ's part not
+        included) along the rescaled family (``free_time.rescale``; V1, V2 the fixed coefficients' motion,
+        ``free_time.fixed_coefficient_motion``).
+
+        At a point, q is fixed in the s domain and q̇ = q̃'(s)/T: (q, q̇, T) moves by δ = (P(V1)_q, P(V1)_q̇ − q̇/T, 1)
+        and its second derivative is (P(V2)_q, P(V2)_q̇ − 2P(V1)_q̇/T + 2q̇/T², 0) (P: the points' shape functions), so
+        c' = ∂c/∂(q, q̇)·δ + ∂c/∂T (exact). With Γ = (∂c/∂qᵀλ, ∂c/∂q̇ᵀλ, λ·∂c/∂T), the column is Pᵀ(Γ'_q, Γ'_q̇ − Γ_q̇/T)
+        and Λ'' = Γ'·δ + Γ·(the second derivative), where Γ' = ∇Γ·δ, the residual's second derivatives along δ, is a
+        central difference of the residual's exact first derivatives at (q, q̇, T) ± ε·δ, ε = ``rel_step``·T (the
+        goal rows alone, no dynamics: two residual evaluations per point; ~1e-10 relative).
+        """
+        res = self.residuals(C) if res is None else res
+        where = self._where()
+        Y1, Y2 = where.apply(V1), where.apply(V2)
+        n = C.shape[-1]
+        S = np.zeros((3, len(self.points), n))
+        rows, second = [], 0.0
+        eps = rel_step * T
+        for i, (gp, lam, r) in enumerate(zip(self.points, self.lam, res)):
+            q, dq = r[4], r[5]
+            dz = (Y1[0, i], Y1[1, i] - dq / T)
+            rows.append(r[1] @ dz[0] + r[2] @ dz[1] + r[3])
+            plus = gp.residual(q + eps * dz[0], dq + eps * dz[1], T + eps)
+            minus = gp.residual(q - eps * dz[0], dq - eps * dz[1], T - eps)
+            d_q = (plus[1].T @ lam - minus[1].T @ lam) / (2.0 * eps)
+            d_v = (plus[2].T @ lam - minus[2].T @ lam) / (2.0 * eps)
+            d_T = float(lam @ (plus[3] - minus[3])) / (2.0 * eps)
+            g_v = r[2].T @ lam
+            S[0, i], S[1, i] = d_q, d_v - g_v / T
+            curve_v = Y2[1, i] - 2.0 * Y1[1, i] / T + 2.0 * dq / T**2
+            second += float(d_q @ dz[0] + d_v @ dz[1] + d_T + (r[1].T @ lam) @ Y2[0, i] + g_v @ curve_v)
+        c_T = np.concatenate(rows) if rows else np.zeros(0)
+        return c_T, where.transpose(S), second
+
     def time_derivative(self, C: np.ndarray, T: float, res: list | None = None) -> tuple[float, np.ndarray]:
         """(Σ μ·∂c/∂T at fixed s-domain coefficients, Σ μ ∂c/∂C (N+1, m, n)), μ = λ + ρ c."""
         res = self.residuals(C) if res is None else res
