@@ -248,6 +248,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
 
         def goal_inner(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
             prev = math.inf
+            eq = eq_level if tol_inner <= tol_level else max(eq_level, EQ_COARSE)
             for _ in range(max_outer):
                 totals["outer"] += 1
                 res = inner(p, x, tol_inner)
@@ -258,7 +259,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                     x = _polish(p, x)
                 C = problem.coefficients(x)
                 violation = pen.terms.violation(C)
-                if (violation <= eq_level and res.converged) or res.status is Status.MAX_ITER:
+                if (violation <= eq and res.converged) or res.status is Status.MAX_ITER:
                     break
                 rho = pen.terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
                 prev = violation

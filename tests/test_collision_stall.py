@@ -1,0 +1,72 @@
+"""A fixed-T link goal with collision enforcement and joint limits ends in seconds (no loop runs unbounded).
+
+The catch of configs/catch_ball.yaml at T = 0.42 s over a table, with a 3 cm "lamp" that the plain catch passes
+within 5 mm of: the goal rows' loop runs inside the limits' rounds inside the collision loop. Its inner solves
+run at the collision loop's loose tolerance until the clearance is certified; a goal loop asking its rows met to
+1e-12 at that tolerance grew its ρ ×10 on every inner solve that could not see the rest (to 1e20), and the limits'
+rows could then no longer move the final state: the plan crawled for minutes.
+"""
+from __future__ import annotations
+
+import pytest
+import yaml
+from _collision_tasks import ROOT, plan, task_folder
+
+from hoc_cli.goals import plan as goal_plan
+
+LBR7 = {  # the lbr7's links as capsules (each link's own frame, m)
+    "lbr_link_0": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.12], "radius": 0.08}}],
+    "lbr_link_1": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.17], "radius": 0.07}}],
+    "lbr_link_2": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.17], "radius": 0.065}}],
+    "lbr_link_3": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.18], "radius": 0.065}}],
+    "lbr_link_4": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.155], "radius": 0.06}}],
+    "lbr_link_5": [{"capsule": {"a": [0, 0, 0.03], "b": [0, 0, 0.11], "radius": 0.05}}],
+    "lbr_link_6": [{"sphere": {"radius": 0.065}}],
+    "lbr_link_7": [{"capsule": {"a": [0, 0, 0.02], "b": [0, 0, 0.06], "radius": 0.04}}],
+    "lbr_flange": [{"capsule": {"a": [0, 0, 0.0], "b": [0, 0, 0.12], "radius": 0.03}}],
+}
+TABLE = {"name": "table", "box": {"size": [0.6, 0.8, 0.04]}, "position": [0.65, 0.0, 0.23]}
+LAMP = {"name": "lamp", "sphere": {"radius": 0.03}, "position": [0.70, 0.06, 0.54]}
+ITERATIONS = 600  # inner iterations allowed in all (the fixed plan takes about 160)
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    return task_folder(tmp_path, monkeypatch, ("lbr7.urdf",))
+
+
+def _catch(T: float) -> dict:
+    doc = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
+    doc.pop("output", None)
+    return doc | {"T": T, "N": 8, "collision": {"margin": 0.01, "robot": LBR7, "obstacles": [TABLE, LAMP]}}
+
+
+def _budget(monkeypatch, limit: int) -> None:
+    """Every inner solve of ``plan_goals`` counted: beyond ``limit`` iterations in all the plan is stopped."""
+    spent = [0]
+    inner = goal_plan.minimize
+
+    def counted(*args, callback=None, **kwargs):
+        def each(log):
+            spent[0] += 1
+            if spent[0] > limit:
+                raise RuntimeError(f"{spent[0]} inner iterations: the plan crawls")
+            if callback is not None:
+                callback(log)
+
+        return inner(*args, callback=each, **kwargs)
+
+    monkeypatch.setattr(goal_plan, "minimize", counted)
+
+
+def test_the_catch_past_the_lamp_within_its_limits_ends_certified_in_a_few_hundred_iterations(workdir, monkeypatch):
+    _budget(monkeypatch, ITERATIONS)
+    r, s = plan(workdir, _catch(0.42))
+    assert r.exit_code == 0, (r.stderr, r.exception)
+    assert s["converged"] and s["collision_enforce"]["status"] == "converged"
+    c = s["min_clearance"]
+    assert c["certified"] and c["lower_bound"] >= 0.01 - 1e-9 and c["pair"] == ["lbr_link_7", "lamp"]
+    assert c["distance"] < 0.015  # the lamp binds
+    assert s["reached"]["position_error"] <= 1e-9 and s["reached"]["velocity_error"] <= 1e-9
+    assert s["limit_violations"] == [] and s["active_limits"]  # within the URDF's limits, some of them active
+
