@@ -12,6 +12,7 @@ import pytest
 import yaml
 from _collision_tasks import ROOT, plan, task_folder
 
+from hoc_cli.collision import enforce
 from hoc_cli.goals import plan as goal_plan
 
 LBR7 = {  # the lbr7's links as capsules (each link's own frame, m)
@@ -70,3 +71,22 @@ def test_the_catch_past_the_lamp_within_its_limits_ends_certified_in_a_few_hundr
     assert s["reached"]["position_error"] <= 1e-9 and s["reached"]["velocity_error"] <= 1e-9
     assert s["limit_violations"] == [] and s["active_limits"]  # within the URDF's limits, some of them active
 
+
+
+ARM = {"upper_arm": [{"capsule": {"a": [0, 0, 0], "b": [1, 0, 0], "radius": 0.05}}],
+       "forearm": [{"capsule": {"a": [0, 0, 0], "b": [1, 0, 0], "radius": 0.05}}]}
+BALL = {"name": "ball", "sphere": {"radius": 0.1}, "position": [1.75, 0, 0.55]}  # on the free plan's path
+
+
+def test_a_collision_loop_that_spends_its_iterations_ends_with_a_status_and_says_why(tmp_path, monkeypatch):
+    """The two-link arm round a ball takes 5 outer iterations; with a budget of 1 inner iteration the loop stops
+    after its first: not converged (exit 1), the message naming the budget."""
+    d = task_folder(tmp_path, monkeypatch, ("two_link.urdf",))
+    doc = {"robot": "../robots/two_link.urdf", "x0": {"q": [0.0, 0.0]}, "x1": {"q": [1.2, -0.6]}, "T": 1.5, "N": 8,
+           "collision": {"margin": 0.01, "robot": ARM, "obstacles": [BALL]}}
+    monkeypatch.setattr(enforce, "MAX_ITERATIONS", 1)
+    r, s = plan(d, doc)
+    assert r.exit_code == 1 and "not converged: stopped when its inner solves had spent 1 iterations" in r.stderr
+    assert not s["converged"] and s["collision_enforce"]["status"] == "not_converged"
+    assert s["collision_enforce"]["outer_iterations"] == 1 and s["collision_enforce"]["start"] == "start"  # no via
+    assert "forearm and ball come within" in s["message"]
