@@ -31,6 +31,8 @@ The loop (one level of the planner's continuation):
    not converged.
 
 Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
+Every start's loop and the starts together stop once their inner solves have spent ``MAX_ITERATIONS``
+iterations: not converged, the message naming the budget and the closest pair.
 
 A start in collision (``solve``): when the loop from the level's start ends infeasible, it runs
 again from the minimum-jerk guess (when the start was a coarser level's plan) and from ``via_guess``

@@ -5,7 +5,7 @@ I + Φ_collision + Φ_limits (``LimitTerms``: the limits' own PHR terms) in a fe
 (``LimitState.rounds``); after each round the limits' multipliers are updated by the rules of
 ``constraints.augmented_lagrangian`` (the (kind, joint) pairs found beyond their bounds join the
 working set, idle effort pairs leave it, λ ← μ, ρ × 10 when the worst violation did not fall to a
-quarter within the rounds), after a converged inner solve its polish (one full Newton step on
+quarter within the rounds, at most ``RHO_MAX``·ρ0), after a converged inner solve its polish (one full Newton step on
 I + Φ: it meets the limits to the rounding level the inner test cannot see). The collision's
 multipliers are updated by its loop after the rounds.
 
