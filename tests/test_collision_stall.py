@@ -90,3 +90,12 @@ def test_a_collision_loop_that_spends_its_iterations_ends_with_a_status_and_says
     assert not s["converged"] and s["collision_enforce"]["status"] == "not_converged"
     assert s["collision_enforce"]["outer_iterations"] == 1 and s["collision_enforce"]["start"] == "start"  # no via
     assert "forearm and ball come within" in s["message"]
+
+
+def test_a_goal_plan_whose_collision_loop_spends_its_iterations_ends_not_converged(workdir, monkeypatch):
+    """The lamp catch with a budget of 20 inner iterations per collision solve ends at once, not converged (exit 1)."""
+    monkeypatch.setattr(enforce, "MAX_ITERATIONS", 20)
+    r, s = plan(workdir, _catch(0.42))
+    assert r.exit_code == 1 and "not converged" in r.stderr, r.stderr
+    assert not s["converged"] and s["collision_enforce"]["status"] == "not_converged"
+    assert s["collision_enforce"]["outer_iterations"] <= 2
