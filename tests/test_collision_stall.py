@@ -99,3 +99,51 @@ def test_a_goal_plan_whose_collision_loop_spends_its_iterations_ends_not_converg
     assert r.exit_code == 1 and "not converged" in r.stderr, r.stderr
     assert not s["converged"] and s["collision_enforce"]["status"] == "not_converged"
     assert s["collision_enforce"]["outer_iterations"] <= 2
+
+
+def test_the_goal_rows_penalty_grows_at_most_rho_range_times_its_start(workdir, monkeypatch):
+    """The lamp catch's goal loop takes ρ to 1e6 times its start; capped at 100 times, it stays there and the plan
+    still ends with a status."""
+    import hoc_cli.goals as goals
+
+    monkeypatch.setattr(goal_plan, "RHO_RANGE", 100.0)
+    started, results = [], []
+    start, plan_goals = goal_plan.GoalTerms.start.__func__, goals.plan_goals
+
+    def recorded_start(cls, mesh, points, rho=1.0):
+        started.append(rho)
+        return start(cls, mesh, points, rho)
+
+    def recorded(*args, **kwargs):
+        results.append(plan_goals(*args, **kwargs))
+        return results[-1]
+
+    monkeypatch.setattr(goal_plan.GoalTerms, "start", classmethod(recorded_start))
+    monkeypatch.setattr(goals, "plan_goals", recorded)
+    _budget(monkeypatch, ITERATIONS)
+    r, s = plan(workdir, _catch(0.42))
+    assert r.exit_code in (0, 1) and s is not None, r.stderr
+    assert len(started) == 1 and results
+    assert results[-1].terms.rho <= 100.0 * started[0] * (1 + 1e-12)
+    assert results[-1].terms.rho > 10.0 * started[0]  # the loop does grow it: the cap binds
+
+
+def test_the_limits_rounds_penalty_grows_at_most_rho_max_times_its_start(workdir, monkeypatch):
+    """The lamp catch's limits' rounds take ρ to 1e3·ρ0; capped at 100·ρ0, they stay there and the plan ends."""
+    from hoc_cli.collision import limit_rounds
+
+    monkeypatch.setattr(limit_rounds, "RHO_MAX", 100.0)
+    ratios = []
+    update = limit_rounds.LimitState.update
+
+    def recorded(self, *args, **kwargs):
+        got = update(self, *args, **kwargs)
+        if self.rho is not None:
+            ratios.append(self.rho / self.rho0)
+        return got
+
+    monkeypatch.setattr(limit_rounds.LimitState, "update", recorded)
+    _budget(monkeypatch, 3 * ITERATIONS)
+    r, s = plan(workdir, _catch(0.42))
+    assert r.exit_code in (0, 1) and s is not None, r.stderr
+    assert ratios and max(ratios) <= 100.0 * (1 + 1e-12) and max(ratios) > 10.0
