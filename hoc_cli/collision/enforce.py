@@ -31,6 +31,8 @@ The loop (one level of the planner's continuation):
    not converged.
 
 Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
+Every start's loop and the starts together stop once their inner solves have spent ``MAX_ITERATIONS``
+iterations: not converged, the message naming the budget and the closest pair.
 
 A start in collision (``solve``): when the loop from the level's start ends infeasible, it runs
 again from the minimum-jerk guess (when the start was a coarser level's plan) and from ``via_guess``
@@ -79,6 +81,7 @@ COARSE_MAX_OUTER = 8
 REFINE_POINTS = 4
 MAX_REFINEMENTS = 6
 VIA_TRIES = 3
+MAX_ITERATIONS = 5_000   # inner iterations in all, over one solve's outer iterations and starts: then it ends
 VIA_MAX_OUTER = 10
 SPHERE_ROWS = True    # obstacles are imposed against spheres along the capsules (constraint.sphere_rows_scene)
 LOOSE_TOL = 1e-5      # the inner solves' relative tolerance until the points are clear and the clearance certified
@@ -191,8 +194,16 @@ class CollisionConstraint:
         (``limit_rounds``), their working set starting from ``working`` (K, n) when given.
         Without ``warm`` (the plan's first level) a start the loop cannot free tries via guesses.
         """
-        inner = functools.partial(self._loop, problem, tol=tol, minimize=minimize, full=full,
-                                  limits=None if limits is None or not limits.any else (system, limits, working))
+        spent = [0]  # the inner iterations of every start: at most MAX_ITERATIONS (plus the solve that crossed it)
+
+        def counted(p, x: np.ndarray, tol_inner: float):
+            res = minimize(p, x, tol_inner)
+            spent[0] += res.iterations
+            return res
+
+        inner = functools.partial(self._loop, problem, tol=tol, minimize=counted, full=full,
+                                  limits=None if limits is None or not limits.any else (system, limits, working),
+                                  spent=lambda: spent[0] >= MAX_ITERATIONS)
         got = inner(x0, warm=warm, max_outer=MAX_OUTER if full else COARSE_MAX_OUTER, start="start")
         if got[3].status != "infeasible":
             return got
@@ -204,6 +215,8 @@ class CollisionConstraint:
                 starts.append(("via", problem.layout.pack(via_guess(mesh, q0, dq0, qv, q1, dq1))))
         best = None
         for label, x in starts:
+            if spent[0] >= MAX_ITERATIONS:
+                break
             tried = inner(x, warm=None, max_outer=VIA_MAX_OUTER, start=label)
             if tried[3].status == "converged" and (best is None or tried[1] < best[1]):
                 best = tried
@@ -237,7 +250,7 @@ class CollisionConstraint:
         return margin + np.minimum(0.5 * (ends - margin), INFLATION)
 
     def _loop(self, problem, x: np.ndarray, *, tol: float, minimize: Callable, full: bool, limits,
-              warm: CollisionWarm | None, max_outer: int, start: str):
+              warm: CollisionWarm | None, max_outer: int, start: str, spent: Callable[[], bool]):
         model, mesh, exact = self.model, problem.mesh, self.scene
         lim = None if limits is None else LimitState(*limits, problem, None if warm is None else warm.limits)
         scene = self.rows_scene()  # the rows; the certificate takes the exact pairs
@@ -259,8 +272,14 @@ class CollisionConstraint:
         own = problem.terms  # the problem's own terms (a goal's rows) stay; Φ joins them
         limits_met = True
         outer = 0
+        spent_out = False  # the loop ended on the iteration budget (not converged, whatever the clearance)
         try:
             for outer in range(1, max_outer + 1):
+                if outer > 1 and spent():
+                    outer -= 1
+                    message = f"stopped when its inner solves had spent {MAX_ITERATIONS} iterations (outer iterations: {outer})"
+                    spent_out = True
+                    break
                 if known[0] is not x or known[1] is not points:
                     D = distances(model, scene, point_configurations(points, problem.coefficients(x)))   # (P, Q)
                 near = ((D < bound + INFLUENCE) | (lam > 0)).any(axis=0)   # (Q,): imposed ...
@@ -275,7 +294,8 @@ class CollisionConstraint:
                     res = minimize(problem, x, inner_tol)
                     x = res.x
                 else:  # the joint limits' rounds, from their multipliers of the previous outer iteration
-                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full, polish=not full)
+                    res, x, limits_met = lim.rounds(problem, x, inner_tol, minimize, exact=tight and full, polish=not full,
+                                                      spent=spent)
                 D = distances(model, scene, point_configurations(points, problem.coefficients(x)))
                 known = (x, points)
                 lam = np.zeros_like(D)
@@ -340,10 +360,12 @@ class CollisionConstraint:
                 D = distances(model, scene, point_configurations(points, C))
                 i, j = np.unravel_index(int(np.argmin(D)), D.shape)
                 closest, pair, t = float(D[i, j]), scene.names[j], float(points.t[i])
-            if status == "infeasible" or closest < scene.margin:
+            a, b = pair
+            how = f"overlap by {-closest:.4g} m" if closest < 0 else f"come within {closest:.4g} m"
+            if spent_out:
+                message = f"{message}: {a} and {b} {how} at t = {t:.4g} s (margin {scene.margin:g} m)"
+            elif status == "infeasible" or closest < scene.margin:
                 status = "infeasible"
-                a, b = pair
-                how = f"overlap by {-closest:.4g} m" if closest < 0 else f"come within {closest:.4g} m"
                 message = (f"no collision-free trajectory was found: {a} and {b} {how} at t = {t:.4g} s "
                            f"(margin {scene.margin:g} m)")
         J = problem.bare_cost(x)

@@ -5,7 +5,7 @@ I + Φ_collision + Φ_limits (``LimitTerms``: the limits' own PHR terms) in a fe
 (``LimitState.rounds``); after each round the limits' multipliers are updated by the rules of
 ``constraints.augmented_lagrangian`` (the (kind, joint) pairs found beyond their bounds join the
 working set, idle effort pairs leave it, λ ← μ, ρ × 10 when the worst violation did not fall to a
-quarter within the rounds), after a converged inner solve its polish (one full Newton step on
+quarter within the rounds, at most ``RHO_MAX``·ρ0), after a converged inner solve its polish (one full Newton step on
 I + Φ: it meets the limits to the rounding level the inner test cannot see). The collision's
 multipliers are updated by its loop after the rounds.
 
@@ -37,6 +37,7 @@ _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
 SETTLED = 1e-3    # the worst excess over a limit, relative to σ, below which a non-final outer iteration stops its rounds
 ROUNDS = 4        # limits' rounds at most per outer iteration ...
 EXACT_ROUNDS = 12 # ... and in the final ones (the limits met exactly)
+RHO_MAX = 1e8     # ρ stays below RHO_MAX·ρ0 (the inner problems' conditioning; beyond, the collision loop's own caps end it)
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,7 +132,7 @@ class LimitState:
         falling = excess <= al.STALL_RATIO * self.prev
         if (self.rho is not None and not within and excess > 0.25 * self.prev
                 and not (self.rho >= self.rho0 * al.RHO_RANGE and falling)):
-            self.rho *= al.RHO_GROWTH
+            self.rho = min(self.rho * al.RHO_GROWTH, self.rho0 * RHO_MAX)
         self.prev = excess if excess > 0 else self.prev
         return self.met
 
@@ -139,10 +140,12 @@ class LimitState:
         """The plan's worst excess over a limit is within ``SETTLED``·σ (the collision loop may judge its own progress)."""
         return self.check is not None and float(np.max(self.check.relative_excess(), initial=0.0)) <= SETTLED
 
-    def rounds(self, problem, x: np.ndarray, tol: float, minimize, *, exact: bool, polish: bool = True):
+    def rounds(self, problem, x: np.ndarray, tol: float, minimize, *, exact: bool, polish: bool = True,
+               spent=lambda: False):
         """Inner solves of ``problem`` (a ControlProblem with the collision's terms) plus the limits' terms, each
         followed by the polish and the limits' update, until the limits are met (``exact``) or settled, at most
-        ``EXACT_ROUNDS`` or ``ROUNDS`` of them. Returns (the last inner result, x, whether the limits are met).
+        ``EXACT_ROUNDS`` or ``ROUNDS`` of them, or until ``spent()`` (the caller's iteration budget). Returns (the
+        last inner result, x, whether the limits are met).
         """
         self.prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
         known: list = [None, math.nan]  # [x, I(x)]: the cost of the last plan, for the next round's start
@@ -161,7 +164,7 @@ class LimitState:
             if _log.isEnabledFor(logging.DEBUG):
                 _log.debug(f"limits round N {self.mesh.N} it {res.iterations} ev {res.n_evals} met {met} "
                            f"excess {np.max(self.check.relative_excess()):.2e} rho {self.rho or 0:.3g}")
-            if met or (not exact and self.settled()) or not res.converged:
+            if met or (not exact and self.settled()) or not res.converged or spent():
                 break
         return res, x, met
 

@@ -35,6 +35,7 @@ EQ_TOL = 1e-12  # the outer loop stops when every goal row is met to this (m, ra
 EQ_COARSE = 1e-6  # … on the coarse levels of the continuation
 EQ_ACCEPT = 1e-9  # a plan whose rows are met to this counts as converged
 RHO_GROWTH = 10.0
+RHO_RANGE = 1e8  # ρ grows at most this much within one plan (its inner problems' conditioning)
 RHO0 = 10.0  # ρ = 10·|J| of the initial guess per unit c²: larger starts make curved rows stall the line search
 
 
@@ -247,10 +248,18 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
         pen = GoalPenalized(problem, terms.on(problem.mesh)) if problem.points else problem
 
         def goal_inner(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
+            """The goal rows' loop (at most ``max_outer`` inner solves): met to ``eq_level`` when the inner solves run at
+            the level's tolerance, to ``EQ_COARSE`` when looser (a collision loop's early iterations: the stopping test
+            of a loose solve cannot see a smaller violation, and ρ would grow without end). The result counts the
+            iterations and evaluations of all its inner solves.
+            """
             prev = math.inf
+            eq = eq_level if tol_inner <= tol_level else max(eq_level, EQ_COARSE)
+            its = evs = 0
             for _ in range(max_outer):
                 totals["outer"] += 1
                 res = inner(p, x, tol_inner)
+                its, evs = its + res.iterations, evs + res.n_evals
                 x = res.x
                 if not problem.points:
                     return res
@@ -258,12 +267,12 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                     x = _polish(p, x)
                 C = problem.coefficients(x)
                 violation = pen.terms.violation(C)
-                if (violation <= eq_level and res.converged) or res.status is Status.MAX_ITER:
+                if (violation <= eq and res.converged) or res.status is Status.MAX_ITER:
                     break
                 rho = pen.terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
                 prev = violation
-                pen.terms = dataclasses.replace(pen.terms, lam=pen.terms.multipliers(C), rho=rho)
-            return dataclasses.replace(res, x=x)
+                pen.terms = dataclasses.replace(pen.terms, lam=pen.terms.multipliers(C), rho=min(rho, rho_max))
+            return dataclasses.replace(res, x=x, iterations=its, n_evals=evs)
 
         er = None
         if constraint is not None:
@@ -305,6 +314,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             if state is not None:
                 carry["working"], carry["duals"] = state.working, state.penalty
         terms = GoalTerms.start(mesh, probe.points, rho) if terms is None else dataclasses.replace(terms, rho=rho)
+    rho_max = RHO_RANGE * terms.rho  # the goal rows' ρ at most (``RHO_RANGE``)
     if C_init is None and continuation:
         coarse_mesh, C_coarse = None, None
         for N in continuation_levels(mesh.N)[:-1]:
