@@ -30,7 +30,6 @@ from hoc_cli.constraints.bounds import EFFORT, KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms, PenaltyValue
 from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
-from hoc_cli.errors import NumericalError
 
 _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
 
@@ -102,14 +101,8 @@ class LimitState:
             return x
         ev = problem.last
         if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
-            return polish(problem, x)
-        trial = x - problem.newton(ev).solve(ev.grad)
-        try:
-            if np.isfinite(problem.evaluate(trial, grad=False).J):
-                return trial
-        except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
-            pass
-        return x
+            ev = None
+        return polish(problem, x, ev)
 
     def update(self, terms: LimitTerms, C: np.ndarray, J: float, tol: float) -> bool:
         """Check the plan C (J its cost), update λ, the working set and ρ; True when the limits are met."""

@@ -189,15 +189,17 @@ def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str
     return best
 
 
-def polish(problem: PenalizedProblem, x: np.ndarray) -> np.ndarray:
-    """One full Newton step on I + Φ from an inner optimum.
+def polish(problem: PenalizedProblem, x: np.ndarray, ev=None) -> np.ndarray:
+    """One full Newton step on I + Φ from an inner optimum (``ev``: the evaluation at x with its gradient, when
+    the caller has it; else it is made here).
 
     The inner stopping test weighs the decrement against |J|; a violation δ changes Φ by about
     ½ρ_w δ², below the rounding level of J long before δ reaches 1e-9. The Newton step, made from
     gradients (which resolve what the value cannot) with Φ's exact curvature for the kinematic
     rows (linear in x), still removes it. Taken only after the inner test held, so it is small.
     """
-    ev = problem.evaluate(x)
+    if ev is None:
+        ev = problem.evaluate(x)
     trial = x - problem.newton(ev).solve(ev.grad)
     try:
         if np.isfinite(problem.evaluate(trial, grad=False).J):
