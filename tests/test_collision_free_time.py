@@ -105,3 +105,12 @@ def test_the_collision_rows_part_of_dJ_dT_is_their_gradient_along_the_moved_fixe
         _, grad = pair_gradient(problem.constraint.model, scene, q, rows, pairs)
         want = -float(np.sum(warm.lam[live][rows, pairs] * np.einsum("mn,mn->m", grad, dq_dT[rows])))
         assert abs(want) > 1e-3 and abs(got - want) <= 1e-6 * abs(want)
+
+
+def test_init_with_a_free_T_and_collision_enforcement_says_in_one_line_that_it_is_not_used(workdir):
+    r, first = plan(workdir, _doc(), "-o", "first.mcap")
+    assert r.exit_code == 0
+    r, again = plan(workdir, _doc(), "--init", "first.mcap")
+    assert r.exit_code == 0 and r.stderr.count("hoc: warning:") == 1
+    assert "--init is not used for a free T with collision enforcement" in r.stderr
+    assert again["collision_active"] is True and abs(again["T"] - first["T"]) <= 1e-9 * first["T"]

@@ -30,6 +30,7 @@ from hoc_cli.report.collision import (
     sampled_clearance,
     warn_collisions,
 )
+from hoc_cli.report.console import warn
 from hoc_cli.report.jsonio import json_ready
 from hoc_cli.report.prepare import prepare
 from hoc_cli.report.status import unmet_line
@@ -74,6 +75,8 @@ def run(task_path: Path, *, outputs: list[str] | None = None, as_json: bool = Fa
     if init is not None and not auto:
         if has_goals and task.time.free is not None:  # a warm replan from the plan's T and coefficients
             warm = WarmStart(*_init_plan(init, model.joint_names))
+            if problem.constraint is not None:  # (strategy: the search over fixed-T plans with it, from scratch)
+                warn("--init is not used for a free T with collision enforcement: planned from the task's guess")
         else:
             warm = WarmStart(mesh, _warm_start(init, mesh, model.joint_names))
     if auto and init is not None:
