@@ -281,6 +281,31 @@ def test_a_step_asks_at_each_checkpoint_in_order_and_stops_where_it_is_told(catc
         assert asked[-1] == name and asked.count(name) == 1
 
 
+def test_a_later_step_stopped_at_a_checkpoint_keeps_the_steps_completed_before_it(catch):
+    """``late`` True in the second step: the steps end at the point the first one reached (no ``OutOfTime``), the
+    same point as one step alone."""
+    import hoc_cli.goals.replan_qp as replan_qp
+
+    problem, plan = catch
+    rp = Replanner(problem, plan, max_steps=1, warm_up=False)
+    cur = rp.current
+    x = (cur.state(0.07)[0], cur.state(0.07, 1)[0])
+    calls = []
+
+    def late(at):
+        calls.append(at)
+        return calls.count("newton") == 2  # the second step's first checkpoint
+
+    def run(max_steps, late):
+        return replan_qp.qp_steps(problem.system, _start(cur, x, rp), rp.goals, [np.zeros(6), np.zeros(0)],
+                                  replan_qp.ActiveRows.empty(), free=rp.time_range(0.07), limits=problem.limits,
+                                  tol=1e-12, max_steps=max_steps, rho_aug=1.0, quick=True, late=late)
+
+    cut, one = run(5, late), run(1, None)
+    assert calls.count("newton") == 2 and cut.steps == one.steps == 1 and cut.factor is None
+    assert cut.T == one.T and np.array_equal(cut.point.C, one.point.C)
+
+
 def _start(cur, x, rp):
     """The ``qp_steps`` start of the plan in force shifted to 0.07 s from the state x (as ``Replanner.update``'s)."""
     from hoc_cli.realtime.replanner import _Boundary, _Start

@@ -190,9 +190,10 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         positive semi-definite part is first added in growing multiples, up to 13 more factorisations): the
         real-time replanner's steps, where time counts.
     late : asked with a checkpoint's name (``CHECKPOINTS``) at each checkpoint of a step (before the Newton
-        matrix, before the T column's evaluation, before each programme, before the trial point); True abandons
-        the steps there: ``OutOfTime`` is raised (a hard time budget: the real-time replanner, which then keeps
-        the plan in force).
+        matrix, before the T column's evaluation, before each programme, before the trial point); True stops the
+        steps there (a hard time budget: the real-time replanner): in the first step ``OutOfTime`` is raised (the
+        caller keeps its plan), in a later one the steps end at the point the last completed step reached, as
+        after ``stop``.
     accuracy : when given, the stopping test's decrement (relative to |J|), goal rows (m, rad, m/s) and |∂ℒ/∂T|
         (relative to |J|/T + weight) are met to it instead of ``tol``, ``EQ_ACCEPT`` and ``SLOPE_RTOL`` (the imposed
         rows still to ``ROW_ACCEPT``, the check still exact; when the check finds a limit broken there, the steps go on
@@ -230,173 +231,180 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
     lm = 0.0  # with the merit test: a Levenberg-Marquardt shift of the Newton matrix (relative, as BandedSPD's)
-    while True:
-        if stop is not None and steps and stop(steps):
-            U_last = None  # the last factor is the point's before the step
-            break
-        evals += 1
-        problem, C = pt.problem, pt.C
-        layout = problem.layout
-        P = pt.x.size
-        r = sum(v.size for v in lam[:npts])
-        E, cg = pt.D[:r], pt.c[:r]
-        g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
-        Hs = None  # the cost's per-sample Hessians of the Newton matrix U (the T column's b, h come from them)
-        if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
-            U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x (no samples: b, h differenced)
-        elif U_last is not None and keeps_factor(decrement, pt.J):
-            U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
-            Hs = Hs_last  # and its sample Hessians the T column (with this point's gradients)
-        else:
-            due("newton")
-            held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
-            def extra_of(indefinite: bool, held=held, C=C):  # away from the optimum: without the negative part
-                return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
+    done = 0  # steps completed (a step is applied at its end)
+    try:
+        while True:
+            if stop is not None and steps and stop(steps):
+                U_last = None  # the last factor is the point's before the step
+                break
+            evals += 1
+            problem, C = pt.problem, pt.C
+            layout = problem.layout
+            P = pt.x.size
+            r = sum(v.size for v in lam[:npts])
+            E, cg = pt.D[:r], pt.c[:r]
+            g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
+            Hs = None  # the cost's per-sample Hessians of the Newton matrix U (the T column's b, h come from them)
+            if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
+                U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x (no samples: b, h differenced)
+            elif U_last is not None and keeps_factor(decrement, pt.J):
+                U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
+                Hs = Hs_last  # and its sample Hessians the T column (with this point's gradients)
+            else:
+                due("newton")
+                held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
+                def extra_of(indefinite: bool, held=held, C=C):  # away from the optimum: without the negative part
+                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
 
-            try:
-                W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights)
-            except NumericalError:
+                try:
+                    W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights)
+                except NumericalError:
+                    if _log.isEnabledFor(logging.DEBUG):
+                        _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
+                    break
+                U = dense_factor(W)
+            U_last, Hs_last = U, Hs
+            everything = row_values(limits, pt.rows, C)
+            lo_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_lo)
+            hi_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_hi)
+            violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
+            grad, rhs_E = g_I, -cg
+            if free is not None:
+                due("slope")
+                col = time_column(pt, lam, active, Hs)  # act_T: the working set's rows' T column (ρAᵀA's T part)
+                b, h, cT, act_T = col.b, col.h, col.c_T, col.held_T
+                if b is None:  # a Newton matrix made elsewhere (no sample Hessians here): b, h by the difference at T + δ
+                    b, h = _difference_column(pt, T, at, lam, active)
+                    evals += 1
+                V1 = fixed_coefficient_motion(layout.free, C, T)[0]
+                b = b + E.T @ (rho_aug * cT) + pt.D[r:].T @ (rho_aug * act_T)
+                h = h + rho_aug * float(cT @ cT + act_T @ act_T)
+                v = solve_triangular(U, b, trans="T", check_finite=False)
+                schur = h - float(v @ v)  # the model's curvature in T with x following: made positive (its size kept)
+                if schur <= 1e-9 * abs(h):
+                    h = float(v @ v) + max(abs(schur), 1e-6 * abs(h))
+                U = bordered_factor(U, b, h)
+                # the T derivative of I + weight·T as the Lagrangian's minus the rows' own T columns times their
+                # multipliers: the programme's T row then agrees with ℒ's exactly (ℒ's limit part is analytic)
+                F_I = pt.F - float(cT @ np.concatenate(lam[:npts])) - float(act_T @ lam[-1]) if r else pt.F - float(act_T @ lam[-1])
+                grad = np.concatenate([g_I, [F_I]])
+                E = np.hstack([E, cT[:, None]])
+            failed, kept = False, None
+            prog = Programme(U, grad, E)  # the elimination of E shared by the rounds and the correction
+            for rounds in range(EXPAND_ROUNDS + 1):
+                cand = ActiveRows.where(lo_mask, hi_mask)
+                A, A_full = cand.jacobian(pt.rows, limits, layout.free)
+                values = A_full @ C.ravel()
+                gA = values + cand.offsets(limits)
+                rhs_A = -gA
+                if free is not None:  # rows of d^k q/dt^k: T^−k along the family (``row_time_derivatives``)
+                    aT = row_time_derivatives(values, cand.kind, T, A_full @ V1.ravel())[0]
+                    bounds = np.zeros((2, P + 1))
+                    bounds[0, -1], bounds[1, -1] = 1.0, -1.0
+                    A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
+                    rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+                due("programme")
+                try:
+                    if quick and kept is not None:  # the last programme's active rows and the rows added first
+                        step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
+                                               programme=prog)
+                    elif not quick and previous is not None and kept is None:
+                        # over the last step's active rows and the new rows first: the same step, and the multipliers of
+                        # dependent rows shared as the last step shared them (from every row, the programme's split changed
+                        # from step to step and the working set with it: the Panda reach's coarse steps cycled 29 ↔ 31 rows)
+                        step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
+                                               programme=prog)
+                    else:
+                        step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
+                except NumericalError as exc:
+                    if _log.isEnabledFor(logging.DEBUG):
+                        _log.debug(f"qp step {steps}: {exc}")
+                    if kept is not None:  # the programme with the rows added failed: the last one's step
+                        step, cand, A, rhs_A, gA = kept
+                    else:
+                        failed = True
+                    break
+                if rounds == EXPAND_ROUNDS:
+                    break
+                kept = step, cand, A, rhs_A, gA
+                beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask)
+                if beyond is None:
+                    break
+                lo_mask, hi_mask = beyond
+            if failed:
+                break
+            previous = step, cand
+            row_violation = float(np.max(gA, initial=0.0))
+            decrement = step.decrease
+            if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
+                status = Status.MAX_ITER if math.isfinite(decrement) and np.all(np.isfinite(step.d)) else Status.NOT_FINITE
                 if _log.isEnabledFor(logging.DEBUG):
-                    _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
+                    _log.debug(f"qp step {steps}: the programme runs away (decrease {decrement:.2e}, J {pt.J:.6g})")
                 break
-            U = dense_factor(W)
-        U_last, Hs_last = U, Hs
-        everything = row_values(limits, pt.rows, C)
-        lo_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_lo)
-        hi_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_hi)
-        violation = max(float(np.max(np.abs(cg), initial=0.0)), 0.0)
-        grad, rhs_E = g_I, -cg
-        if free is not None:
-            due("slope")
-            col = time_column(pt, lam, active, Hs)  # act_T: the working set's rows' T column (ρAᵀA's T part)
-            b, h, cT, act_T = col.b, col.h, col.c_T, col.held_T
-            if b is None:  # a Newton matrix made elsewhere (no sample Hessians here): b, h by the difference at T + δ
-                b, h = _difference_column(pt, T, at, lam, active)
-                evals += 1
-            V1 = fixed_coefficient_motion(layout.free, C, T)[0]
-            b = b + E.T @ (rho_aug * cT) + pt.D[r:].T @ (rho_aug * act_T)
-            h = h + rho_aug * float(cT @ cT + act_T @ act_T)
-            v = solve_triangular(U, b, trans="T", check_finite=False)
-            schur = h - float(v @ v)  # the model's curvature in T with x following: made positive (its size kept)
-            if schur <= 1e-9 * abs(h):
-                h = float(v @ v) + max(abs(schur), 1e-6 * abs(h))
-            U = bordered_factor(U, b, h)
-            # the T derivative of I + weight·T as the Lagrangian's minus the rows' own T columns times their
-            # multipliers: the programme's T row then agrees with ℒ's exactly (ℒ's limit part is analytic)
-            F_I = pt.F - float(cT @ np.concatenate(lam[:npts])) - float(act_T @ lam[-1]) if r else pt.F - float(act_T @ lam[-1])
-            grad = np.concatenate([g_I, [F_I]])
-            E = np.hstack([E, cT[:, None]])
-        failed, kept = False, None
-        prog = Programme(U, grad, E)  # the elimination of E shared by the rounds and the correction
-        for rounds in range(EXPAND_ROUNDS + 1):
-            cand = ActiveRows.where(lo_mask, hi_mask)
-            A, A_full = cand.jacobian(pt.rows, limits, layout.free)
-            values = A_full @ C.ravel()
-            gA = values + cand.offsets(limits)
-            rhs_A = -gA
-            if free is not None:  # rows of d^k q/dt^k: T^−k along the family (``row_time_derivatives``)
-                aT = row_time_derivatives(values, cand.kind, T, A_full @ V1.ravel())[0]
-                bounds = np.zeros((2, P + 1))
-                bounds[0, -1], bounds[1, -1] = 1.0, -1.0
-                A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
-                rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
-            due("programme")
-            try:
-                if quick and kept is not None:  # the last programme's active rows and the rows added first
-                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
-                                           programme=prog)
-                elif not quick and previous is not None and kept is None:
-                    # over the last step's active rows and the new rows first: the same step, and the multipliers of
-                    # dependent rows shared as the last step shared them (from every row, the programme's split changed
-                    # from step to step and the working set with it: the Panda reach's coarse steps cycled 29 ↔ 31 rows)
-                    step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
-                                           programme=prog)
-                else:
-                    step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
-            except NumericalError as exc:
-                if _log.isEnabledFor(logging.DEBUG):
-                    _log.debug(f"qp step {steps}: {exc}")
-                if kept is not None:  # the programme with the rows added failed: the last one's step
-                    step, cand, A, rhs_A, gA = kept
-                else:
-                    failed = True
-                break
-            if rounds == EXPAND_ROUNDS:
-                break
-            kept = step, cand, A, rhs_A, gA
-            beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask)
-            if beyond is None:
-                break
-            lo_mask, hi_mask = beyond
-        if failed:
-            break
-        previous = step, cand
-        row_violation = float(np.max(gA, initial=0.0))
-        decrement = step.decrease
-        if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
-            status = Status.MAX_ITER if math.isfinite(decrement) and np.all(np.isfinite(step.d)) else Status.NOT_FINITE
             if _log.isEnabledFor(logging.DEBUG):
-                _log.debug(f"qp step {steps}: the programme runs away (decrease {decrement:.2e}, J {pt.J:.6g})")
-            break
-        if _log.isEnabledFor(logging.DEBUG):
-            _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
-                  f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
-                  + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
-        t_done = free is None or abs(pt.F) <= slope_rtol * (abs(pt.J) / T + weight) or (
-            (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
-        if abs(decrement) <= tol * max(abs(pt.J), 1.0) and violation <= eq_tol and row_violation <= ROW_ACCEPT and t_done:
-            if lm > 0.0:  # a shifted matrix understates the decrease: test again with the Newton matrix itself
-                lm, decrement, U_last = 0.0, math.inf, None
-                continue
-            check = check_limits(system, limits, problem.mesh, C)
-            if check.feasible:
-                status = Status.CONVERGED
+                _log.debug(f"qp step {steps} T {T:.9f} J {pt.J:.12g} dec {decrement:.2e} viol {violation:.1e} "
+                      f"rows {row_violation:.1e} cand {cand.size} active {active.size}"
+                      + (f" F {pt.F:.3e} F_I {grad[-1]:.3e} h {h:.3e} dT {step.d[-1]:.2e}" if free is not None else ""))
+            t_done = free is None or abs(pt.F) <= slope_rtol * (abs(pt.J) / T + weight) or (
+                (T >= free.max and pt.F < 0) or (T <= free.min and pt.F > 0))
+            if abs(decrement) <= tol * max(abs(pt.J), 1.0) and violation <= eq_tol and row_violation <= ROW_ACCEPT and t_done:
+                if lm > 0.0:  # a shifted matrix understates the decrease: test again with the Newton matrix itself
+                    lm, decrement, U_last = 0.0, math.inf, None
+                    continue
+                check = check_limits(system, limits, problem.mesh, C)
+                if check.feasible:
+                    status = Status.CONVERGED
+                    break
+                if accuracy is None:
+                    break
+                check = accuracy = None  # stopped early with a limit broken between the held rows: on to the full test
+                tol, eq_tol, slope_rtol = full
+            if steps == max_steps:
                 break
-            if accuracy is None:
+            steps += 1
+            dx = step.d[:P]
+            dT = float(step.d[P]) if free is not None else 0.0
+            nu = step.nu - rho_aug * cg
+            mu = step.mu[:cand.size]
+            held = mu > MU_RTOL * float(np.max(mu, initial=0.0))  # not the rows whose μ is rounding
+            new_active = cand.keep(held)
+            goal_parts = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) if npts else []
+            lam_new = goal_parts + [mu[held]]  # (no goal rows, e.g. joint vias pinned on nodes: the working set's alone)
+
+            def trial_at(alpha: float):
+                T_a = T + alpha * dT
+                return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
+
+            def violation_at(alpha: float) -> float:
+                T_a = T + alpha * dT
+                return goal_rows_at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a))
+
+            due("trial")
+            accept = None
+            if test is not None:
+                accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
+            corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
+                                                                    violation, floor, accept, U, grad, E, A, rhs_A, cand,
+                                                                    limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
+                                                                    programme=prog)
+            if corrected is not None:
+                trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
+            else:
+                trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept, violation_at)
+            if trial is None:
                 break
-            check = accuracy = None  # stopped early with a limit broken between the held rows: on to the full test
-            tol, eq_tol, slope_rtol = full
-        if steps == max_steps:
-            break
-        steps += 1
-        dx = step.d[:P]
-        dT = float(step.d[P]) if free is not None else 0.0
-        nu = step.nu - rho_aug * cg
-        mu = step.mu[:cand.size]
-        held = mu > MU_RTOL * float(np.max(mu, initial=0.0))  # not the rows whose μ is rounding
-        new_active = cand.keep(held)
-        goal_parts = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) if npts else []
-        lam_new = goal_parts + [mu[held]]  # (no goal rows, e.g. joint vias pinned on nodes: the working set's alone)
-
-        def trial_at(alpha: float):
-            T_a = T + alpha * dT
-            return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
-
-        def violation_at(alpha: float) -> float:
-            T_a = T + alpha * dT
-            return goal_rows_at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a))
-
-        due("trial")
-        accept = None
-        if test is not None:
-            accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-        corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
-                                                                violation, floor, accept, U, grad, E, A, rhs_A, cand,
-                                                                limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                programme=prog)
-        if corrected is not None:
-            trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
-        else:
-            trial, T_try, alpha, v_try = damped_trial(trial_at, r, violation, floor, accept, violation_at)
-        if trial is None:
-            break
-        if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
-            lm = min(max(10.0 * lm, LM_START), LM_MAX) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
-        if _log.isEnabledFor(logging.DEBUG):
-            _log.debug(f"  alpha {alpha} pi {test.pi if test is not None else 0.0:.2e} lm {lm:.1e} "
-                       f"|dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
-                  f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
-        pt, T, lam, active = trial, T_try, lam_new, new_active
+            if test is not None:  # steps cut short: the model is too flat somewhere; full steps: trust it again
+                lm = min(max(10.0 * lm, LM_START), LM_MAX) if alpha < 0.25 else (0.0 if lm <= LM_START else 0.1 * lm) if alpha == 1.0 else lm
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"  alpha {alpha} pi {test.pi if test is not None else 0.0:.2e} lm {lm:.1e} "
+                           f"|dx| {np.max(np.abs(dx)):.2e} dT {dT:.2e} v_try {v_try:.1e} |E dx + c| "
+                      f"{np.max(np.abs(pt.D[:r] @ dx + cg), initial=0.0):.1e}")
+            pt, T, lam, active = trial, T_try, lam_new, new_active
+            done += 1
+    except OutOfTime:
+        if not done:  # no step completed: the caller keeps its plan
+            raise
+        steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
                     decrement=decrement, factor=U_last, check=check)
 

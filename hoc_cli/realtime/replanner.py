@@ -16,8 +16,8 @@ converges. ``Replanner.update(t, x, target, budget_s)``:
    programme's convergence test holds or the budget would be overrun: the first step unless the median of the
    measured first steps would not fit (then none, "skipped"), a further one only when the time spent plus the largest of the last measured step times
    (and of the wrap-up) fits in it; a step under way is stopped at the first of its checkpoints (``replan_qp.CHECKPOINTS``)
-   from which the largest measured time to the step's end (and the wrap-up) would overrun it ("abandoned": the plan
-   in force kept);
+   from which the largest measured time to the step's end (and the wrap-up) would overrun it: the first step so
+   stopped is "abandoned" (the plan in force kept), a later one ends the update at the last completed step;
 4. returns a plan that passes ``check_limits`` (exact extrema of q, q̇, q̈ and the jerk, the torque at 32 points
    per element): its kinematic Bernstein rows are made to hold (``limits_guard.guard``), which bounds the
    kinematic kinds on the whole plan, and ``limits_guard.within_limits`` checks it (the extrema only where a row
