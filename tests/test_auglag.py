@@ -123,7 +123,7 @@ def test_the_driver_meets_linear_equality_rows_at_the_kkt_point():
     lam_star = np.linalg.solve(A @ A.T, A @ a - b)
     x_star = a - A.T @ lam_star
     term = LinearRows(A, b, rho=1.0, rho0=1.0)
-    out = auglag.minimize(Distance(a), term, np.zeros(3), 1e-12, newton_solve, max_outer=40)
+    out = auglag.minimize(Distance(a), (term,), np.zeros(3), 1e-12, newton_solve, max_outer=40)
     assert (out.status, out.stop) == ("converged", "met")
     np.testing.assert_allclose(out.x, x_star, atol=1e-12)
     np.testing.assert_allclose(term.lam, lam_star, rtol=1e-9)
@@ -131,10 +131,24 @@ def test_the_driver_meets_linear_equality_rows_at_the_kkt_point():
     assert term.rho > 1.0  # a violation falling more slowly than to a quarter makes ρ grow (here 1/(1+ρ|A|²))
 
 
+def test_two_terms_share_one_loop_and_meet_the_kkt_point_of_all_their_rows():
+    """One row per term: one inner solve per outer iteration for both, each term's multiplier the KKT one."""
+    a = np.array([0.3, -1.2, 2.0])
+    A = np.array([[1.0, 1.0, 1.0], [1.0, -2.0, 0.5]])
+    b = np.array([1.0, 0.25])
+    lam_star = np.linalg.solve(A @ A.T, A @ a - b)
+    first, second = LinearRows(A[:1], b[:1], 1.0, 1.0), LinearRows(A[1:], b[1:], 1.0, 1.0)
+    out = auglag.minimize(Distance(a), (first, second), np.zeros(3), 1e-12, newton_solve, max_outer=40)
+    assert (out.status, out.stop) == ("converged", "met")
+    np.testing.assert_allclose(out.x, a - A.T @ lam_star, atol=1e-12)
+    np.testing.assert_allclose(np.concatenate([first.lam, second.lam]), lam_star, rtol=1e-9)
+    assert out.iterations == out.outer == first.updates + 1 == second.updates + 1
+
+
 def test_rows_that_cannot_be_met_are_infeasible_once_rho_has_grown_out_of_range():
     """x0 = 0 and x0 = 1: the violation stays at 1/2, ρ grows ×10 an iteration until past RHO_RANGE·ρ0."""
     term = LinearRows([[1.0, 0.0], [1.0, 0.0]], [0.0, 1.0], rho=1.0, rho0=1.0)
-    out = auglag.minimize(Distance([0.2, 0.0]), term, np.zeros(2), 1e-12, newton_solve, max_outer=40)
+    out = auglag.minimize(Distance([0.2, 0.0]), (term,), np.zeros(2), 1e-12, newton_solve, max_outer=40)
     assert (out.status, out.stop) == ("infeasible", "infeasible")
     assert auglag.RHO_RANGE < term.rho <= auglag.RHO_RANGE * auglag.RHO_GROWTH
     assert abs(out.x[0] - 0.5) < 1e-6  # the least-violating plan
@@ -142,7 +156,7 @@ def test_rows_that_cannot_be_met_are_infeasible_once_rho_has_grown_out_of_range(
 
 def test_a_term_without_a_penalty_range_stops_at_its_cap_and_is_never_called_infeasible():
     term = LinearRows([[1.0, 0.0], [1.0, 0.0]], [0.0, 1.0], rho=1.0, rho0=None, rho_cap=1e3)
-    out = auglag.minimize(Distance([0.2, 0.0]), term, np.zeros(2), 1e-12, newton_solve, max_outer=12)
+    out = auglag.minimize(Distance([0.2, 0.0]), (term,), np.zeros(2), 1e-12, newton_solve, max_outer=12)
     assert (out.status, out.stop, out.outer) == ("not_converged", "outer", 12)
     assert term.rho == 1e3
 
@@ -152,5 +166,5 @@ def test_the_inner_solve_running_out_of_iterations_ends_the_loop():
         return dataclasses.replace(newton_solve(problem, x, tol), converged=False, status=_Status("max_iter"))
 
     term = LinearRows([[1.0, 1.0]], [1.0], rho=1.0, rho0=1.0)
-    out = auglag.minimize(Distance([0.0, 0.0]), term, np.zeros(2), 1e-12, spent, max_outer=40)
+    out = auglag.minimize(Distance([0.0, 0.0]), (term,), np.zeros(2), 1e-12, spent, max_outer=40)
     assert (out.status, out.stop, out.outer, term.updates) == ("not_converged", "max_iter", 1, 0)

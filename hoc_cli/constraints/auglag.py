@@ -1,6 +1,6 @@
 """The augmented Lagrangian for what the SQP does not impose: one outer loop, its constraints as terms.
 
-``minimize(base, term, x, tol, inner_solve)`` is the method of multipliers (Hestenes 1969, Powell
+``minimize(base, terms, x, tol, inner_solve)`` is the method of multipliers (Hestenes 1969, Powell
 1969; LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) around an inner minimiser
 that keeps the Hermite unknowns, the exact gradient and the block-banded Newton matrix. The
 constraint is a ``Term``: its rows (box rows of the joint limits, ``augmented_lagrangian.LimitTerm``;
@@ -8,8 +8,8 @@ equality rows of the goals, ``hoc_cli.goals.plan.GoalTerm``), Φ(x; λ, ρ) and 
 existing reverse sweeps, Φ's element blocks of the Newton matrix, its violation measure and its
 multiplier update. One outer iteration:
 
-1. Solve min_x I(q_h) + Φ(x; λ, ρ) from the current x (``term.problem(base)``: ``base`` plus Φ while the
-   term imposes rows; ``base`` itself otherwise).
+1. Solve min_x I(q_h) + Σ Φ(x; λ, ρ) over the terms from the current x (``term.problem(base)``: ``base``
+   plus Φ while the term imposes rows; ``base`` itself otherwise, or when Φ is part of ``base`` already).
 2. After a converged inner solve, one full Newton step on I + Φ (``polish``).
 3. Measure the plan (``term.measure``): the worst violation, whether every row is within its set
    (``within``) and whether the term's stopping test holds (``met``). Stop when it holds, when the
@@ -171,48 +171,56 @@ class Outcome:
     n_evals: int
 
 
-def minimize(base, term: Term, x: np.ndarray, tol: float,
+def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
              inner_solve: Callable[[object, np.ndarray, float], object], max_outer: int) -> Outcome:
-    """The augmented-Lagrangian loop (module docstring) of ``term`` around ``inner_solve(problem, x, tol) ->
-    OptimizeResult`` on ``base``, from x (the term's multipliers and ρ as it holds them).
+    """The augmented-Lagrangian loop (module docstring) of ``terms`` around ``inner_solve(problem, x, tol) ->
+    OptimizeResult`` on ``base``, from x (each term's multipliers and ρ as it holds them).
+
+    Several terms share the loop: one inner solve of I + Σ Φ per outer iteration, each term measured, updated and
+    its ρ grown on its own; it stops when every term's test holds, and is infeasible when one term is.
     """
     x_begin = x  # a start within the rows proves the task feasible (the "infeasible" test below)
-    prev = math.inf
+    prev = [math.inf] * len(terms)
     res = None
     its = evs = 0
     status, stop, outer = "not_converged", "outer", 0
     for outer in range(1, max_outer + 1):
-        term.begin(base, x)
-        problem = term.problem(base)
+        problem = base
+        for term in terms:
+            term.begin(base, x)
+            problem = term.problem(problem)
         res = inner_solve(problem, x, tol)
         its, evs = its + res.iterations, evs + res.n_evals
         x = res.x
-        if term.imposed and res.converged:
+        if res.converged and any(term.imposed for term in terms):
             x = polish(problem, x)
-        m = term.measure(base, x, res, tol)
-        if m.met:
+        ms = [term.measure(base, x, res, tol) for term in terms]
+        if all(m.met for m in ms):
             status, stop = ("converged" if res.converged else "not_converged"), "met"
             break
         if res.status.value == "max_iter":
             stop = "max_iter"
             break
-        if (term.stop_on_failure and res.status.value in ("not_finite", "line_search_failed") and not m.within
-                and outer > 1):
+        if (res.status.value in ("not_finite", "line_search_failed") and outer > 1
+                and any(term.stop_on_failure and not m.within for term, m in zip(terms, ms))):
             stop = "failed"
             break
-        term.update(base, x, m)
-        rho, rho0 = term.rho, term.rho0
-        falling = m.violation <= STALL_RATIO * prev  # the multiplier updates still make progress
-        if _log.isEnabledFor(logging.DEBUG):
-            _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} violation {m.violation:.2e} "
-                       f"rho {rho} within {m.within}")
-        if (rho is not None and not m.within and m.violation > DECREASE * prev and res.converged
-                and not (rho0 is not None and rho >= rho0 * RHO_RANGE and falling)):
-            term.rho = rho = min(rho * RHO_GROWTH, term.rho_cap)
-        prev = m.violation if m.violation > 0 else prev
-        if rho0 is not None and rho > rho0 * RHO_RANGE and not m.within and not falling:
+        infeasible = False
+        for i, (term, m) in enumerate(zip(terms, ms)):
+            term.update(base, x, m)
+            rho, rho0 = term.rho, term.rho0
+            falling = m.violation <= STALL_RATIO * prev[i]  # the multiplier updates still make progress
+            if _log.isEnabledFor(logging.DEBUG):
+                _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} {type(term).__name__} "
+                           f"violation {m.violation:.2e} rho {rho} within {m.within}")
+            if (rho is not None and not m.within and m.violation > DECREASE * prev[i] and res.converged
+                    and not (rho0 is not None and rho >= rho0 * RHO_RANGE and falling)):
+                term.rho = rho = min(rho * RHO_GROWTH, term.rho_cap)
+            prev[i] = m.violation if m.violation > 0 else prev[i]
+            infeasible |= rho0 is not None and rho > rho0 * RHO_RANGE and not m.within and not falling
+        if infeasible:
             status, stop = "infeasible", "infeasible"
-            if term.feasible_start(base, x_begin):
+            if all(term.feasible_start(base, x_begin) for term in terms):
                 # the start holds every row, so the task is not infeasible: the iteration stalled (degenerate
                 # rows at a huge penalty). The start is returned.
                 status, stop, x = "not_converged", "stalled", x_begin

@@ -250,14 +250,16 @@ def idle_effort(pv: PenaltyValue, check: LimitCheck) -> np.ndarray:
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], *, working: np.ndarray | None = None,
             max_outer: int = 40, use_sqp: bool = False,
-            record: Callable[[object], None] | None = None, duals: Duals | None = None) -> EnforceResult:
+            record: Callable[[object], None] | None = None, duals: Duals | None = None,
+            terms: tuple = ()) -> EnforceResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
 
     inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
     with ``evaluate``/``newton``/``mesh``. ``working`` (K, n) carries over from a coarser level.
     With ``use_sqp`` (``base`` a ControlProblem) the kinematic limits are imposed by ``sqp`` first
     (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
-    takes over only when an effort limit binds or the SQP fails.
+    takes over only when an effort limit binds or the SQP fails. ``terms``: further ``auglag.Term``s of the same loop
+    (e.g. a goal's rows, whose Φ is part of ``base``), without ``use_sqp``; the result is converged when they are met too.
     """
     n = limits.n
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
@@ -275,11 +277,11 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
 
         if not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
             duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
-    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals)
+    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals, terms)
     if result.status == "not_converged" and duals is not None:
         # the warm start did not converge (its multipliers or penalty did not suit this solve):
         # the cold start, λ = 0 and ρ0, from the same point
-        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None)
+        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None, terms)
     return dataclasses.replace(result, sqp=handed_over)
 
 
@@ -377,8 +379,10 @@ _MESSAGES = {
 
 def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray, max_outer: int,
-            duals: Duals | None) -> EnforceResult:
-    """The augmented-Lagrangian loop (``auglag.minimize`` with a ``LimitTerm``) from x, λ from ``duals`` (else 0)."""
+            duals: Duals | None, terms: tuple = ()) -> EnforceResult:
+    """The augmented-Lagrangian loop (``auglag.minimize`` with ``terms`` and a ``LimitTerm``) from x, λ from ``duals``
+    (else 0).
+    """
     rows = LimitRows.build(base.mesh, base.layout.free, limits.n)
     lam_lo, lam_hi = _zeros(rows, limits.n), _zeros(rows, limits.n)
     warm = duals is not None and working.any()
@@ -387,7 +391,7 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
 
         lam_lo, lam_hi = prolong(duals, rows)
     term = LimitTerm(system, limits, rows, working, lam_lo, lam_hi, warm)
-    out = auglag.minimize(base, term, x, tol, inner_solve, max_outer)
+    out = auglag.minimize(base, (*terms, term), x, tol, inner_solve, max_outer)
     res = out.res
     if out.stop == "met":
         message = (f"{res.message}; every limit holds (outer iterations: {out.outer})" if res.converged

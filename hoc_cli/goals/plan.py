@@ -6,8 +6,8 @@ via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh 
 pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a
 node, and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that
 are not pinned are the term (``GoalTerm``) of the augmented Lagrangian ``constraints.auglag.minimize`` around the same
-inner minimiser; with limits given, that loop is the inner solve of the limits' ``enforce`` (the same driver with
-the limits' term), which sees the goal rows as part of its base problem. Coarse to fine as
+inner minimiser; with limits given, the limits' ``enforce`` runs that loop with the limits as its second term
+(``GoalTerm``'s Φ is part of its base problem). Coarse to fine as
 ``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
 Pure maths: no I/O.
 """
@@ -161,7 +161,7 @@ class GoalTerm:
         self.terms = dataclasses.replace(self.terms, lam=self.terms.multipliers(base.coefficients(x)))
 
     def feasible_start(self, base, x: np.ndarray) -> bool:
-        return False
+        return self.terms.violation(base.coefficients(x)) <= self.eq
 
 
 @dataclass(eq=False)
@@ -253,9 +253,8 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
 
     def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float,
                     full: bool = True):
-        """One mesh: the limits' outer loop (``enforce``) around the goal rows' loop around ``inner``.
-
-        The goal multipliers live in ``term`` and carry over between the limits' iterations.
+        """One mesh: the augmented Lagrangian around ``inner`` with the goal rows (``term``) and, when limited, the limits
+        as its terms (``enforce``); under a ``constraint``, the goal rows' loop is its inner minimisation.
         """
         term = GoalTerm(terms.on(problem.mesh), eq_level, tol_level, rho_max) if problem.points else None
         pen = Penalized(problem, (term,)) if problem.points else problem
@@ -267,7 +266,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             if term is None:
                 totals["outer"] += 1
                 return inner(p, x, tol_inner)
-            out = auglag.minimize(p, term, x, tol_inner, inner, max_outer)
+            out = auglag.minimize(p, (term,), x, tol_inner, inner, max_outer)
             totals["outer"] += out.outer
             return dataclasses.replace(out.res, x=out.x, iterations=out.iterations, n_evals=out.n_evals)
 
@@ -287,9 +286,13 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             carry["warm"] = carry["outcome"].warm
             if er is not None:
                 carry["working"] = er.working
-        elif limited:
-            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"],
-                         duals=carry.pop("duals", None))
+        elif limited:  # the goal rows and the limits: two terms of one augmented-Lagrangian loop
+            def counted(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
+                totals["outer"] += 1
+                return inner(p, x, tol_inner)
+
+            er = enforce(pen, system, limits, x, tol_level, counted, working=carry["working"],
+                         duals=carry.pop("duals", None), terms=(term,) if problem.points else ())
             carry["working"] = er.working
             res = dataclasses.replace(er.inner, x=er.x)
         else:
