@@ -2,7 +2,7 @@
 
 ``minimize(base, terms, x, tol, inner_solve)`` is the method of multipliers (Hestenes 1969, Powell
 1969; LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) around an inner minimiser
-that keeps the Hermite unknowns, the exact gradient and the block-banded Newton matrix. The
+that keeps the Hermite unknowns, the exact gradient and the block-banded Newton matrix. Each
 constraint is a ``Term``: its rows (box rows of the joint limits, ``augmented_lagrangian.LimitTerm``;
 equality rows of the goals, ``hoc_cli.goals.plan.GoalTerm``), Φ(x; λ, ρ) and ∂Φ/∂C through the
 existing reverse sweeps, Φ's element blocks of the Newton matrix, its violation measure and its
@@ -12,7 +12,7 @@ multiplier update. One outer iteration:
    plus Φ while the term imposes rows; ``base`` itself otherwise, or when Φ is part of ``base`` already).
 2. After a converged inner solve, one full Newton step on I + Φ (``polish``).
 3. Measure the plan (``term.measure``): the worst violation, whether every row is within its set
-   (``within``) and whether the term's stopping test holds (``met``). Stop when it holds, when the
+   (``within``) and whether the term's stopping test holds (``met``). Stop when every term's holds, when the
    inner solve ran out of iterations, or (a term with ``stop_on_failure``) when it failed after the first
    iteration with rows still violated.
 4. λ ← μ (``term.update``, which may also change which rows are imposed), then ρ × ``RHO_GROWTH``
@@ -135,6 +135,12 @@ class Term(Protocol):
     @property
     def imposed(self) -> bool: ...
 
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        """Φ's positive semi-definite element blocks (N, 2mn, 2mn) of the Newton matrix at C."""
+
     def begin(self, base, x: np.ndarray) -> None:
         """Ready Φ for the next inner solve from x (e.g. ρ started when the first row is imposed)."""
 
@@ -155,7 +161,7 @@ class Term(Protocol):
 class Outcome:
     """The end of ``minimize``.
 
-    status : "converged" (the term's test held after a converged inner solve), "not_converged" or "infeasible";
+    status : "converged" (every term's test held after a converged inner solve), "not_converged" or "infeasible";
     stop : "met", "max_iter" (the inner solve's budget), "failed" (the inner solve failed with rows violated),
     "outer" (``max_outer`` outer iterations), "infeasible" or "stalled" (the penalty grew out of range from a start
     within the rows: x is that start); res : the last inner OptimizeResult; x : the plan; outer : outer iterations;
