@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from hoc_cli.constraints import EnforceResult, JointLimits, enforce
-from hoc_cli.constraints.augmented_lagrangian import PenalizedProblem
+from hoc_cli.constraints.auglag import Penalized
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
@@ -175,7 +175,7 @@ class _Session:
         # With limit (or other: ``ControlProblem.terms``) penalties the objective is only once differentiable (its curvature jumps where a
         # row becomes active): Newton steps (β = 0) and a loose curvature condition accept more unit
         # steps there (measured: 20-25 % fewer evaluations on lbr7_swing; docs/limits.md).
-        penalized = self.precondition and (isinstance(problem, PenalizedProblem) or bool(getattr(problem, "terms", ())))
+        penalized = self.precondition and (isinstance(problem, Penalized) or bool(getattr(problem, "terms", ())))
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
                        tol=tol_level, max_iter=max(self.max_iter - totals["it"] + self.spent, 0),

@@ -200,7 +200,7 @@ def _velocity_limited():
 def test_a_stalled_augmented_lagrangian_from_a_start_within_the_limits_is_not_called_infeasible(monkeypatch):
     """A start within the limits proves the task feasible: when the penalty grows out of range anyway
     (made to happen at once here by shrinking RHO_RANGE), the result is "not_converged" and the start."""
-    import hoc_cli.constraints.augmented_lagrangian as al
+    import hoc_cli.constraints.auglag as al
 
     system, problem, limits = _velocity_limited()
     inner = _newton_inner
@@ -220,7 +220,7 @@ def test_an_augmented_lagrangian_still_converging_at_the_penalty_cap_goes_on(mon
     """At the penalty cap (made to come early here: RHO_RANGE = 1e3, where the uncapped iteration grows ρ
     1e4-fold) an iteration whose violations still fall is not infeasible: ρ stays at the cap, the
     multiplier updates go on, and it converges to the optimum of the uncapped iteration (J to 1e-9)."""
-    import hoc_cli.constraints.augmented_lagrangian as al
+    import hoc_cli.constraints.auglag as al
 
     system, problem, limits = _velocity_limited()
     inner = _newton_inner

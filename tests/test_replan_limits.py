@@ -126,6 +126,25 @@ def previous():
     return plan
 
 
+def test_the_goal_rows_and_the_limits_are_two_terms_of_one_augmented_lagrangian_loop(monkeypatch, previous):
+    """Each level's loop has both terms, one inner solve per outer iteration (the goal rows have no loop of their
+    own inside each of the limits' iterations, which took 47 inner solves here); the same plan to 1e-9."""
+    from hoc_cli.constraints import auglag
+
+    runs, minimize = [], auglag.minimize
+
+    def recorded(base, terms, *args, **kwargs):
+        out = minimize(base, terms, *args, **kwargs)
+        runs.append(([type(t).__name__ for t in terms], out.outer))
+        return out
+
+    monkeypatch.setattr(auglag, "minimize", recorded)
+    plan = plan_goals(SYSTEM, HermiteMesh("quintic", 1.0, 8), Q0, Z, goals_at(0.0), limits=LIMITS)
+    assert plan.converged and runs and all(names == ["GoalTerm", "LimitTerm"] for names, _ in runs)
+    assert plan.outer_iterations == sum(outer for _, outer in runs) <= 25
+    assert plan.J == pytest.approx(previous.J, rel=1e-9)  # unchanged by the recording
+
+
 @pytest.mark.parametrize("dx", [0.002, 0.01, 0.03])
 def test_replan_with_binding_limits_meets_the_cold_optimum(previous, dx):
     warm = replan(SYSTEM, previous, goals_at(dx), limits=LIMITS, fallback=False)

@@ -24,11 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hoc_cli.constraints import auglag
 from hoc_cli.constraints import augmented_lagrangian as al
-from hoc_cli.constraints.augmented_lagrangian import EnforceResult, PenalizedProblem, idle_effort, polish
+from hoc_cli.constraints.auglag import Penalized, polish
+from hoc_cli.constraints.augmented_lagrangian import EnforceResult, idle_effort
 from hoc_cli.constraints.bounds import EFFORT, KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
-from hoc_cli.constraints.penalty import LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.constraints.penalty import LimitObjective, LimitRows, LimitTerms, PenaltyValue
 from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 
 _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
@@ -90,14 +92,14 @@ class LimitState:
     @staticmethod
     def problem(base, terms: LimitTerms):
         """The inner problem: ``base`` (with its own ``terms``) plus the limits' terms, if any pair is imposed."""
-        return base if terms.empty else PenalizedProblem(base, terms)
+        return base if terms.empty else Penalized(base, (LimitObjective(terms),))
 
     @staticmethod
     def polish(problem, x: np.ndarray) -> np.ndarray:
-        """One full Newton step on I + Φ after a converged inner solve (``augmented_lagrangian.polish``), from the
+        """One full Newton step on I + Φ after a converged inner solve (``auglag.polish``), from the
         inner solve's last evaluation when it was at x (its accepted point: no second evaluation there).
         """
-        if not isinstance(problem, PenalizedProblem):
+        if not isinstance(problem, Penalized):
             return x
         ev = problem.last
         if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
@@ -122,10 +124,10 @@ class LimitState:
             self.working = self.working | newly
             self._start_rho(J)
         excess = pv.max_violation()
-        falling = excess <= al.STALL_RATIO * self.prev
+        falling = excess <= auglag.STALL_RATIO * self.prev
         if (self.rho is not None and not within and excess > 0.25 * self.prev
-                and not (self.rho >= self.rho0 * al.RHO_RANGE and falling)):
-            self.rho = min(self.rho * al.RHO_GROWTH, self.rho0 * RHO_MAX)
+                and not (self.rho >= self.rho0 * auglag.RHO_RANGE and falling)):
+            self.rho = min(self.rho * auglag.RHO_GROWTH, self.rho0 * RHO_MAX)
         self.prev = excess if excess > 0 else self.prev
         return self.met
 

@@ -19,76 +19,48 @@ large ρ made the first inner solve stiff (light-wristed arms, measured), and wi
 leaves the limited optimum as a cold start does. A warm loop that does not converge is run again
 cold.
 
-The inner problem min_x I(q_h) + Φ(x; λ, ρ) (``LimitTerms``) keeps the Hermite unknowns, the
-exact gradient and the block-banded Newton matrix: every constraint row lies in one element, so
-Φ's curvature only adds to the element blocks. The outer loop (the method of multipliers as in
-LANCELOT; Nocedal & Wright, Numerical Optimization, Alg. 17.4) with a working set:
+The augmented-Lagrangian loop is ``auglag.minimize`` with the limits as its term (``LimitTerm``:
+Φ(x; λ, ρ) of ``LimitTerms``). Every constraint row lies in one element, so Φ's curvature only adds
+to the element blocks of the banded Newton matrix. What the limits add to the loop:
 
-1. Solve the inner problem from the current x. The first solve has an empty working set (unless a
-   coarser level found one): it IS the unconstrained solve, so a task whose optimum respects its
-   limits pays nothing but the check.
-2. Check the plan (``check_limits``: exact extrema of q_h, q̇_h, q̈_h per element, u at 32 points
-   per element). (kind, joint) pairs found beyond their bounds join the working set; an effort
+1. A working set of (kind, joint) pairs whose rows are imposed. The first inner solve has an empty
+   one (unless a coarser level found one): it IS the unconstrained solve, so a task whose optimum
+   respects its limits pays nothing but the check. ρ0 = ``RHO_START``·|J|/T when the first pair binds.
+2. The check of each plan (``check_limits``: exact extrema of q_h, q̇_h, q̈_h, q⃛_h per element, u at 32
+   points per element). (kind, joint) pairs found beyond their bounds join the working set; an effort
    pair without multipliers whose torques stay ``EFFORT_SLACK``·σ inside its limit leaves it (its
    rows would cost the dynamics at 32 points per element in every evaluation and add nothing; the
    check brings it back if broken), so a level can again go to the SQP.
-3. One full Newton step on I + Φ ("polish"; see ``polish``), then λ ← max(0, λ + ρ_w g) and
-   ρ × 10 whenever the worst violation did not fall to a quarter of the previous one.
-4. Stop when the inner solve met ``tol``, the check finds every value within its true bounds (the
-   imposed bounds are tightened by a relative margin of 1e-9, so the plan ends strictly inside),
-   and the complementarity Σ μ|g| is below tol·|J|. When ρ has grown 1e8-fold and violations
-   remain without falling from one outer iteration to the next, the task is infeasible; the
-   least-violating plan found is returned. While they still fall by a tenth an outer iteration, ρ
-   stays there and the multiplier updates go on (a slowly converging iteration is not an infeasible
-   task).
+3. λ ← max(0, λ + ρ_w g) per row (box rows).
+4. The stopping test: every value within its true bounds (the imposed bounds are tightened by a
+   relative margin ``MARGIN``, so the plan ends strictly inside) and the complementarity Σ μ|g| below
+   tol·|J|. A task whose violations no longer fall once ρ has grown ``auglag.RHO_RANGE``-fold is
+   infeasible, and the least-violating plan found is returned; from a start within the limits the
+   start is returned instead, not converged (the iteration stalled).
 """
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from hoc_cli.constraints import auglag
+from hoc_cli.constraints.auglag import Measure, Penalized
 from hoc_cli.constraints.bounds import KINDS, JointLimits
 from hoc_cli.constraints.check import LimitCheck, check_limits
 from hoc_cli.constraints.penalty import EFFORT, LimitRows, LimitTerms, PenaltyValue
-from hoc_cli.errors import NumericalError
 
 if TYPE_CHECKING:  # the SQP and the multipliers' prolongation load when a solve reaches them (start-up)
     from hoc_cli.constraints.prolong import Duals
 
-_log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 MARGIN = 1e-9  # relative inward margin of the imposed bounds
 RHO_START = 10.0  # ρ0 = RHO_START·|J|/T: the penalty per unit time starts at ten times the cost rate
 WARM_RHO = 100.0  # ... and at WARM_RHO·ρ0 when the multipliers start from a previous solve's (``Duals``)
-RHO_GROWTH = 10.0
 SQP_ROUNDS = 4  # SQP runs, each with the pairs found broken by the previous one added
-RHO_RANGE = 1e8  # infeasible once ρ has grown this much without reaching feasibility
-STALL_RATIO = 0.9  # ... and the worst violation no longer falls by a tenth from one outer iteration to the next
 EFFORT_SLACK = 0.1  # an effort pair without multipliers whose torques stay this fraction of σ inside leaves the working set
-
-
-class PenalizedProblem:
-    """A ``ControlProblem`` plus limit terms, with the evaluate/newton interface of the inner solver."""
-
-    def __init__(self, base, terms: LimitTerms) -> None:
-        self.base, self.terms = base, terms
-        self.mesh = base.mesh
-        self.last = None
-
-    def evaluate(self, x: np.ndarray, grad: bool = True):
-        ev = self.base.evaluate(x, grad=grad)
-        pv = self.terms.evaluate(self.base.coefficients(x), grad=grad)
-        g = None if ev.grad is None else ev.grad + self.base.layout.pack(pv.grad)
-        ev = dataclasses.replace(ev, J=ev.J + pv.value, grad=g)
-        self.last = ev
-        return ev
-
-    def newton(self, ev):
-        return self.base.newton(ev, extra=self.terms.newton_blocks(self.base.coefficients(ev.x)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,26 +161,6 @@ def shortest_duration(limits: JointLimits, q0, dq0, q1, dq1) -> tuple[float, str
     return best
 
 
-def polish(problem: PenalizedProblem, x: np.ndarray, ev=None) -> np.ndarray:
-    """One full Newton step on I + Φ from an inner optimum (``ev``: the evaluation at x with its gradient, when
-    the caller has it; else it is made here).
-
-    The inner stopping test weighs the decrement against |J|; a violation δ changes Φ by about
-    ½ρ_w δ², below the rounding level of J long before δ reaches 1e-9. The Newton step, made from
-    gradients (which resolve what the value cannot) with Φ's exact curvature for the kinematic
-    rows (linear in x), still removes it. Taken only after the inner test held, so it is small.
-    """
-    if ev is None:
-        ev = problem.evaluate(x)
-    trial = x - problem.newton(ev).solve(ev.grad)
-    try:
-        if np.isfinite(problem.evaluate(trial, grad=False).J):
-            return trial
-    except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
-        pass
-    return x
-
-
 def _zeros(rows: LimitRows, n: int) -> tuple[np.ndarray, ...]:
     return tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
 
@@ -298,14 +250,16 @@ def idle_effort(pv: PenaltyValue, check: LimitCheck) -> np.ndarray:
 def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], *, working: np.ndarray | None = None,
             max_outer: int = 40, use_sqp: bool = False,
-            record: Callable[[object], None] | None = None, duals: Duals | None = None) -> EnforceResult:
+            record: Callable[[object], None] | None = None, duals: Duals | None = None,
+            terms: tuple = ()) -> EnforceResult:
     """Minimise I(q_h) over the free coefficients of ``base`` (a ControlProblem) within ``limits``.
 
     inner_solve(problem, x0, tol) -> OptimizeResult runs the unconstrained minimiser on any object
     with ``evaluate``/``newton``/``mesh``. ``working`` (K, n) carries over from a coarser level.
     With ``use_sqp`` (``base`` a ControlProblem) the kinematic limits are imposed by ``sqp`` first
     (``record`` receives its OptimizeResult, for work counts); the augmented-Lagrangian loop below
-    takes over only when an effort limit binds or the SQP fails.
+    takes over only when an effort limit binds or the SQP fails. ``terms``: further ``auglag.Term``s of the same loop
+    (e.g. a goal's rows, whose Φ is part of ``base``), without ``use_sqp``; the result is converged when they are met too.
     """
     n = limits.n
     working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
@@ -323,87 +277,127 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
 
         if not same_mesh(duals.rows, LimitRows.build(base.mesh, base.layout.free, n)):
             duals = None  # another mesh's multipliers start the SQP's QP only (see the module docstring)
-    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals)
+    result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, duals, terms)
     if result.status == "not_converged" and duals is not None:
         # the warm start did not converge (its multipliers or penalty did not suit this solve):
         # the cold start, λ = 0 and ρ0, from the same point
-        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None)
+        result = _rounds(base, system, limits, x, tol, inner_solve, working, max_outer, None, terms)
     return dataclasses.replace(result, sqp=handed_over)
+
+
+
+
+class LimitTerm:
+    """The joint limits as the augmented Lagrangian's term (``auglag.Term``): box rows imposed per (kind, joint)
+    pair of the working set, the multipliers λ per row, ρ per unit time (module docstring, steps 1 to 4).
+
+    ``rows``: the level's ``LimitRows``; ``working`` (K, n) bool, the pairs imposed from the start; ``lam_lo``,
+    ``lam_hi``: the start's multipliers; ``warm``: they come from a previous solve on this mesh (ρ starts at
+    ``WARM_RHO``·ρ0). After ``auglag.minimize``: ``check`` (LimitCheck), ``pv`` (PenaltyValue, μ per row) and ``J``
+    (I without Φ) of the plan, ``working`` the pairs imposed at its end.
+    """
+
+    rho_cap = math.inf  # no cap: the infeasible verdict ends a growing ρ
+    stop_on_failure = True
+
+    def __init__(self, system, limits: JointLimits, rows: LimitRows, working: np.ndarray,
+                 lam_lo: tuple[np.ndarray, ...], lam_hi: tuple[np.ndarray, ...], warm: bool) -> None:
+        self.system, self.limits, self.rows, self.working = system, limits, rows, working
+        self.lam_lo, self.lam_hi, self.warm = lam_lo, lam_hi, warm
+        self.rho: float | None = None
+        self.rho0: float | None = None
+        self.terms: LimitTerms | None = None  # Φ of the current inner solve
+        self.check: LimitCheck | None = None
+        self.pv: PenaltyValue | None = None
+        self.J = math.nan
+
+    def _start_rho(self, J: float, mesh) -> None:
+        self.rho = self.rho0 = RHO_START * max(abs(J), 1e-6) / mesh.T
+
+    @property
+    def imposed(self) -> bool:
+        return not self.terms.empty
+
+    def begin(self, base, x: np.ndarray) -> None:
+        if self.working.any() and self.rho is None:
+            self._start_rho(base.evaluate(x, grad=False).J, base.mesh)
+            if self.warm:
+                self.rho = WARM_RHO * self.rho0
+        self.terms = LimitTerms(self.system, self.limits, self.rows, self.working, self.lam_lo, self.lam_hi,
+                                self.rho or 1.0, MARGIN)
+
+    def problem(self, base):
+        return Penalized(base, (self,)) if self.imposed else base
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        pv = self.terms.evaluate(C, grad=grad)
+        return pv.value, pv.grad
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        return self.terms.newton_blocks(C)
+
+    def measure(self, base, x: np.ndarray, res, tol: float) -> Measure:
+        """Within: the exact check finds every value within its true bounds; met: within and Σ μ|g| ≤ tol·|J|."""
+        C = base.coefficients(x)
+        self.check = check_limits(self.system, self.limits, base.mesh, C)
+        self.pv = self.terms.evaluate(C, grad=False)
+        self.J = base.evaluate(x, grad=False).J
+        within = not _violated(self.check).any()
+        return Measure(self.pv.max_violation(), within,
+                       within and self.pv.complementarity() <= tol * max(abs(self.J), 1.0))
+
+    def update(self, base, x: np.ndarray, measure: Measure) -> None:
+        """λ ← μ; idle effort pairs leave the working set, pairs found beyond their bounds join it."""
+        newly = _violated(self.check) & ~self.working
+        self.lam_lo, self.lam_hi = self.pv.mu_lo, self.pv.mu_hi
+        idle = idle_effort(self.pv, self.check) & self.working[EFFORT]
+        if idle.any():  # effort rows far from their limits cost dynamics at every point and add nothing: dropped
+            self.working = self.working.copy()
+            self.working[EFFORT] &= ~idle
+        if newly.any():
+            self.working = self.working | newly
+            if self.rho is None:
+                self._start_rho(self.J, base.mesh)
+
+    def feasible_start(self, base, x: np.ndarray) -> bool:
+        start = check_limits(self.system, self.limits, base.mesh, base.coefficients(x))
+        if _violated(start).any():
+            return False
+        self.check, self.pv = start, self.terms.evaluate(base.coefficients(x), grad=False)
+        return True
+
+
+_MESSAGES = {
+    "max_iter": "not within tol: {}",
+    "failed": "the inner solve failed: {}",
+    "outer": "the augmented-Lagrangian iteration limit was reached",
+    "infeasible": "no trajectory within the limits was found (the penalty grew 1e8-fold)",
+    "stalled": ("the limit solver stalled (the penalty grew 1e8-fold without meeting the limits); the plan "
+                "returned is its start, within the limits"),
+}
 
 
 def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
             inner_solve: Callable[[object, np.ndarray, float], object], working: np.ndarray, max_outer: int,
-            duals: Duals | None) -> EnforceResult:
-    """The augmented-Lagrangian loop (module docstring, steps 1 to 4) from x, λ from ``duals`` (else 0)."""
-    mesh, n = base.mesh, limits.n
-    rows = LimitRows.build(mesh, base.layout.free, n)
-    lam_lo, lam_hi = _zeros(rows, n), _zeros(rows, n)
+            duals: Duals | None, terms: tuple = ()) -> EnforceResult:
+    """The augmented-Lagrangian loop (``auglag.minimize`` with ``terms`` and a ``LimitTerm``) from x, λ from ``duals``
+    (else 0).
+    """
+    rows = LimitRows.build(base.mesh, base.layout.free, limits.n)
+    lam_lo, lam_hi = _zeros(rows, limits.n), _zeros(rows, limits.n)
     warm = duals is not None and working.any()
     if warm:
         from hoc_cli.constraints.prolong import prolong
 
         lam_lo, lam_hi = prolong(duals, rows)
-    x_begin = x  # a start within the limits proves the task feasible (see the "infeasible" test below)
-    rho = rho0 = None
-    prev = math.inf
-    res = check = pv = None
-    status, message = "not_converged", "the augmented-Lagrangian iteration limit was reached"
-    for outer in range(1, max_outer + 1):
-        if working.any() and rho is None:
-            rho = rho0 = RHO_START * max(abs(base.evaluate(x, grad=False).J), 1e-6) / mesh.T
-            if warm:
-                rho = WARM_RHO * rho0
-        terms = LimitTerms(system, limits, rows, working, lam_lo, lam_hi, rho or 1.0, MARGIN)
-        problem = base if terms.empty else PenalizedProblem(base, terms)
-        res = inner_solve(problem, x, tol)
-        x = res.x
-        if not terms.empty and res.converged:
-            x = polish(problem, x)
-        C = base.coefficients(x)
-        check = check_limits(system, limits, mesh, C)
-        pv = terms.evaluate(C, grad=False)
-        J = base.evaluate(x, grad=False).J
-        within = not ((check.hi_excess > 0).any() or (check.lo_excess > 0).any())
-        newly = ((check.hi_excess > 0) | (check.lo_excess > 0)).any(axis=1) & ~working
-        if within and pv.complementarity() <= tol * max(abs(J), 1.0):
-            if res.converged:
-                status, message = "converged", f"{res.message}; every limit holds (outer iterations: {outer})"
-            else:
-                message = f"every limit holds, but the inner solve stopped: {res.message}"
-            break
-        if res.status.value == "max_iter":
-            message = f"not within tol: {res.message}"
-            break
-        if res.status.value in ("not_finite", "line_search_failed") and not within and outer > 1:
-            message = f"the inner solve failed: {res.message}"
-            break
-        lam_lo, lam_hi = pv.mu_lo, pv.mu_hi
-        idle = idle_effort(pv, check) & working[EFFORT]
-        if idle.any():  # effort rows far from their limits cost dynamics at every point and add nothing: dropped
-            working = working.copy()
-            working[EFFORT] &= ~idle
-        if newly.any():
-            working = working | newly
-            if rho is None:
-                rho = rho0 = RHO_START * max(abs(J), 1e-6) / mesh.T
-        excess = pv.max_violation()
-        if _log.isEnabledFor(logging.DEBUG):
-            _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} J {J:.12g} excess {excess:.2e} "
-                  f"comp {pv.complementarity():.2e} rho {rho} within {within}")
-        falling = excess <= STALL_RATIO * prev  # the multiplier updates still make progress
-        if rho is not None and not within and excess > 0.25 * prev and not (rho >= rho0 * RHO_RANGE and falling):
-            rho *= RHO_GROWTH
-        prev = excess if excess > 0 else prev
-        if rho0 is not None and rho > rho0 * RHO_RANGE and not within and not falling:
-            status, message = "infeasible", "no trajectory within the limits was found (the penalty grew 1e8-fold)"
-            start = check_limits(system, limits, mesh, base.coefficients(x_begin))
-            if not ((start.hi_excess > 0).any() or (start.lo_excess > 0).any()):
-                # the start is within the limits, so the task is not infeasible: the iteration stalled
-                # (degenerate rows at a huge penalty). Return that start: a plan within the limits.
-                x, check, res = x_begin, start, res
-                pv = terms.evaluate(base.coefficients(x), grad=False)
-                status, message = "not_converged", ("the limit solver stalled (the penalty grew 1e8-fold without "
-                                                    "meeting the limits); the plan returned is its start, within the limits")
-            break
-    return EnforceResult(status=status, message=message, inner=res, x=x, J=base.evaluate(x, grad=False).J,
-                         outer_iterations=outer, rho=rho or 0.0, check=check, working=working, rows=rows, penalty=pv)
+    term = LimitTerm(system, limits, rows, working, lam_lo, lam_hi, warm)
+    out = auglag.minimize(base, (*terms, term), x, tol, inner_solve, max_outer)
+    res = out.res
+    if out.stop == "met":
+        message = (f"{res.message}; every limit holds (outer iterations: {out.outer})" if res.converged
+                   else f"every limit holds, but the inner solve stopped: {res.message}")
+    else:
+        message = _MESSAGES[out.stop].format(res.message)
+    return EnforceResult(status=out.status, message=message, inner=res, x=out.x, J=base.evaluate(out.x, grad=False).J,
+                         outer_iterations=out.outer, rho=term.rho or 0.0, check=term.check, working=term.working,
+                         rows=rows, penalty=term.pv)

@@ -265,3 +265,17 @@ class LimitTerms:
             Hs = np.einsum("pia,pi,pib->pab", D, eff[which], D)
             out = out + self.rows.points.sample_blocks(Hs, which)
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class LimitObjective:
+    """``terms`` as an objective term (``hoc_cli.problem``, "Hooks"; ``auglag.Penalized``): Φ with ∂Φ/∂C, its blocks."""
+
+    terms: LimitTerms
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        pv = self.terms.evaluate(C, grad=grad)
+        return pv.value, pv.grad
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        return self.terms.newton_blocks(C)

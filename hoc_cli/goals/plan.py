@@ -5,8 +5,9 @@
 via points are ``GoalPoint`` rows, except joint vias whose time falls on a mesh node, which are
 pinned in the ``Layout`` (met exactly; ``hoc_cli.goals.mesh`` builds meshes with every via time a
 node, and the coarse levels of a non-uniform mesh keep them when they have the elements). Rows that
-are not pinned enter an augmented Lagrangian (``GoalTerms``) around the same inner minimiser, or around the limits' ``enforce`` when limits
-are given (which then sees the goal rows as part of its base problem). Coarse to fine as
+are not pinned are the term (``GoalTerm``) of the augmented Lagrangian ``constraints.auglag.minimize`` around the same
+inner minimiser; with limits given, the limits' ``enforce`` runs that loop with the limits as its second term
+(``GoalTerm``'s Φ is part of its base problem). Coarse to fine as
 ``hoc_cli.planner.plan``; the multipliers carry from level to level (the rows are fractions of T).
 Pure maths: no I/O.
 """
@@ -20,7 +21,8 @@ from typing import Callable
 
 import numpy as np
 
-from hoc_cli.constraints import enforce
+from hoc_cli.constraints import auglag, enforce
+from hoc_cli.constraints.auglag import RHO_RANGE, Measure, Penalized
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.mesh import node_index, via_mesh
@@ -34,8 +36,6 @@ from hoc_cli.problem import ControlProblem, Layout, minimum_jerk_guess
 EQ_TOL = 1e-12  # the outer loop stops when every goal row is met to this (m, rad, m/s)
 EQ_COARSE = 1e-6  # … on the coarse levels of the continuation
 EQ_ACCEPT = 1e-9  # a plan whose rows are met to this counts as converged
-RHO_GROWTH = 10.0
-RHO_RANGE = 1e8  # ρ grows at most this much within one plan (its inner problems' conditioning)
 RHO0 = 10.0  # ρ = 10·|J| of the initial guess per unit c²: larger starts make curved rows stall the line search
 
 
@@ -113,31 +113,55 @@ class GoalProblem(ControlProblem):
         return GoalProblem(self.system, self.mesh, q0, dq0, self.goals, cost=self.cost, G=G)
 
 
-class GoalPenalized:
-    """A ``GoalProblem`` plus the goal rows' augmented Lagrangian, with its evaluate/newton interface."""
+class GoalTerm:
+    """The goal rows as the augmented Lagrangian's term (``auglag.Term``): equality rows, their multipliers and ρ in
+    ``terms`` (``GoalTerms``, replaced at every update), met to ``eq`` when the inner solves run at ``tol_level`` and to
+    ``max(eq, EQ_COARSE)`` when looser (a collision loop's early iterations: the stopping test of a loose solve
+    cannot see a smaller violation, and ρ would grow without end); ρ at most ``rho_cap``, never called infeasible
+    (a goal missed is the plan's ``violation``).
 
-    def __init__(self, base: GoalProblem, terms: GoalTerms) -> None:
-        self.base, self.terms = base, terms
-        self.mesh, self.layout = base.mesh, base.layout
-        self.last = None
+    Its Φ is part of the level's problem (``Penalized(problem, (term,))``, or the problem's ``terms`` under a
+    ``constraint``): the limits' and a constraint's loops see it in their base problem.
+    """
 
-    def coefficients(self, x: np.ndarray) -> np.ndarray:
-        return self.base.coefficients(x)
+    rho0 = None
+    stop_on_failure = False
+    imposed = True
 
-    def evaluate(self, x: np.ndarray, grad: bool = True):
-        ev = self.base.evaluate(x, grad=grad)
-        value, g = self.terms.evaluate(self.base.coefficients(x), grad=grad)
-        ev = dataclasses.replace(ev, J=ev.J + value, grad=None if ev.grad is None else ev.grad + self.layout.pack(g))
-        self.last = ev
-        return ev
+    def __init__(self, terms: GoalTerms, eq: float, tol_level: float, rho_cap: float) -> None:
+        self.terms, self.eq, self.tol_level, self.rho_cap = terms, eq, tol_level, rho_cap
 
-    def value(self, x: np.ndarray) -> float:
-        return self.evaluate(x, grad=False).J
+    @property
+    def rho(self) -> float:
+        return self.terms.rho
 
-    def newton(self, ev, extra: np.ndarray | None = None):
-        """The base Newton matrix plus the rows' (positive semi-definite) blocks and ``extra``."""
-        blocks = self.terms.newton_blocks(self.coefficients(ev.x))
-        return self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+    @rho.setter
+    def rho(self, value: float) -> None:
+        self.terms = dataclasses.replace(self.terms, rho=value)
+
+    def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
+        return self.terms.evaluate(C, grad=grad)
+
+    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
+        return self.terms.newton_blocks(C)
+
+    def begin(self, base, x: np.ndarray) -> None:
+        pass
+
+    def problem(self, base):
+        return base
+
+    def measure(self, base, x: np.ndarray, res, tol: float) -> Measure:
+        """The worst |c| (m, rad, m/s); met after a converged inner solve with every row within the tolerance."""
+        violation = self.terms.violation(base.coefficients(x))
+        within = violation <= (self.eq if tol <= self.tol_level else max(self.eq, EQ_COARSE))
+        return Measure(violation, within, within and res.converged)
+
+    def update(self, base, x: np.ndarray, measure: Measure) -> None:
+        self.terms = dataclasses.replace(self.terms, lam=self.terms.multipliers(base.coefficients(x)))
+
+    def feasible_start(self, base, x: np.ndarray) -> bool:
+        return self.terms.violation(base.coefficients(x)) <= self.eq
 
 
 @dataclass(eq=False)
@@ -168,18 +192,6 @@ def _level_mesh(mesh: HermiteMesh, N: int, goals: Goals) -> HermiteMesh:
         return via_mesh(mesh.order, mesh.T, N, [gp.s for gp in goals.vias])
     except ValueError:
         return HermiteMesh(mesh.order, mesh.T, N)
-
-
-def _polish(problem, x: np.ndarray) -> np.ndarray:
-    """One full Newton step from an inner optimum (see ``hoc_cli.constraints.augmented_lagrangian``)."""
-    ev = problem.evaluate(x)
-    trial = x - problem.newton(ev).solve(ev.grad)
-    try:
-        if np.isfinite(problem.evaluate(trial, grad=False).J):
-            return trial
-    except NumericalError:
-        pass
-    return x
 
 
 @one_thread()  # one BLAS thread while solving (hoc_cli/optimize/blas.py)
@@ -241,38 +253,22 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
 
     def solve_level(problem: GoalProblem, x: np.ndarray, tol_level: float, terms: GoalTerms, eq_level: float,
                     full: bool = True):
-        """One mesh: the limits' outer loop (``enforce``) around the goal rows' loop around ``inner``.
-
-        The goal multipliers live in ``pen.terms`` and carry over between the limits' iterations.
+        """One mesh: the augmented Lagrangian around ``inner`` with the goal rows (``term``) and, when limited, the limits
+        as its terms (``enforce``); under a ``constraint``, the goal rows' loop is its inner minimisation.
         """
-        pen = GoalPenalized(problem, terms.on(problem.mesh)) if problem.points else problem
+        term = GoalTerm(terms.on(problem.mesh), eq_level, tol_level, rho_max) if problem.points else None
+        pen = Penalized(problem, (term,)) if problem.points else problem
 
         def goal_inner(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
-            """The goal rows' loop (at most ``max_outer`` inner solves): met to ``eq_level`` when the inner solves run at
-            the level's tolerance, to ``EQ_COARSE`` when looser (a collision loop's early iterations: the stopping test
-            of a loose solve cannot see a smaller violation, and ρ would grow without end). The result counts the
+            """The goal rows' loop (``auglag.minimize``, at most ``max_outer`` inner solves); the result counts the
             iterations and evaluations of all its inner solves.
             """
-            prev = math.inf
-            eq = eq_level if tol_inner <= tol_level else max(eq_level, EQ_COARSE)
-            its = evs = 0
-            for _ in range(max_outer):
+            if term is None:
                 totals["outer"] += 1
-                res = inner(p, x, tol_inner)
-                its, evs = its + res.iterations, evs + res.n_evals
-                x = res.x
-                if not problem.points:
-                    return res
-                if res.converged:
-                    x = _polish(p, x)
-                C = problem.coefficients(x)
-                violation = pen.terms.violation(C)
-                if (violation <= eq and res.converged) or res.status is Status.MAX_ITER:
-                    break
-                rho = pen.terms.rho * (RHO_GROWTH if violation > 0.25 * prev and res.converged else 1.0)
-                prev = violation
-                pen.terms = dataclasses.replace(pen.terms, lam=pen.terms.multipliers(C), rho=min(rho, rho_max))
-            return dataclasses.replace(res, x=x, iterations=its, n_evals=evs)
+                return inner(p, x, tol_inner)
+            out = auglag.minimize(p, (term,), x, tol_inner, inner, max_outer)
+            totals["outer"] += out.outer
+            return dataclasses.replace(out.res, x=out.x, iterations=out.iterations, n_evals=out.n_evals)
 
         er = None
         if constraint is not None:
@@ -280,7 +276,7 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                 carry["spent"] = totals["it"]
                 return goal_inner(p, x, tol_inner)
 
-            problem.terms = (_RowsOf(pen),) if problem.points else ()
+            problem.terms = (term,) if problem.points else ()
             try:
                 res, _, er, carry["outcome"] = constraint.solve(
                     problem, x, tol_level, each, warm=carry["warm"], full=full, system=system,
@@ -290,14 +286,18 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
             carry["warm"] = carry["outcome"].warm
             if er is not None:
                 carry["working"] = er.working
-        elif limited:
-            er = enforce(pen, system, limits, x, tol_level, goal_inner, working=carry["working"],
-                         duals=carry.pop("duals", None))
+        elif limited:  # the goal rows and the limits: two terms of one augmented-Lagrangian loop
+            def counted(p, x: np.ndarray, tol_inner: float) -> OptimizeResult:
+                totals["outer"] += 1
+                return inner(p, x, tol_inner)
+
+            er = enforce(pen, system, limits, x, tol_level, counted, working=carry["working"],
+                         duals=carry.pop("duals", None), terms=(term,) if problem.points else ())
             carry["working"] = er.working
             res = dataclasses.replace(er.inner, x=er.x)
         else:
             res = goal_inner(pen, x, tol_level)
-        return res.x, res, er, pen.terms if problem.points else terms
+        return res.x, res, er, term.terms if problem.points else terms
 
     def build(level: HermiteMesh, G_level: int | None) -> GoalProblem:
         return GoalProblem(system, level, q0, dq0, goals, cost=cost, G=G_level)
@@ -343,21 +343,6 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     return GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=res, G=problem.G, quadrature_change=change,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=er, terms=terms,
                       violation=violation, outer_iterations=totals["outer"], goals=goals, constraint=carry["outcome"])
-
-
-class _RowsOf:
-    """The goal rows of a ``GoalPenalized`` as one of ``ControlProblem.terms``: its current ``terms`` (the
-    multipliers the goal loop updates), for an outer loop that adds terms of its own (``plan_goals``'s ``constraint``).
-    """
-
-    def __init__(self, pen: GoalPenalized) -> None:
-        self.pen = pen
-
-    def evaluate(self, C: np.ndarray, grad: bool = True):
-        return self.pen.terms.evaluate(C, grad=grad)
-
-    def newton_blocks(self, C: np.ndarray) -> np.ndarray:
-        return self.pen.terms.newton_blocks(C)
 
 
 def _warm_state(system, problem: GoalProblem, C: np.ndarray, limits) -> tuple[list[np.ndarray], object]:
