@@ -31,7 +31,8 @@ from scipy.special import ellipj, ellipk
 
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
-from hoc_cli.simulate import simulate_hermite, simulate_reference
+from hoc_cli.reference_integrator import simulate_reference
+from hoc_cli.simulate import simulate_hermite
 from hoc_cli.system import RobotSystem
 from hoc_cli.torque import zero_torque
 

@@ -7,7 +7,7 @@ The public Python API (no CLI, terminal or file-format imports here):
 - ``solve(problem, options, warm=None)`` → ``Plan``: plans an ``OptimalControlProblem`` (time ``Fixed`` or
   ``Free``; goals ``link_goal``, ``joint_via``, ``link_via``; ``JointLimits``), choosing the solver (docs/api.md)
 - ``plan`` → ``PlanResult``, ``ControlProblem`` (cost, gradient, banded Newton matrix): the fixed-T solver itself
-- ``simulate_hermite``, ``simulate_reference`` (``hoc_cli.simulate``)
+- ``simulate_hermite`` (``hoc_cli.simulate``), ``simulate_reference`` (``hoc_cli.reference_integrator``)
 - ``HocError`` and its subclasses (``hoc_cli.errors``)
 """
 import os as _os
@@ -71,7 +71,7 @@ _LAZY = {  # imported on first use: ``import hoc_cli`` stays light
     "link_via": "hoc_cli.ocp",
     "JointLimits": "hoc_cli.constraints",
     "simulate_hermite": "hoc_cli.simulate",
-    "simulate_reference": "hoc_cli.simulate",
+    "simulate_reference": "hoc_cli.reference_integrator",
 }
 
 

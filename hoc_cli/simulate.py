@@ -1,7 +1,7 @@
 """Forward simulation: the paper's Hermite collocation time integrator, and sampling a simulated motion.
 
 The result types are in ``hoc_cli.simulation_results``, the reference (Runge-Kutta) integrator in
-``hoc_cli.reference_integrator``; both are re-exported here.
+``hoc_cli.reference_integrator``.
 
 Symbols
 -------
@@ -45,7 +45,6 @@ import numpy as np
 
 from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
-from hoc_cli.reference_integrator import simulate_reference
 from hoc_cli.simulation_results import HermiteSimulation, ReferenceSimulation, SimulationStatus
 from hoc_cli.system import System
 from hoc_cli.torque import TorqueSource
@@ -58,8 +57,7 @@ NEWTON_MAX_ITER = 25
 #: an element whose Newton iteration fails is solved as 2, 4, … up to 2**MAX_SPLIT_DEPTH sub-elements
 MAX_SPLIT_DEPTH = 5
 
-__all__ = ["HermiteSimulation", "ReferenceSimulation", "SimulationStatus", "collocation_points", "collocation_residual",
-           "sample", "simulate_hermite", "simulate_reference"]
+__all__ = ["collocation_points", "collocation_residual", "sample", "simulate_hermite"]
 
 
 # --------------------------------------------------------------------------- collocation points

@@ -15,7 +15,8 @@ from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
 from hoc_cli.collision.scene import Obstacle, collision_scene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace, sphere
-from hoc_cli.io.mcap_obstacles import MARKER_ARRAY_TYPE, TOPIC_COLLISION_SCENE, marker_array_msgdef, scene_markers
+from hoc_cli.io.mcap import TOPIC_COLLISION_SCENE
+from hoc_cli.io.mcap_obstacles import MARKER_ARRAY_TYPE, marker_array_msgdef, scene_markers
 from hoc_cli.model import load_robot
 from tests._robots import ROBOTS
 

@@ -3,6 +3,8 @@ the exact check on every element, derivatives against central differences, and n
 nothing binds."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -159,3 +161,26 @@ def test_check_reports_the_true_peak_between_the_nodes():
     assert (v["joint"], v["kind"], v["limit"]) == ("j", "position", [-1.0, 0.5])
     assert dense.max() - 1e-9 <= v["worst"] <= dense.max() + 1e-15  # the exact maximum, never below a sample
     assert v["t"] == pytest.approx(t[np.argmax(dense)], abs=1e-4)
+
+
+def test_feasible_is_true_exactly_when_no_violation_is_listed():
+    """``LimitCheck.feasible`` (vectorised) agrees with ``violations()`` being empty: every kind, either side, at and
+    just beyond the tolerance, with unbounded joints (−inf excess) and a NaN value (never a violation)."""
+    mesh = HermiteMesh("quintic", 1.0, 1)
+    limits = JointLimits.from_arrays(("a", "b"), lower=[-1.0, -np.inf], upper=[0.5, np.inf], velocity=[2.0, 3.0],
+                                     acceleration=[10.0, 10.0], jerk=[100.0, 100.0], effort=[5.0, 7.0])
+    base = check_limits(LinearOscillator(2, omega=0.0), limits, mesh, np.zeros((2, 3, 2)))
+    tol_lo, tol_hi = base.tolerance()
+    rng = np.random.default_rng(0)
+    seen = set()
+    for trial in range(400):
+        hi = np.where(np.isfinite(base.hi_excess), -1.0, -np.inf)
+        lo = np.where(np.isfinite(base.lo_excess), -1.0, -np.inf)
+        k, j, side = rng.integers(len(KINDS)), rng.integers(2), rng.integers(2)
+        excess, tol = (hi, tol_hi) if side else (lo, tol_lo)
+        if np.isfinite(excess[k, 0, j]):
+            excess[k, 0, j] = tol[k, j] * rng.choice([0.5, 1.0, 1.5, 3.0]) if trial % 7 else np.nan
+        chk = dataclasses.replace(base, hi_excess=hi, lo_excess=lo)
+        assert chk.feasible == (not chk.violations())
+        seen.add(chk.feasible)
+    assert seen == {True, False}

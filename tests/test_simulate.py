@@ -21,15 +21,15 @@ from scipy.special import ellipk
 from hoc_cli.elements import HermiteMesh, gauss_legendre
 from hoc_cli.errors import NumericalError
 from hoc_cli.periods import oscillation_period, velocity_zeros
+from hoc_cli.reference_integrator import simulate_reference
 from hoc_cli.simulate import (
-    SimulationStatus,
     _Element,
     collocation_points,
     collocation_residual,
     sample,
     simulate_hermite,
-    simulate_reference,
 )
+from hoc_cli.simulation_results import SimulationStatus
 from hoc_cli.system import LinearOscillator
 from hoc_cli.torque import ConstantTorque, PlannedTorque, SampledTorque, zero_torque
 from hoc_cli.verification import convergence_order

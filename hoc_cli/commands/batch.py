@@ -6,7 +6,10 @@ import logging
 import os
 from pathlib import Path
 
-from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNMET, Terminated, print_json, report_error, stderr_console
+from hoc_cli.commands.common import EXIT_OK, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNMET
+from hoc_cli.report.console import report_error, stderr_console
+from hoc_cli.report.files import Terminated
+from hoc_cli.report.jsonio import print_json
 from hoc_cli.report.status import MESSAGES, Status
 
 

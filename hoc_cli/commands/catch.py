@@ -10,16 +10,12 @@ import dataclasses
 import json
 from pathlib import Path
 
-from hoc_cli.commands.common import (
-    EXIT_OK,
-    EXIT_UNMET,
-    json_ready,
-    print_json,
-    read_urdf_text,
-    stderr_console,
-)
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET
 from hoc_cli.errors import OutputError
 from hoc_cli.io.robot import load_model
+from hoc_cli.report.console import stderr_console
+from hoc_cli.report.inputs import read_urdf_text
+from hoc_cli.report.jsonio import json_ready, print_json
 
 
 def run(scenario_path: Path, *, as_json: bool = False, seed: int | None = None, noise: float | None = None,

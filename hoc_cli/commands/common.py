@@ -1,7 +1,7 @@
 """Shared plumbing for commands: exit codes, signals and the run guard, input files refused before any work.
 
 What ``hoc plan`` and ``hoc batch`` both report and write (lines on standard error, JSON, output files,
-the checks before a solve) lives in :mod:`hoc_cli.report`; the names the commands use are re-exported here.
+the checks before a solve) lives in :mod:`hoc_cli.report`, which the commands import directly.
 
 Exit codes (README, Exit codes): 0 success, 1 ran but did not meet what was asked (or an output could not
 be written: disk full, I/O error), 2 invalid input (or an output that would replace an input),
@@ -17,29 +17,18 @@ from typing import Any, Callable
 
 from hoc_cli.errors import HocError, HocWarning, InputFileError
 from hoc_cli.io.inputs import file_problem
-from hoc_cli.report.console import (  # noqa: F401  (re-exported: the commands import them from here)
+from hoc_cli.report.console import (
     report_error,
     show_warning,
-    stderr_console,
-    warn,
-    warn_limit_violations,
 )
-from hoc_cli.report.files import (  # noqa: F401  (re-exported)
-    OUTPUT_KINDS,
+from hoc_cli.report.files import (
     TERMINATING,
-    OutputTarget,
     Terminated,
-    atomic_output,
-    output_transaction,
-    parse_outputs,
     redelivered_when_swallowed,
-    refuse_inputs,
     signal_handlers,
     start_run,
     what_changed,
 )
-from hoc_cli.report.inputs import check_columns, check_sample_times, read_urdf_text  # noqa: F401
-from hoc_cli.report.jsonio import json_ready, print_json, validate_json  # noqa: F401  (re-exported)
 
 EXIT_OK, EXIT_UNMET, EXIT_INPUT, EXIT_SIGHUP, EXIT_SIGINT, EXIT_SIGTERM = 0, 1, 2, 129, 130, 143
 _SIGNAL_WORDS = {getattr(signal, "SIGHUP", -1): "hung up (SIGHUP)", signal.SIGTERM: "terminated"}

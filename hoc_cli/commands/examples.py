@@ -10,8 +10,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from hoc_cli.commands.common import EXIT_OK, atomic_output, output_transaction, stderr_console
+from hoc_cli.commands.common import EXIT_OK
 from hoc_cli.errors import HocError, OutputError
+from hoc_cli.report.console import stderr_console
+from hoc_cli.report.files import atomic_output, output_transaction
 
 
 def run(name: str | None, directory: Path = Path("."), *, force: bool = False, quiet: bool = False) -> int:

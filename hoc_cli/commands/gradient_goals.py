@@ -17,12 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, print_json
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET
 from hoc_cli.free_time import cost_time_derivative, fixed_coefficient_correction, rescale
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.goals.plan import GoalProblem, Goals
 from hoc_cli.goals.terms import GoalTerms
 from hoc_cli.optimize import check_gradient
+from hoc_cli.report.jsonio import print_json
 from hoc_cli.system import RobotSystem
 
 T_STEP = 1e-5  # relative step of the central difference in T

@@ -26,8 +26,10 @@ from pathlib import Path
 
 from rich.table import Table
 
-from hoc_cli.commands.common import EXIT_OK, print_json, stderr_console
+from hoc_cli.commands.common import EXIT_OK
 from hoc_cli.errors import ModelError
+from hoc_cli.report.console import stderr_console
+from hoc_cli.report.jsonio import print_json
 
 
 def describe(path: Path) -> dict:

@@ -26,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hoc_cli.commands.common import EXIT_OK, atomic_output, refuse_inputs, stderr_console
+from hoc_cli.commands.common import EXIT_OK
 from hoc_cli.errors import HocWarning, OutputError
-from hoc_cli.report.files import OutputTarget, check_output_directory
+from hoc_cli.report.console import stderr_console
+from hoc_cli.report.files import OutputTarget, atomic_output, check_output_directory, refuse_inputs
 
 MARGIN = 0.1  # of each position range, kept free at either end for x0 and x1
 STEP_RAD, STEP_M = 0.3, 0.05  # largest move per joint from x0 to x1

@@ -8,18 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from hoc_cli.accuracy import AUTO_MAX_ELEMENTS, AUTO_START
-from hoc_cli.commands.common import (
-    EXIT_OK,
-    EXIT_UNMET,
-    output_transaction,
-    parse_outputs,
-    print_json,
-    refuse_inputs,
-    refuse_urdf_task,
-    stderr_console,
-    validate_json,
-    warn_limit_violations,
-)
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, refuse_urdf_task
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import Infeasible, InputFileError, OutputError, TaskError, naming_file
 from hoc_cli.io.task import Task, apply_overrides, load_task
@@ -30,8 +19,9 @@ from hoc_cli.report.collision import (
     sampled_clearance,
     warn_collisions,
 )
-from hoc_cli.report.console import warn
-from hoc_cli.report.jsonio import json_ready
+from hoc_cli.report.console import stderr_console, warn, warn_limit_violations
+from hoc_cli.report.files import output_transaction, parse_outputs, refuse_inputs
+from hoc_cli.report.jsonio import json_ready, print_json, validate_json
 from hoc_cli.report.prepare import prepare
 from hoc_cli.report.status import unmet_line
 from hoc_cli.report.workload import WARN_SECONDS, Heartbeat, check_workload

@@ -16,9 +16,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hoc_cli.commands.common import EXIT_OK, OutputTarget, atomic_output, refuse_inputs
+from hoc_cli.commands.common import EXIT_OK
 from hoc_cli.errors import HocError, InputFileError, ModelError, OutputError
-from hoc_cli.report.files import check_output_directory
+from hoc_cli.report.files import OutputTarget, atomic_output, check_output_directory, refuse_inputs
 
 MCAP_MAGIC = b"\x89MCAP"
 INSTALL_HINT = "matplotlib is needed for 'hoc plot' (install it with: pip install 'hoc[plot]')"

@@ -46,26 +46,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hoc_cli.commands.common import (
-    EXIT_OK,
-    EXIT_UNMET,
-    check_columns,
-    check_sample_times,
-    json_ready,
-    output_transaction,
-    parse_outputs,
-    print_json,
-    read_urdf_text,
-    refuse_inputs,
-    refuse_urdf_task,
-    stderr_console,
-    validate_json,
-    warn,
-    warn_limit_violations,
-)
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, refuse_urdf_task
 from hoc_cli.errors import InputFileError, OutputError, TaskError
 from hoc_cli.io.robot import load_model
 from hoc_cli.io.task import Task, apply_overrides, load_task, load_yaml, parse_task, resolve, yaml_error_detail
+from hoc_cli.report.console import stderr_console, warn, warn_limit_violations
+from hoc_cli.report.files import output_transaction, parse_outputs, refuse_inputs
+from hoc_cli.report.inputs import check_columns, check_sample_times, read_urdf_text
+from hoc_cli.report.jsonio import json_ready, print_json, validate_json
 from hoc_cli.report.outputs import write_outputs
 
 METHODS = ("hermite", "rk")
@@ -88,6 +76,7 @@ def run(
     from hoc_cli import simulate as sim
     from hoc_cli import torque as torque_sources
     from hoc_cli.elements import HermiteMesh
+    from hoc_cli.reference_integrator import simulate_reference
     from hoc_cli.system import RobotSystem
     from hoc_cli.trajectory import sample_times
 
@@ -170,7 +159,7 @@ def run(
                           for e, k in result.subdivided]
         else:
             rtol = 1e-12 if tol is None else tol
-            result = sim.simulate_reference(system, states.q0, states.dq0, history, task.T, rtol=rtol, atol=rtol)
+            result = simulate_reference(system, states.q0, states.dq0, history, task.T, rtol=rtol, atol=rtol)
             iterations, evaluations = result.steps, result.nfev
             subdivided = []
         qT, dqT = result.final_state()

@@ -14,7 +14,8 @@ from typing import Any
 
 import typer.core
 
-from hoc_cli.commands.common import EXIT_INPUT, EXIT_UNMET, report_error
+from hoc_cli.commands.common import EXIT_INPUT, EXIT_UNMET
+from hoc_cli.report.console import report_error
 
 _EXPECTED_PREFIXES = ("Input should be ", "Value should be ")
 

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 from rich.table import Table
 
-from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET, print_json, stderr_console
+from hoc_cli.commands.common import EXIT_OK, EXIT_UNMET
 from hoc_cli.errors import TaskError
+from hoc_cli.report.console import stderr_console
+from hoc_cli.report.jsonio import print_json
 from hoc_cli.verification import CHECKS, run_checks
 
 

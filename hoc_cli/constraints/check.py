@@ -80,7 +80,9 @@ class LimitCheck:
 
     @property
     def feasible(self) -> bool:
-        return not self.violations()
+        """Whether no bound is exceeded beyond its tolerance (``violations()`` empty, without building it)."""
+        tol_lo, tol_hi = self.tolerance()
+        return not (np.any(self.hi_excess > tol_hi[:, None, :]) or np.any(self.lo_excess > tol_lo[:, None, :]))
 
 
 def _num(v: float) -> float | None:

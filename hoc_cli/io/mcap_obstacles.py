@@ -13,7 +13,6 @@ import numpy as np
 
 from hoc_cli.collision.scene import CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
-from hoc_cli.io.mcap import TOPIC_COLLISION_SCENE  # noqa: F401  (re-exported: the topic this message goes on)
 from hoc_cli.io.ros2_msgdefs import MSGDEFS
 
 MARKER_ARRAY_TYPE = "visualization_msgs/msg/MarkerArray"

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import HocWarning, JointSelectionError, ModelError
 from .spatial import align_z, joint_motion, motion_transform, spatial_inertia
 from .tree import RobotModel
-from .urdf_checks import MAX_MAGNITUDE, MOVABLE, SUPPORTED  # noqa: F401  (re-exported)
+from .urdf_checks import MOVABLE
 from .urdf_checks import check as _check
 from .urdf_checks import joint_axis as _axis
 from .urdf_checks import joint_origin as _origin
