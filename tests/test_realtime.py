@@ -372,7 +372,9 @@ def test_the_python_example_of_docs_realtime_runs_as_printed(request, capsys):
     code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
     exec(compile(code, "docs/realtime.md", "exec"), {})
     steps, status = capsys.readouterr().out.split()[:2]
-    assert int(steps) >= 1 and status in ("budget", "converged")
+    # the budget is wall time: on a loaded machine the step may not fit (the example's comment says so)
+    assert status in ("budget", "converged", "skipped", "abandoned")
+    assert (int(steps) >= 1) == (status in ("budget", "converged"))
 
 
 def test_an_update_runs_on_one_blas_thread_when_numpy_loaded_its_blas_first():
