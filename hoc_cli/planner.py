@@ -129,6 +129,27 @@ def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.
     return np.stack([mesh_from.evaluate(C, t, r) for r in range(mesh_to.m)], axis=1)
 
 
+def _first_step(problem) -> Callable | None:
+    """The Newton iteration's first trial step (``collision.step.model_step``: the step's model with the rows it
+    would activate, the collision rows' and the joint limits') when ``problem`` has terms with rows (``step_rows``:
+    the collision constraint), else None (the unit step).
+    """
+    base = problem.base if isinstance(problem, PenalizedProblem) else problem
+    terms = [t for t in getattr(base, "terms", ()) if hasattr(t, "step_rows")]
+    if not terms:
+        return None
+    from hoc_cli.collision.step import limit_rows, model_step
+
+    def first(ev, d: np.ndarray, slope: float) -> float:
+        C = base.coefficients(ev.x)
+        dC = base.layout.unpack(d, np.zeros_like(C))
+        rows = [t.step_rows(C, dC) for t in terms]
+        if isinstance(problem, PenalizedProblem):
+            rows.append(limit_rows(problem.terms, C, dC))
+        return model_step(slope, *(np.concatenate([r[i] for r in rows]) for i in range(3)))
+    return first
+
+
 class _Session:
     """The solves of one plan: iteration counts and history across levels, the limits' working set."""
 
@@ -179,7 +200,7 @@ class _Session:
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
                        tol=tol_level, max_iter=max(self.max_iter - totals["it"] + self.spent, 0),
-                       callback=report, noise=lambda ev: ev.noise)
+                       callback=report, noise=lambda ev: ev.noise, first_step=_first_step(problem))
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
         totals["it"] += res.iterations
