@@ -24,7 +24,7 @@ from hoc_cli.constraints.auglag import Penalized
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
-from hoc_cli.problem import ControlProblem
+from hoc_cli.problem import ControlProblem, default_gauss_points
 from hoc_cli.system import System
 
 QUADRATURE_RTOL = 1e-12
@@ -32,6 +32,10 @@ QUADRATURE_RTOL = 1e-12
 #: the next level a start near the limited optimum (measured: 6 halves the torque-cost reach's time)
 COARSE_MAX_OUTER = 6
 BASE_LEVEL = 16  # above this, an even N is planned as the plan at N/2 refined once
+#: with a ``constraint`` (collision) the full levels start at the default Gauss points plus this many: every
+#: Panda plan of benchmarks/bench_collision.py failed the quadrature check at the default and was solved again,
+#: a whole outer loop with its certificate
+CONSTRAINT_EXTRA_G = 4
 COARSE_TOL = 1e-6  # relative tolerance of the coarse continuation levels (at least the plan's tol)
 
 
@@ -322,7 +326,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     runs inside its outer loop: ``constraint.solve(problem, x0, tol, minimize, warm=…, full=…, system=…,
     limits=…, working=…)`` returns (result, J without its terms, limits outcome, outcome); ``minimize`` is
     the unconstrained solve, the joint limits are terms of the constraint's own loop, the outcome's
-    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``.
+    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``. Without ``G`` its
+    full levels start at ``CONSTRAINT_EXTRA_G`` more Gauss points than the default (the quadrature check goes on).
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,
@@ -337,6 +342,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
             C_start = None if C_prev is None else resample(prev_mesh, C_prev, level)
             prev_mesh, C_prev = level, session.coarse(level, C_start, tol, G)
     result = None
+    if constraint is not None and G is None:
+        G = default_gauss_points(mesh.order) + CONSTRAINT_EXTRA_G
     for N in full:
         level = mesh if N == mesh.N else HermiteMesh(mesh.order, mesh.T, N)
         C_start = C_init if C_prev is None else resample(prev_mesh, C_prev, level)
