@@ -1,34 +1,16 @@
-"""How the collision loop's levels are solved: the coarse levels' looser inner solves, the full level's Gauss points."""
+"""How a collision plan's levels are solved: the full level's Gauss points."""
 from __future__ import annotations
 
 import pytest
 from _collision_tasks import plan, task_folder
 
 import hoc_cli.planner as planner
-from hoc_cli.collision import enforce
 from tests.test_collision_enforce import BALL, two_link
 
 
 @pytest.fixture
 def workdir(tmp_path, monkeypatch):
     return task_folder(tmp_path, monkeypatch, ("two_link.urdf",))
-
-
-def test_the_coarse_levels_inner_solves_are_looser_than_the_full_levels(workdir, monkeypatch):
-    asked = []
-    solve = planner._Session.solve
-
-    def recording(self, problem, x0, tol):
-        asked.append((problem.mesh.N, tol))
-        return solve(self, problem, x0, tol)
-
-    monkeypatch.setattr(planner._Session, "solve", recording)
-    r, s = plan(workdir, two_link([BALL], N=8))
-    assert r.exit_code == 0 and s["min_clearance"]["certified"]
-    coarse = {tol for N, tol in asked if N == 2}
-    full = {tol for N, tol in asked if N == 8}
-    assert coarse == {enforce.COARSE_LOOSE_TOL} and enforce.COARSE_LOOSE_TOL > enforce.LOOSE_TOL
-    assert enforce.LOOSE_TOL in full and min(full) == 1e-10  # the full level ends at the plan's tolerance
 
 
 def test_a_collision_plan_starts_its_full_level_at_four_more_gauss_points_in_the_same_plan(workdir, monkeypatch):

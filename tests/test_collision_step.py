@@ -11,7 +11,7 @@ from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.step import limit_rows, model_step
 from hoc_cli.constraints import JointLimits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
-from hoc_cli.constraints.bounds import KINDS
+from hoc_cli.constraints.bounds import EFFORT, KINDS
 from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
@@ -113,6 +113,19 @@ def test_the_limit_rows_along_a_step_are_exact_for_kinematic_limits():
         assert on.sum() > 50 and np.all(np.isneginf(a[~on]))
         np.testing.assert_allclose(a[on] + alpha * b[on], ref[on], rtol=1e-10, atol=1e-12)
     assert np.all(rho > 0)
+    limits = JointLimits.from_arrays(model.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], effort=[5.0, 2.0])
+    working = np.zeros((len(KINDS), 2), bool)
+    working[0] = working[EFFORT] = True  # effort's rate is the secant: exact at α = 0 and 1
+    terms = LimitTerms(system, limits, rows, working, lam[0], lam[1], rho=300.0, margin=MARGIN)
+    a, b, _ = limit_rows(terms, C, dC)
+    for alpha in (0.0, 1.0):
+        pv = terms.evaluate(C + alpha * dC, grad=False)
+        ref = np.concatenate([x for kk in range(len(KINDS)) for x in (
+            (terms.lam_lo[kk] / np.broadcast_to(terms.rho * rows.weight(kk), np.shape(pv.g_lo[kk])) + pv.g_lo[kk]).ravel(),
+            (terms.lam_hi[kk] / np.broadcast_to(terms.rho * rows.weight(kk), np.shape(pv.g_hi[kk])) + pv.g_hi[kk]).ravel())])
+        on = np.isfinite(ref)
+        assert on.sum() > 50
+        np.testing.assert_allclose(a[on] + alpha * b[on], ref[on], rtol=1e-10, atol=1e-12)
 
 
 

@@ -30,8 +30,7 @@ The loop (one level of the planner's continuation):
    that comes closer than the margin is infeasible, one that does not but is not proven clear is
    not converged.
 
-Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level (their inner
-solves at ``COARSE_LOOSE_TOL``).
+Coarse levels (``full`` False) stop at step 3 without the certificate: they only start the next level.
 Every start's loop and the starts together stop once their inner solves have spent ``MAX_ITERATIONS``
 iterations: not converged, the message naming the budget and the closest pair.
 
@@ -86,7 +85,6 @@ MAX_ITERATIONS = 5_000   # inner iterations in all, over one solve's outer itera
 VIA_MAX_OUTER = 10
 SPHERE_ROWS = True    # obstacles are imposed against spheres along the capsules (constraint.sphere_rows_scene)
 LOOSE_TOL = 1e-5      # the inner solves' relative tolerance until the points are clear and the clearance certified
-COARSE_LOOSE_TOL = 1e-4  # ... and on the coarse levels (they only start the next level)
 COARSE_EXCESS = 2e-3  # m: a coarse level stops once its points are this close to the bound (it only starts the next)
 
 
@@ -291,7 +289,7 @@ class CollisionConstraint:
                                       self._pair_reach()[k])  # rows that cannot reach their bound are skipped
                 terms = CollisionTerms(model, scene, points, p, k, lam[p, k], rho, bound[k], start_rows, curvature=full)
                 problem.terms = own + (terms,)
-                inner_tol = tol if tight and full else max(tol, LOOSE_TOL if full else COARSE_LOOSE_TOL)
+                inner_tol = tol if tight and full else max(tol, LOOSE_TOL)
                 if lim is None:
                     res = minimize(problem, x, inner_tol)
                     x = res.x

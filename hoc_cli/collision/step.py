@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from hoc_cli.constraints.bounds import EFFORT
+from hoc_cli.constraints.penalty import effective_bounds
+
 
 def model_step(slope: float, a: np.ndarray, b: np.ndarray, rho: np.ndarray) -> float:
     """The minimiser α ∈ (0, 1] of m (module docstring) for rows with PHR arguments a + α b (M,) and penalties ρ (M,)
@@ -41,15 +44,24 @@ def model_step(slope: float, a: np.ndarray, b: np.ndarray, rho: np.ndarray) -> f
 
 def limit_rows(terms, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(a, b, ρ) of ``model_step`` for joint-limit terms (``constraints.penalty.LimitTerms``) along C + α dC: each row's
-    λ/ρ_w + g at C and g(C + dC) − g(C) (exact for the kinematic rows, linear in C; the secant for effort).
+    λ/ρ_w + g at C, and its rate: the rows applied to dC over σ for the kinematic kinds (g is linear in C), the secant
+    g(C + dC) − g(C) for effort.
     """
-    at, to = terms.evaluate(C, grad=False), terms.evaluate(C + dC, grad=False)
+    at = terms.evaluate(C, grad=False)
+    to = terms.evaluate(C + dC, grad=False) if terms.working[EFFORT].any() else None
+    loc = terms.rows.mesh.local_coefficients(dC)
+    sig = effective_bounds(terms.limits, terms.margin)[2]
     a, b, rho = [], [], []
     for k in range(len(at.g_lo)):
         rw = np.broadcast_to(terms.rho * terms.rows.weight(k), np.shape(at.g_lo[k]))
-        for lam, g0, g1 in ((terms.lam_lo[k], at.g_lo[k], to.g_lo[k]), (terms.lam_hi[k], at.g_hi[k], to.g_hi[k])):
+        if k == EFFORT:
+            rates = (None, None) if to is None else (to.g_lo[k] - at.g_lo[k], to.g_hi[k] - at.g_hi[k])
+        else:
+            dV = terms.rows.apply(k, loc) / sig[k] if terms.working[k].any() else None
+            rates = (None, None) if dV is None else (-dV, dV)
+        for lam, g0, rate in zip((terms.lam_lo[k], terms.lam_hi[k]), (at.g_lo[k], at.g_hi[k]), rates):
             with np.errstate(invalid="ignore"):
                 a.append((lam / rw + g0).ravel())
-                b.append(np.where(np.isfinite(g0), g1 - g0, 0.0).ravel())
+                b.append(np.zeros(g0.size) if rate is None else np.where(np.isfinite(g0), rate, 0.0).ravel())
             rho.append(rw.ravel())
     return np.concatenate(a), np.concatenate(b), np.concatenate(rho)
