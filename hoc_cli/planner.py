@@ -135,22 +135,29 @@ def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.
 
 def _first_step(problem) -> Callable | None:
     """The Newton iteration's first trial step (``collision.step.model_step``: the step's model with the rows it
-    would activate, the collision rows' and the joint limits') when ``problem`` has terms with rows (``step_rows``:
-    the collision constraint), else None (the unit step).
+    would activate, the collision rows' and the joint limits') when ``problem`` (a ControlProblem, or
+    ``Penalized`` layers round one) has terms with rows (``step_rows``: the collision constraint), else None
+    (the unit step).
     """
-    base = problem.base if isinstance(problem, PenalizedProblem) else problem
-    terms = [t for t in getattr(base, "terms", ()) if hasattr(t, "step_rows")]
-    if not terms:
+    from hoc_cli.constraints.penalty import LimitTerms
+
+    terms, base = [], problem
+    while True:
+        terms.extend(getattr(base, "terms", ()))
+        if not isinstance(base, Penalized):
+            break
+        base = base.base
+    rows = [t for t in terms if hasattr(t, "step_rows")]
+    if not rows:
         return None
+    limits = [t.terms for t in terms if isinstance(getattr(t, "terms", None), LimitTerms)]
     from hoc_cli.collision.step import limit_rows, model_step
 
     def first(ev, d: np.ndarray, slope: float) -> float:
         C = base.coefficients(ev.x)
         dC = base.layout.unpack(d, np.zeros_like(C))
-        rows = [t.step_rows(C, dC) for t in terms]
-        if isinstance(problem, PenalizedProblem):
-            rows.append(limit_rows(problem.terms, C, dC))
-        return model_step(slope, *(np.concatenate([r[i] for r in rows]) for i in range(3)))
+        got = [t.step_rows(C, dC) for t in rows] + [limit_rows(t, C, dC) for t in limits]
+        return model_step(slope, *(np.concatenate([r[i] for r in got]) for i in range(3)))
     return first
 
 
