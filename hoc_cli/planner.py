@@ -24,7 +24,7 @@ from hoc_cli.constraints.auglag import Penalized
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize import IterLog, OptimizeResult, Status, minimize
-from hoc_cli.problem import ControlProblem
+from hoc_cli.problem import ControlProblem, default_gauss_points
 from hoc_cli.system import System
 
 QUADRATURE_RTOL = 1e-12
@@ -32,6 +32,10 @@ QUADRATURE_RTOL = 1e-12
 #: the next level a start near the limited optimum (measured: 6 halves the torque-cost reach's time)
 COARSE_MAX_OUTER = 6
 BASE_LEVEL = 16  # above this, an even N is planned as the plan at N/2 refined once
+#: with a ``constraint`` (collision) the full levels start at the default Gauss points plus this many: every
+#: Panda plan of benchmarks/bench_collision.py failed the quadrature check at the default and was solved again,
+#: a whole outer loop with its certificate
+CONSTRAINT_EXTRA_G = 4
 COARSE_TOL = 1e-6  # relative tolerance of the coarse continuation levels (at least the plan's tol)
 
 
@@ -129,6 +133,34 @@ def resample(mesh_from: HermiteMesh, C: np.ndarray, mesh_to: HermiteMesh) -> np.
     return np.stack([mesh_from.evaluate(C, t, r) for r in range(mesh_to.m)], axis=1)
 
 
+def _first_step(problem) -> Callable | None:
+    """The Newton iteration's first trial step (``collision.step.model_step``: the step's model with the rows it
+    would activate, the collision rows' and the joint limits') when ``problem`` (a ControlProblem, or
+    ``Penalized`` layers round one) has terms with rows (``step_rows``: the collision constraint), else None
+    (the unit step).
+    """
+    from hoc_cli.constraints.penalty import LimitTerms
+
+    terms, base = [], problem
+    while True:
+        terms.extend(getattr(base, "terms", ()))
+        if not isinstance(base, Penalized):
+            break
+        base = base.base
+    rows = [t for t in terms if hasattr(t, "step_rows")]
+    if not rows:
+        return None
+    limits = [t.terms for t in terms if isinstance(getattr(t, "terms", None), LimitTerms)]
+    from hoc_cli.collision.step import limit_rows, model_step
+
+    def first(ev, d: np.ndarray, slope: float) -> float:
+        C = base.coefficients(ev.x)
+        dC = base.layout.unpack(d, np.zeros_like(C))
+        got = [t.step_rows(C, dC) for t in rows] + [limit_rows(t, C, dC) for t in limits]
+        return model_step(slope, *(np.concatenate([r[i] for r in got]) for i in range(3)))
+    return first
+
+
 class _Session:
     """The solves of one plan: iteration counts and history across levels, the limits' working set."""
 
@@ -179,7 +211,7 @@ class _Session:
         res = minimize(evaluate, x0, precondition=problem.newton if self.precondition else None,
                        method="newton" if penalized else self.method, c2=0.9 if penalized else 0.1,
                        tol=tol_level, max_iter=max(self.max_iter - totals["it"] + self.spent, 0),
-                       callback=report, noise=lambda ev: ev.noise)
+                       callback=report, noise=lambda ev: ev.noise, first_step=_first_step(problem))
         if res.status is Status.NOT_FINITE and res.iterations == 0 and failures:
             raise failures[0]  # the starting trajectory itself cannot be evaluated
         totals["it"] += res.iterations
@@ -301,7 +333,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     runs inside its outer loop: ``constraint.solve(problem, x0, tol, minimize, warm=…, full=…, system=…,
     limits=…, working=…)`` returns (result, J without its terms, limits outcome, outcome); ``minimize`` is
     the unconstrained solve, the joint limits are terms of the constraint's own loop, the outcome's
-    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``.
+    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``. Without ``G`` its
+    full levels start at ``CONSTRAINT_EXTRA_G`` more Gauss points than the default (the quadrature check goes on).
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,
@@ -316,6 +349,8 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
             C_start = None if C_prev is None else resample(prev_mesh, C_prev, level)
             prev_mesh, C_prev = level, session.coarse(level, C_start, tol, G)
     result = None
+    if constraint is not None and G is None:
+        G = default_gauss_points(mesh.order) + CONSTRAINT_EXTRA_G
     for N in full:
         level = mesh if N == mesh.N else HermiteMesh(mesh.order, mesh.T, N)
         C_start = C_init if C_prev is None else resample(prev_mesh, C_prev, level)

@@ -12,10 +12,10 @@ from _collision_tasks import coal_two_link, plan, task_folder
 
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
-from hoc_cli.collision.evaluate import distances, pair_gradient, row_contacts
+from hoc_cli.collision.evaluate import contacts, distances, pair_distances, pair_gradient, row_contacts, world_capsules
 from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
-from hoc_cli.collision.scene import Obstacle, collision_scene
+from hoc_cli.collision.scene import KIND_BOX, Obstacle, collision_scene
 from hoc_cli.collision.shapes import Box, sphere
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
@@ -181,6 +181,22 @@ def test_row_contacts_place_only_the_rows_primitives_and_agree_with_every_pair_a
         assert np.array_equal(got.distance, every[rows, pairs])
         d, _ = pair_gradient(model, sc, q, rows, pairs)
         assert np.array_equal(d, every[rows, pairs])
+
+
+def test_distances_alone_are_the_contacts_distances_spheres_in_and_out_of_boxes_included(lbr7_scene):
+    """``distances`` and ``pair_distances`` take a sphere outside a box on a path of their own: the same numbers."""
+    model, scene = lbr7_scene
+    rows_scene = sphere_rows_scene(scene)
+    q = np.random.default_rng(7).uniform(-2.5, 2.5, (200, model.n))
+    for sc in (scene, rows_scene):
+        every = contacts(model, sc, q).distance                                    # (K, Q)
+        assert np.array_equal(distances(model, sc, q), every)
+        a, b = world_capsules(model, sc, q)
+        rng = np.random.default_rng(8)
+        rows, pairs = rng.integers(0, len(q), 4000), rng.integers(0, sc.size, 4000)
+        assert np.array_equal(pair_distances(sc, a, b, rows, pairs), every[rows, pairs])
+    box = rows_scene.kind == KIND_BOX
+    assert (every[:, box] < -rows_scene.robot.radius[rows_scene.prim[box]]).any()  # centres in the box: the depth path
 
 
 def _terms(model, scene, mesh, C, rho=50.0):

@@ -24,7 +24,7 @@ from math import comb
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import distances, pair_contacts, world_capsules
+from hoc_cli.collision.evaluate import distances, pair_distances, world_capsules
 from hoc_cli.collision.robot import reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.extrema import element_polynomials, extrema
@@ -205,7 +205,7 @@ def _distances_at(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C
     """
     times, inverse = np.unique(t, return_inverse=True)
     a, b = world_capsules(model, scene, mesh.evaluate(C, times))
-    return pair_contacts(scene, a, b, inverse.ravel(), pair).distance
+    return pair_distances(scene, a, b, inverse.ravel(), pair)
 
 
 def _merge(scene: CollisionScene, t0, t1, d, lb, pair, margin: float) -> tuple[dict, ...]:

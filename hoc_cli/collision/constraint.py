@@ -270,6 +270,17 @@ class CollisionTerms:
         G[0] = group_sum(self.rows, -mu[:, None] * dd, self.points.size)
         return value, self.points.transpose(G)
 
+    def step_rows(self, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows' PHR arguments along C + α dC (dC (N+1, m, n)), linearised (``step.model_step``): (a (M,) =
+        λ/ρ_r + bound − d in m, b (M,) = −∂d/∂α in m, ρ_r (M,)); rows skipped at C (d = +inf) have a = −inf.
+        """
+        d, dd = self._gradient(C)
+        rr = self.rho_rows
+        dq = point_configurations(self.points, dC)
+        with np.errstate(invalid="ignore"):
+            a = self.lam / rr + self.bound - d
+        return a, -np.einsum("mj,mj->m", dd, dq[self.rows]), rr
+
     def curvature_blocks(self, C: np.ndarray) -> np.ndarray | None:
         """Element blocks (N, 2mn, 2mn) of −Σ_r μ_r ∇²d_r over the rows with μ_r > 0 and d_r > 0 at C (None without
         ``curvature`` or such rows): the part of Φ's Hessian the Gauss-Newton matrix leaves out, where a contact is

@@ -162,6 +162,49 @@ def _contacts(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndar
     return out
 
 
+def _spheres(scene: CollisionScene) -> np.ndarray:
+    """(Q,) bool: the pairs of a sphere (a robot primitive with a = b) and a box, whose distance ``pair_distances``
+    takes on its own path.
+    """
+    robot = scene.robot
+    ball = np.all(robot.a == robot.b, axis=-1)
+    return (scene.kind == KIND_BOX) & ball[scene.prim]
+
+
+def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.ndarray, half: np.ndarray):
+    """(distance, outside) of spheres (centres c (..., 3), radii r) and boxes, the arrays broadcast over the leading
+    shape: the clamp of the centre in the box frame, as ``distance.capsule_box`` takes a sphere outside the box (the
+    same operations, so the same numbers); ``outside`` False where the centre is in the box (its depth is not this).
+    """
+    p = np.matmul((c - center)[..., None, :], rot)[..., 0, :]
+    gap = np.linalg.norm(p - np.clip(p, -half, half), axis=-1)
+    scale = np.max(half, axis=-1) + np.linalg.norm(p, axis=-1) + 0.0
+    return gap - r, ~(gap <= 1e-12 * scale)
+
+
+def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """The signed distance (M,) of pair ``pairs[m]`` at sample ``rows[m]``, from world capsules a, b (K, P, 3):
+    ``pair_contacts``' distance, the same numbers, without the normals and witnesses where a sphere lies outside a
+    box (``_sphere_box_gap``).
+    """
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    out = np.empty(rows.size)
+    fast = _cached("spheres", scene, lambda: _spheres(scene))[pairs]
+    if fast.any():
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        k = pairs[fast]
+        o = scene.other[k]
+        d, outside = _sphere_box_gap(a[rows[fast], scene.prim[k]], scene.robot.radius[scene.prim[k]], obs["center"][o],
+                                     obs["rot"][o], obs["half"][o])
+        got = np.flatnonzero(fast)
+        out[got[outside]] = d[outside]
+        fast[got[~outside]] = False  # a centre in the box: its depth by the capsule path
+    rest = np.flatnonzero(~fast)
+    if rest.size:
+        out[rest] = pair_contacts(scene, a, b, rows[rest], pairs[rest]).distance
+    return out
+
+
 def contacts(model: RobotModel, scene: CollisionScene, q) -> Contact:
     """Every pair at every configuration q (K, n): a Contact with arrays (K, Q) and (K, Q, 3)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -173,8 +216,24 @@ def contacts(model: RobotModel, scene: CollisionScene, q) -> Contact:
 
 
 def distances(model: RobotModel, scene: CollisionScene, q) -> np.ndarray:
-    """Signed distances (K, Q), m, of every pair at configurations q (K, n)."""
-    return contacts(model, scene, q).distance
+    """Signed distances (K, Q), m, of every pair at configurations q (K, n) (``pair_distances``)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    K, Q = len(q), scene.size
+    a, b = world_capsules(model, scene, q)
+    D = np.empty((K, Q))
+    fast = _cached("spheres", scene, lambda: _spheres(scene))
+    inside = np.zeros((K, Q), dtype=bool)
+    if fast.any():  # spheres against boxes on the grid of samples × pairs (``_sphere_box_gap``)
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        cols = np.flatnonzero(fast)
+        o, prim = scene.other[cols], scene.prim[cols]
+        d, outside = _sphere_box_gap(a[:, prim], scene.robot.radius[prim], obs["center"][o], obs["rot"][o], obs["half"][o])
+        D[:, cols] = d
+        inside[:, cols] = ~outside
+    rows, pairs = np.nonzero(inside | ~fast[None, :])  # the rest, and centres in a box, by ``pair_contacts``
+    if rows.size:
+        D[rows, pairs] = pair_contacts(scene, a, b, rows, pairs).distance
+    return D
 
 
 def _ancestors(model: RobotModel) -> np.ndarray:

@@ -79,7 +79,8 @@ def stop_test(J: float, g: np.ndarray, gz: float, *, tol: float, noise: float, p
 def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition | None = None,
              method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000,
              callback: Callable[[IterLog], None] | None = None,
-             noise: Callable[[Any], float] | None = None, c1: float = 1e-4, c2: float = 0.1) -> OptimizeResult:
+             noise: Callable[[Any], float] | None = None, c1: float = 1e-4, c2: float = 0.1,
+             first_step: Callable[[Any, np.ndarray, float], float] | None = None) -> OptimizeResult:
     """Minimise a smooth function from x0.
 
     Parameters
@@ -95,6 +96,8 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         decrement is below it (J cannot be resolved further in double precision)
     c1, c2 : the strong Wolfe parameters of the line search (0 < c1 < c2 < 1/2 for PR+); a smaller
         c2 makes the line search more nearly exact (as scipy's ``minimize(method="CG")`` offers)
+    first_step : (payload, d, gᵀd) -> the line search's first trial step along d, with a preconditioner
+        (default: the unit step; e.g. a model of the penalty rows the step would activate)
 
     Returns
     -------
@@ -133,9 +136,9 @@ def minimize(evaluate: Evaluate, x0: np.ndarray, *, precondition: Precondition |
         dphi0 = float(g @ d)
         if not dphi0 < 0:  # only with a preconditioner that is not positive definite: try −P⁻¹g
             d, dphi0 = -z, -gz
-        # first trial: the unit (Newton-like) step with a preconditioner, else the previous decrease
+        # first trial: the unit (Newton-like) step with a preconditioner (or ``first_step``'s), else the previous decrease
         if precondition is not None:
-            a0 = 1.0
+            a0 = 1.0 if first_step is None else first_step(payload, d, dphi0)
         elif J_prev is not None:
             a0 = min(1.0, 1.01 * 2.0 * (J - J_prev) / dphi0) if J_prev > J else alpha_prev
         else:
