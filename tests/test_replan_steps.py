@@ -98,3 +98,33 @@ def test_the_weights_search_starts_where_asked():
     tried.clear()
     mu, _ = gauss_newton_shift(H, GN, factor, start=10.0)
     assert mu == pytest.approx(100.0) and len(tried) == 2
+
+
+def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
+    """With a free T the coarse steps at the guess (``free_time_sqp._coarse_replan``'s first stage) stop at
+    ``COARSE_START_ACCURACY``: the lbr7 catch's take 5 steps there (18 to ``COARSE_ACCURACY``) and fewer steps in all,
+    to the same optimum on the 8 elements (J to 1e-12, T to 1e-11 measured)."""
+    import hoc_cli.goals.free_time_sqp as fts
+
+    problem = lbr7_catch_problem(N=8)
+    arm, limits, goals = problem.system, problem.limits, problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    steps: list = []
+    run = fts.replan
+
+    def counted(*args, **kwargs):
+        r = run(*args, **kwargs)
+        steps[-1].append(r.steps)
+        return r
+
+    monkeypatch.setattr(fts, "replan", counted)
+    out = []
+    for accuracy in (fts.COARSE_START_ACCURACY, fts.COARSE_ACCURACY):
+        monkeypatch.setattr(fts, "COARSE_START_ACCURACY", accuracy)
+        steps.append([])
+        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    early, full = out
+    assert early.converged and full.converged
+    assert steps[0][0] <= 8 < steps[1][0]  # 5 and 18 measured
+    assert sum(steps[0]) < sum(steps[1])  # 26 and 35
+    assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
