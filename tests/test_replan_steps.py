@@ -128,3 +128,35 @@ def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
     assert steps[0][0] <= 8 < steps[1][0]  # 5 and 18 measured
     assert sum(steps[0]) < sum(steps[1])  # 26 and 35
     assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
+
+
+def test_the_problem_and_rows_on_a_uniform_mesh_at_another_time_are_those_built_afresh():
+    """``problem_on`` and ``rows_on`` rescale a uniform mesh's quadrature and limit rows to another T (a free T's
+    steps evaluate each trial T) instead of building them: the same samples, cost and rows to rounding."""
+    from hoc_cli.constraints.penalty import LimitRows
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals.plan import GoalProblem
+    from hoc_cli.goals.replan_point import problem_on, rows_on
+
+    problem = lbr7_catch_problem(N=4)
+    goals = problem.goals()
+    built = []
+    for T in (0.35, 0.41):
+        mesh = HermiteMesh("quintic", T, 4)
+        p = GoalProblem(problem.system, mesh, problem.q0, problem.dq0, goals, G=8)
+        p.op_h = p.op
+        built.append((mesh, p, LimitRows.build(mesh, p.layout.free, 7)))
+    (_, p1, r1), (mesh2, p2, r2) = built
+    p3, r3 = problem_on(p1, mesh2), rows_on(r1, mesh2)
+    assert p3 is not None and r3 is not None and p3.mesh is mesh2 and p3.op_h is p3.op and r3.mesh is mesh2
+    C = np.random.default_rng(3).normal(size=(5, 3, 7))
+    for a, b in zip(p2.op.apply(C), p3.op.apply(C)):
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max()
+    assert np.allclose(p3.op.t, p2.op.t, rtol=1e-15, atol=0) and np.allclose(p3.op.w, p2.op.w, rtol=1e-15, atol=0)
+    x = p2.layout.pack(C)
+    assert abs(p3.value(x) - p2.value(x)) <= 1e-12 * abs(p2.value(x))
+    for k in range(4):
+        a, b = (r.apply(k, mesh2.local_coefficients(C)) for r in (r3, r2))
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    assert all(np.array_equal(a, b) for a, b in zip(r3.data, r2.data))
+    assert problem_on(p1, HermiteMesh("quintic", 0.41, 8)) is None and rows_on(r1, HermiteMesh("quintic", 0.41, 8)) is None
