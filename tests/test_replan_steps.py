@@ -160,3 +160,35 @@ def test_the_problem_and_rows_on_a_uniform_mesh_at_another_time_are_those_built_
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
     assert all(np.array_equal(a, b) for a, b in zip(r3.data, r2.data))
     assert problem_on(p1, HermiteMesh("quintic", 0.41, 8)) is None and rows_on(r1, HermiteMesh("quintic", 0.41, 8)) is None
+
+
+def test_a_newton_matrix_reuses_the_point_s_dynamics_and_goal_curvature(catch, monkeypatch):
+    """The Hessian sweep takes the torques and mass matrices of the point's evaluation (``hessian_samples(ev, samples)``),
+    and the goal rows' curvature is differenced once for the blocks with and without its negative part
+    (``newton_blocks(parts=…)``): the same numbers as computed afresh, with fewer dynamics and kinematics calls."""
+    from hoc_cli.goals.replan_point import evaluate_point
+    from hoc_cli.goals.terms import GoalTerms
+
+    arm, limits, goals, start = catch
+    p = start.problem
+    lam = [np.full(g.residual.size, 3.0) for g in p.points] + [np.zeros(0)]
+    pt = evaluate_point(arm, "quintic", 4, 0.35, start.coeffs, p.boundary[0], p.boundary[1], goals, p.cost, start.G, lam,
+                        limits, None, 0.0, False, {})
+    problem = pt.problem
+    fresh = problem.hessian_samples(pt.ev)
+    calls = []
+    mass = arm.mass_matrix
+    monkeypatch.setattr(arm, "mass_matrix", lambda q: calls.append(q.shape) or mass(q))
+    kept = problem.hessian_samples(pt.ev, pt.samples)
+    assert not calls and all(np.array_equal(a, b) for a, b in zip(fresh, kept))
+    terms = GoalTerms(problem.mesh, problem.points, lam[:-1], 10.0, pt.where)
+    batches = []
+    kind = type(problem.points[0].residual)
+    batch = kind.batch
+    monkeypatch.setattr(kind, "batch", lambda self, *a: batches.append(1) or batch(self, *a))
+    parts: list = []
+    for indefinite in (True, False):
+        alone = terms.newton_blocks(pt.C, indefinite=indefinite, res=pt.res)
+        shared = terms.newton_blocks(pt.C, indefinite=indefinite, res=pt.res, parts=parts)
+        assert np.array_equal(alone, shared)
+    assert len(batches) == 3  # twice alone, once for both shared
