@@ -128,6 +128,13 @@ def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
     assert steps[0][0] <= 8 < steps[1][0]  # 5 and 18 measured
     assert sum(steps[0]) < sum(steps[1])  # 26 and 35
     assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
+    # a start that passes the loose test itself (its first programme's decrease is no distance to the optimum; the torque
+    # catch's) gets the steps at the full accuracy from it: the same steps as with the full accuracy throughout
+    monkeypatch.setattr(fts, "COARSE_START_ACCURACY", 1e9)
+    steps.append([])
+    loose = fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits)
+    assert steps[2][:2] == [0, steps[1][0]] and steps[2][2:] == steps[1][1:]
+    assert loose.J == full.J and loose.T == full.T
 
 
 def test_the_problem_and_rows_on_a_uniform_mesh_at_another_time_are_those_built_afresh():
