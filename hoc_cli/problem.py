@@ -309,7 +309,7 @@ class ControlProblem:
         return self._sweep_sample_hessians(q, dq, ddq, rel_step)[0]
 
     def _sweep_sample_hessians(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
-                               rel_step: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+                               rel_step: float = 1e-8, known: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Hessian of L per sample, (K, 3n, 3n), and its positive semi-definite part Dᵀ S D (K, 3n, 3n).
 
         Both costs are L(x) = max_w Φ(x, w), x = (q, q̇, q̈), with Φ = wᵀu(x) − ½ wᵀ S⁻¹ w:
@@ -325,11 +325,15 @@ class ControlProblem:
         ID with λ = w at the acceleration a = q̈ − ½w (covariant) or q̈ (torque), at the sample and
         at its 2n forward-perturbed copies (q_j, then q̇_j, relative step ``rel_step``). Its four
         outputs, differenced, give Φ_xx (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇
-        and ∂ID(q, q̇, a)/∂q = ∂u/∂q − ½B (covariant) or ∂u/∂q (torque), from the torques.
+        and ∂ID(q, q̇, a)/∂q = ∂u/∂q − ½B (covariant) or ∂u/∂q (torque), from the torques. ``known``: (M, u) at these
+        samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here.
         """
         K, n = q.shape
-        M = self.system.mass_matrix(q)
-        u = self.system.inverse_dynamics(q, dq, ddq)
+        if known is not None:
+            M, u = known
+        else:
+            M = self.system.mass_matrix(q)
+            u = self.system.inverse_dynamics(q, dq, ddq)
         covariant = self.cost == "covariant"
         if covariant:
             Li = _inverse_cholesky(M)  # S = M⁻¹ = Liᵀ Li
@@ -398,13 +402,16 @@ class ControlProblem:
         self._kept_hessians = (ev, element_blocks(self.op_h, Hs), GNs)
         return self._kept_hessians[1], GNs
 
-    def hessian_samples(self, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
+    def hessian_samples(self, ev: Evaluation, samples: SampleGradients | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.
 
         On the preconditioner quadrature ``self.op_h`` (K_h = N·G_h samples): feed them to
         ``element_blocks(self.op_h, ·)``. The second is Dᵀ S D (see ``_sweep_sample_hessians``; for
-        the torque cost the Gauss-Newton matrix), from the same dynamics pass.
+        the torque cost the Gauss-Newton matrix), from the same dynamics pass. ``samples``: the ``SampleGradients``
+        of ev's own samples (q, q̇, q̈ = ev's), whose torques and mass matrices are used when ``op_h`` is ``op``.
         """
+        if samples is not None and self.op_h is self.op and samples.M is not None:
+            return self._sweep_sample_hessians(ev.q, ev.dq, ev.ddq, known=(samples.M, samples.u))
         return self._sweep_sample_hessians(*self._preconditioner_samples(ev))
 
     def positive_definite(self, H: np.ndarray, psd: Callable[[], np.ndarray], shift: float = BANDED_SHIFT) -> BandedSPD:

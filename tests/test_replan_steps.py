@@ -98,3 +98,104 @@ def test_the_weights_search_starts_where_asked():
     tried.clear()
     mu, _ = gauss_newton_shift(H, GN, factor, start=10.0)
     assert mu == pytest.approx(100.0) and len(tried) == 2
+
+
+def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
+    """With a free T the coarse steps at the guess (``free_time_sqp._coarse_replan``'s first stage) stop at
+    ``COARSE_START_ACCURACY``: the lbr7 catch's take 5 steps there (18 to ``COARSE_ACCURACY``) and fewer steps in all,
+    to the same optimum on the 8 elements (J to 1e-12, T to 1e-11 measured)."""
+    import hoc_cli.goals.free_time_sqp as fts
+
+    problem = lbr7_catch_problem(N=8)
+    arm, limits, goals = problem.system, problem.limits, problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    steps: list = []
+    run = fts.replan
+
+    def counted(*args, **kwargs):
+        r = run(*args, **kwargs)
+        steps[-1].append(r.steps)
+        return r
+
+    monkeypatch.setattr(fts, "replan", counted)
+    out = []
+    for accuracy in (fts.COARSE_START_ACCURACY, fts.COARSE_ACCURACY):
+        monkeypatch.setattr(fts, "COARSE_START_ACCURACY", accuracy)
+        steps.append([])
+        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    early, full = out
+    assert early.converged and full.converged
+    assert steps[0][0] <= 8 < steps[1][0]  # 5 and 18 measured
+    assert sum(steps[0]) < sum(steps[1])  # 26 and 35
+    assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
+    # a start that passes the loose test itself (its first programme's decrease is no distance to the optimum; the torque
+    # catch's) gets the steps at the full accuracy from it: the same steps as with the full accuracy throughout
+    monkeypatch.setattr(fts, "COARSE_START_ACCURACY", 1e9)
+    steps.append([])
+    loose = fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits)
+    assert steps[2][:2] == [0, steps[1][0]] and steps[2][2:] == steps[1][1:]
+    assert loose.J == full.J and loose.T == full.T
+
+
+def test_the_problem_and_rows_on_a_uniform_mesh_at_another_time_are_those_built_afresh():
+    """``problem_on`` and ``rows_on`` rescale a uniform mesh's quadrature and limit rows to another T (a free T's
+    steps evaluate each trial T) instead of building them: the same samples, cost and rows to rounding."""
+    from hoc_cli.constraints.penalty import LimitRows
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals.plan import GoalProblem
+    from hoc_cli.goals.replan_point import problem_on, rows_on
+
+    problem = lbr7_catch_problem(N=4)
+    goals = problem.goals()
+    built = []
+    for T in (0.35, 0.41):
+        mesh = HermiteMesh("quintic", T, 4)
+        p = GoalProblem(problem.system, mesh, problem.q0, problem.dq0, goals, G=8)
+        p.op_h = p.op
+        built.append((mesh, p, LimitRows.build(mesh, p.layout.free, 7)))
+    (_, p1, r1), (mesh2, p2, r2) = built
+    p3, r3 = problem_on(p1, mesh2), rows_on(r1, mesh2)
+    assert p3 is not None and r3 is not None and p3.mesh is mesh2 and p3.op_h is p3.op and r3.mesh is mesh2
+    C = np.random.default_rng(3).normal(size=(5, 3, 7))
+    for a, b in zip(p2.op.apply(C), p3.op.apply(C)):
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max()
+    assert np.allclose(p3.op.t, p2.op.t, rtol=1e-15, atol=0) and np.allclose(p3.op.w, p2.op.w, rtol=1e-15, atol=0)
+    x = p2.layout.pack(C)
+    assert abs(p3.value(x) - p2.value(x)) <= 1e-12 * abs(p2.value(x))
+    for k in range(4):
+        a, b = (r.apply(k, mesh2.local_coefficients(C)) for r in (r3, r2))
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    assert all(np.array_equal(a, b) for a, b in zip(r3.data, r2.data))
+    assert problem_on(p1, HermiteMesh("quintic", 0.41, 8)) is None and rows_on(r1, HermiteMesh("quintic", 0.41, 8)) is None
+
+
+def test_a_newton_matrix_reuses_the_point_s_dynamics_and_goal_curvature(catch, monkeypatch):
+    """The Hessian sweep takes the torques and mass matrices of the point's evaluation (``hessian_samples(ev, samples)``),
+    and the goal rows' curvature is differenced once for the blocks with and without its negative part
+    (``newton_blocks(parts=…)``): the same numbers as computed afresh, with fewer dynamics and kinematics calls."""
+    from hoc_cli.goals.replan_point import evaluate_point
+    from hoc_cli.goals.terms import GoalTerms
+
+    arm, limits, goals, start = catch
+    p = start.problem
+    lam = [np.full(g.residual.size, 3.0) for g in p.points] + [np.zeros(0)]
+    pt = evaluate_point(arm, "quintic", 4, 0.35, start.coeffs, p.boundary[0], p.boundary[1], goals, p.cost, start.G, lam,
+                        limits, None, 0.0, False, {})
+    problem = pt.problem
+    fresh = problem.hessian_samples(pt.ev)
+    calls = []
+    mass = arm.mass_matrix
+    monkeypatch.setattr(arm, "mass_matrix", lambda q: calls.append(q.shape) or mass(q))
+    kept = problem.hessian_samples(pt.ev, pt.samples)
+    assert not calls and all(np.array_equal(a, b) for a, b in zip(fresh, kept))
+    terms = GoalTerms(problem.mesh, problem.points, lam[:-1], 10.0, pt.where)
+    batches = []
+    kind = type(problem.points[0].residual)
+    batch = kind.batch
+    monkeypatch.setattr(kind, "batch", lambda self, *a: batches.append(1) or batch(self, *a))
+    parts: list = []
+    for indefinite in (True, False):
+        alone = terms.newton_blocks(pt.C, indefinite=indefinite, res=pt.res)
+        shared = terms.newton_blocks(pt.C, indefinite=indefinite, res=pt.res, parts=parts)
+        assert np.array_equal(alone, shared)
+    assert len(batches) == 3  # twice alone, once for both shared

@@ -258,22 +258,38 @@ def _same_fractions(a, b) -> bool:
     return bool(np.max(np.abs(a.nodes * (b.T / a.T) - b.nodes)) <= 1e-15 * b.T)
 
 
+def _same_uniform(a, b) -> bool:
+    """Whether a and b are uniform meshes of N elements of the same order (at any T)."""
+    return a.uniform and b.uniform and a.N == b.N and a.order == b.order
+
+
 def problem_on(problem: GoalProblem, mesh) -> GoalProblem | None:
-    """``problem`` (an ``evaluate_point`` problem: ``op_h`` is ``op``) on ``mesh``, a non-uniform mesh with the same
-    node fractions at another T, or None when the meshes are not so related. A shallow copy whose quadrature is
-    rescaled instead of rebuilt: the operator holds the h = 1 basis with the element scales h_e^(d_a) and h_e^(−r)
-    (``elements.element_scales``), and every h_e, sample time and weight scales with T; the layout and the fixed
+    """``problem`` (an ``evaluate_point`` problem: ``op_h`` is ``op``) on ``mesh``, a mesh with the same node fractions
+    at another T (both uniform, or both non-uniform), or None when the meshes are not so related. A shallow copy whose
+    quadrature is rescaled instead of rebuilt: the operator holds the h = 1 basis with the element scales h_e^(d_a) and
+    h_e^(−r) (``elements.element_scales``), or on a uniform mesh the basis with those factors of its h applied (column a
+    of ``B[r]`` scales as h^(d_a − r)), and every h_e, sample time and weight scales with T; the layout and the fixed
     coefficients (t-domain values) do not depend on T.
     """
     op = problem.op
-    if problem.op_h is not op or op.col_scale is None or not _same_fractions(problem.mesh, mesh):
+    if problem.op_h is not op:
         return None
     ratio = mesh.T / problem.mesh.T
     d = np.tile(np.arange(mesh.m), 2).astype(float)
+    if op.col_scale is None and _same_uniform(problem.mesh, mesh):
+        B = op.B * ratio ** (d[None, None, :] - np.arange(3.0)[:, None, None])
+        return _with_operator(problem, mesh, QuadratureOperator(mesh=mesh, G=op.G, t=op.t * ratio, w=op.w * ratio, B=B))
+    if op.col_scale is None or not _same_fractions(problem.mesh, mesh):
+        return None
     op_new = QuadratureOperator(mesh=mesh, G=op.G, t=op.t * ratio, w=op.w * ratio, B=op.B,
                                 col_scale=op.col_scale * ratio**d, row_scale=op.row_scale * ratio ** -np.arange(3.0)[:, None])
+    return _with_operator(problem, mesh, op_new)
+
+
+def _with_operator(problem: GoalProblem, mesh, op: QuadratureOperator) -> GoalProblem:
+    """A shallow copy of ``problem`` on ``mesh`` with the quadrature ``op`` (as ``op`` and ``op_h``)."""
     out = copy.copy(problem)
-    out.mesh, out.op, out.op_h, out.last = mesh, op_new, op_new, None
+    out.mesh, out.op, out.op_h, out.last = mesh, op, op, None
     return out
 
 
@@ -299,12 +315,18 @@ def _unit_rows(order: str, N: int, n: int, free: bytes) -> LimitRows:
 def rows_on(rows: LimitRows | None, mesh) -> LimitRows | None:
     """The limit rows of ``mesh`` from those of another mesh with the same node fractions (another T), or None
     when they cannot be reused: on a non-uniform mesh the rows are those of h = 1 with the elements' scales
-    h_e^(d − r) (``LimitRows.build``), and every h_e scales with T.
+    h_e^(d − r) (``LimitRows.build``), on a uniform one those of its h (column a of kind r as h^(d_a − r)), and every
+    h_e scales with T.
     """
-    if rows is None or rows.scale is None or not _same_fractions(rows.mesh, mesh):
+    if rows is None:
         return None
     ratio = mesh.T / rows.mesh.T
     d = np.tile(np.arange(mesh.m), 2)
+    if rows.scale is None and _same_uniform(rows.mesh, mesh):  # rows of h: column a of kind r scales as h^(d_a − r)
+        R = tuple(R * ratio ** (d - r).astype(float)[None, :] for r, R in enumerate(rows.rows))
+        return LimitRows(mesh, R, rows.part, rows.data, rows.pieces, None)
+    if rows.scale is None or not _same_fractions(rows.mesh, mesh):
+        return None
     scale = tuple(sc * ratio ** (d - r).astype(float) for r, sc in enumerate(rows.scale))
     return LimitRows(mesh, rows.rows, rows.part, rows.data, rows.pieces, scale)
 

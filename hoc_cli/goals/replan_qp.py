@@ -86,13 +86,14 @@ RUNAWAY = 1e16  # a programme whose decrease exceeds this·max(|J|, 1) (1/ε: be
 
 
 def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool,
-            weights: dict | None = None):
+            weights: dict | None = None, samples=None):
     """The Newton matrix (``BandedSPD``) of the cost plus the element blocks ``extra_of(indefinite)`` at ``ev``: with
     the goal rows' full curvature (``indefinite`` True), else without the curvature's negative part; each factored
     as it is, then (not ``quick``) made positive definite by adding μ times the cost's positive semi-definite part
     plus the same blocks (``gauss_newton_shift``), and both share one Hessian sweep. The shift of the first is only
     searched when that part plus the blocks factors (else no μ can help: the rows' own negative curvature is the
-    cause); ``weights`` keeps the last μ accepted for each, and the next search starts a decade below it. ``quick``
+    cause); ``weights`` keeps the last μ accepted for each, and the next search starts a decade below it. ``samples``: ev's
+    ``SampleGradients`` (their torques and mass matrices serve the Hessian sweep, ``hessian_samples``). ``quick``
     (the real-time replanner's steps, where time counts): the first is not shifted. Raises ``NumericalError`` when
     neither is positive definite.
     """
@@ -102,7 +103,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
         except NumericalError:
             return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
-    Hs, GNs = problem.hessian_samples(ev)
+    Hs, GNs = problem.hessian_samples(ev, samples)
     Hb = element_blocks(problem.op_h, Hs)
     GNb = None
     for indefinite in (True, False):
@@ -133,15 +134,17 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
     raise NumericalError("the Newton matrix is not positive definite")
 
 
-def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None):
+def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None,
+            parts: list | None = None):
     """Element blocks added to the cost's Newton matrix: the goal rows' Σλ∇²c + ρDᵀD (its negative part
     dropped unless ``indefinite``) and ρAᵀA of the working set's rows (``held``; zero at a step that keeps
     them, so the programme's solution keeps its meaning while the matrix is positive definite where the
-    limits hold the motion).
+    limits hold the motion). ``parts``: ``GoalTerms.newton_blocks``' store, shared by the calls at one point.
     """
     out = held
     if problem.points:
-        goal = GoalTerms(problem.mesh, problem.points, lam, rho, where).newton_blocks(C, indefinite=indefinite, res=res)
+        goal = GoalTerms(problem.mesh, problem.points, lam, rho, where).newton_blocks(C, indefinite=indefinite, res=res,
+                                                                                      parts=parts)
         out = goal if out is None else out + goal
     return out
 
@@ -253,11 +256,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             else:
                 due("newton")
                 held = active.gram_blocks(pt.rows, limits, rho_aug) if active.size else None
-                def extra_of(indefinite: bool, held=held, C=C):  # away from the optimum: without the negative part
-                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where)
+                parts: list = []  # the goal rows' curvature at this point, for both calls
+
+                def extra_of(indefinite: bool, held=held, C=C, parts=parts):  # far from the optimum: without the negative part
+                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts)
 
                 try:
-                    W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights)
+                    W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples)
                 except NumericalError:
                     if _log.isEnabledFor(logging.DEBUG):
                         _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")

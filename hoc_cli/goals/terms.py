@@ -117,16 +117,37 @@ class GoalTerms:
         return c, np.array(rows).reshape((len(rows),) + C.shape)
 
     def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False,
-                      res: list | None = None) -> np.ndarray:
+                      res: list | None = None, parts: list | None = None) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of ρ Dᵀ D, plus with ``curvature`` the positive part of Σ μ ∇²c.
 
         The second-order part in (q, q̇) is the forward difference (step 1e-7·(1 + |x|)) of the vector
         Dᵀ μ at fixed μ, symmetrised, its negative eigenvalues dropped unless ``indefinite`` (measured on the lbr7 catch:
-        half the inner iterations of the blocks without it, and fewer than with the indefinite part).
+        half the inner iterations of the blocks without it, and fewer than with the indefinite part). ``parts``: a list
+        that keeps ``newton_parts`` (filled on the first call, read on the next: the blocks with and without the
+        negative part from one set of differences).
         """
+        if parts is None or not parts:
+            found = self.newton_parts(C, curvature, res)
+            if parts is not None:
+                parts.append(found)
+        else:
+            found = parts[0]
+        Hs, curvatures = found
+        Hs = Hs.copy()
+        n = C.shape[-1]
+        for i, H in curvatures:
+            if not indefinite:
+                ev, V = np.linalg.eigh(H)
+                H = (V * np.maximum(ev, 0.0)) @ V.T
+            Hs[i, :2 * n, :2 * n] += H
+        return self._where().sample_blocks(Hs)
+
+    def newton_parts(self, C: np.ndarray, curvature: bool = True, res: list | None = None) -> tuple:
+        """(ρ DᵀD per point (points, 3n, 3n), [(point, Σ μ ∇²c in (q, q̇) (2n, 2n), symmetrised)]) of ``newton_blocks``."""
         n = C.shape[-1]
         T = self.mesh.T
         Hs = np.zeros((len(self.points), 3 * n, 3 * n))
+        curvatures = []
         for i, r in enumerate(self.residuals(C) if res is None else res):
             D = np.hstack([r[1], r[2], np.zeros_like(r[1])])
             Hs[i] = self.rho * D.T @ D
@@ -138,12 +159,8 @@ class GoalTerms:
                 X = x[None, :] + np.diag(steps)  # (2n, 2n): one perturbed (q, q̇) per row
                 _, cq, cv, _ = self.points[i].residual.batch(X[:, :n], X[:, n:], T)
                 H = ((np.concatenate([cq, cv], axis=2).transpose(0, 2, 1) @ mu) - base).T / steps
-                H = 0.5 * (H + H.T)
-                if not indefinite:
-                    ev, V = np.linalg.eigh(H)
-                    H = (V * np.maximum(ev, 0.0)) @ V.T
-                Hs[i, :2 * n, :2 * n] += H
-        return self._where().sample_blocks(Hs)
+                curvatures.append((i, 0.5 * (H + H.T)))
+        return Hs, curvatures
 
     def time_slopes(self, C: np.ndarray, T: float, V1: np.ndarray, res: list | None = None) -> np.ndarray:
         """The rows' T derivatives c' (r,) along the rescaled family (``time_column``'s first part, exact)."""
