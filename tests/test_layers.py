@@ -170,3 +170,27 @@ def test_hoc_plan_and_hoc_batch_prepare_a_task_through_report_prepare(module):
 def test_the_preparation_check_sees_a_front_end_building_its_own_problem():
     tree = ast.parse("def _solve():\n    from hoc_cli.io.task.problem import problem_from_task, task_limits\n")
     assert preparation_taken("hoc_cli.batch.job", tree) == {"problem_from_task", "task_limits"}
+
+
+def re_exports(source: str) -> list[int]:
+    """The lines of ``source`` whose ``from … import`` is kept only by a ``noqa: F401`` (names imported to be
+    taken from here by other modules: a shim)."""
+    lines = source.splitlines()
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+            if any("noqa: F401" in lines[k] for k in range(node.lineno - 1, node.end_lineno)):
+                out.append(node.lineno)
+    return out
+
+
+def test_no_module_re_exports_names_from_another():
+    """Every module imports a name from where it is defined: no shims left by moves (issue 23's migration)."""
+    bad = [(str(p.relative_to(PACKAGE.parent)), line) for p in sorted(PACKAGE.rglob("*.py"))
+           for line in re_exports(p.read_text(encoding="utf-8"))]
+    assert bad == []
+
+
+def test_the_re_export_check_sees_a_shim():
+    assert re_exports("from hoc_cli.report.console import (  # noqa: F401  (re-exported)\n    warn,\n)\n") == [1]
+    assert re_exports("import matplotlib  # noqa: F401  (installed?)\nfrom a import b\n") == []

@@ -63,9 +63,8 @@ import numpy as np
 
 from ..model.tree import RobotModel
 from ._adjoint import _jac_work, _jacobians_into, _vjp_rows
-from ._layout import (  # noqa: F401  (the chunk sizes are tuning knobs, re-exported)
+from ._layout import (
     DERIV_CHUNK,
-    ID_CHUNK,
     JAC_MIN_K,
     MASS_CHUNK,
     VJP_CHUNK,
