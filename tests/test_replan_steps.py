@@ -199,3 +199,27 @@ def test_a_newton_matrix_reuses_the_point_s_dynamics_and_goal_curvature(catch, m
         shared = terms.newton_blocks(pt.C, indefinite=indefinite, res=pt.res, parts=parts)
         assert np.array_equal(alone, shared)
     assert len(batches) == 3  # twice alone, once for both shared
+
+
+def test_a_free_t_goal_plan_reports_every_step_that_made_it(monkeypatch):
+    """The cold catch at N = 8 (coarse stage, then the mesh): the plan's iterations, evaluations and Newton matrices
+    (the summary's ``iterations``, ``evaluations``, ``hessians``) are the totals of every replan it ran, not the last
+    one's (which re-estimates the multipliers and takes no step)."""
+    import hoc_cli
+    import hoc_cli.goals.free_time_sqp as fts
+
+    runs = []
+    run = fts._run
+
+    def spy(record, *args, **options):
+        r = run(record, *args, **options)
+        runs.append(r.plan.optimizer)
+        return r
+
+    monkeypatch.setattr(fts, "_run", spy)
+    plan = hoc_cli.solve(lbr7_catch_problem(N=8))
+    o = plan.result.optimizer
+    assert plan.converged and len(runs) >= 3
+    assert (o.iterations, o.n_evals, o.n_precond) == (sum(r.iterations for r in runs), sum(r.n_evals for r in runs),
+                                                      sum(r.n_precond for r in runs))
+    assert o.iterations > runs[-1].iterations

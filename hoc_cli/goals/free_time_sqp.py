@@ -185,10 +185,11 @@ def _coarsens(mesh, goals, coarse: int) -> bool:
 def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int, max_steps: int,
                   coarse: int, level=None) -> FreeTimeResult | None:
     """``_coarse_replan`` as the free-T optimum (a ``FreeTimeResult``), or None."""
-    r = _coarse_replan(system, start, goals, limits, span, cold_steps, max_steps, coarse, level=level)
+    record: list = []  # every replan's outcome: the plan reports their steps and evaluations together
+    r = _coarse_replan(system, start, goals, limits, span, cold_steps, max_steps, coarse, level=level, record=record)
     if r is None:
         return None
-    point = _point(r)
+    point = TimePoint(T=r.T, J=r.plan.J, dJ_dT=r.dJ_dT, result=_with_work(r.plan, record))
     return _result(point, [point], span.min, span.max, span.weight)
 
 
@@ -285,16 +286,24 @@ def replan_fixed_time(system, previous, goals, limits, *, max_steps: int = MAX_S
     return _fixed_plan(r, record, "SQP steps from the initial plan: converged")
 
 
+def _with_work(plan, record: list):
+    """``plan`` (a ``GoalResult``) with its optimizer's iterations, evaluations and Newton matrices the totals of every
+    replan in ``record`` (the summary's ``iterations``, ``evaluations``, ``hessians``: all the steps that made it).
+    """
+    work = [x.plan.optimizer for x in record]
+    optimizer = dataclasses.replace(plan.optimizer, iterations=sum(o.iterations for o in work),
+                                    n_evals=sum(o.n_evals for o in work), n_precond=sum(o.n_precond for o in work))
+    return dataclasses.replace(plan, optimizer=optimizer)
+
+
 def _fixed_plan(r, record: list, message: str):
     """The ``GoalResult`` of the converged fixed-T replan ``r``: ``message``, the steps and evaluations of every replan in
     ``record``, and J's relative change with G + 4 Gauss points as its ``quadrature_change``.
     """
-    plan = r.plan
+    plan = _with_work(r.plan, record)
     problem = plan.problem
     J4 = problem.with_quadrature(problem.G + 4).value(problem.layout.pack(plan.coeffs))
-    work = [x.plan.optimizer for x in record]
-    optimizer = dataclasses.replace(plan.optimizer, message=message, iterations=sum(o.iterations for o in work),
-                                    n_evals=sum(o.n_evals for o in work), n_precond=sum(o.n_precond for o in work))
+    optimizer = dataclasses.replace(plan.optimizer, message=message)
     changes = {"quadrature_change": abs(J4 - plan.J) / max(abs(J4), 1e-300), "optimizer": optimizer}
     if plan.limits is not None:
         changes["limits"] = dataclasses.replace(plan.limits, message=message)
