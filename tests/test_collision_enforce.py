@@ -271,19 +271,26 @@ def test_the_distance_curvature_blocks_are_minus_mu_times_the_second_derivative_
     assert quad == pytest.approx(ref, rel=1e-4) and abs(ref) > 0
 
 
+def swing_rows(model, scene, near: float, every: int):
+    """The lbr7's minimum-jerk swing on 4 quintic elements (1.5 s) and its collision rows: (C (5, 3, 7), the base
+    points, their distances (points, pairs), ``CollisionTerms`` of every pair nearer than ``near`` [m], seeded λ > 0 on
+    one row in ``every``, ρ = 50, margin 0.03 m)."""
+    mesh = HermiteMesh("quintic", 1.5, 4)
+    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
+    C = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
+    points = base_points(mesh)
+    D = distances(model, scene, point_configurations(points, C))
+    p, k = np.nonzero(D < near)
+    lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % every == 0)
+    return C, points, D, CollisionTerms(model, scene, points, p, k, lam, 50.0, np.full(p.size, 0.03))
+
+
 def test_rows_that_cannot_reach_their_bound_from_the_start_are_skipped_without_changing_phi(lbr7_scene):
     """Skipped rows (``RowStart``: the reach bound from the inner solve's start, or from the last plan where every
     row was evaluated) add exactly nothing: Φ, its gradient and its blocks equal those of every row evaluated, at
     plans moved a little and far from the start."""
     model, scene = lbr7_scene
-    mesh = HermiteMesh("quintic", 1.5, 4)
-    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
-    C0 = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
-    points = base_points(mesh)
-    D = distances(model, scene, point_configurations(points, C0))
-    p, k = np.nonzero(D < 0.3)  # near and far rows, λ > 0 on one in eight
-    lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % 8 == 0)
-    full = CollisionTerms(model, scene, points, p, k, lam, 50.0, np.full(p.size, 0.03))
+    C0, points, D, full = swing_rows(model, scene, near=0.3, every=8)  # near and far rows, λ > 0 on one in eight
     start = RowStart(point_configurations(points, C0), D[full.rows, full.pairs],
                      row_reach(model, scene, np.arange(scene.size))[full.pairs])
     pruned = dataclasses.replace(full, start=start, _last=[], _anchor=[])

@@ -5,9 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hoc_cli.collision.constraint import CollisionTerms, point_configurations
-from hoc_cli.collision.enforce import base_points
-from hoc_cli.collision.evaluate import distances
 from hoc_cli.collision.step import limit_rows, model_step
 from hoc_cli.constraints import JointLimits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
@@ -16,10 +13,10 @@ from hoc_cli.constraints.penalty import LimitRows, LimitTerms
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
 from hoc_cli.optimize import minimize
-from hoc_cli.problem import ControlProblem, minimum_jerk_guess
+from hoc_cli.problem import ControlProblem
 from hoc_cli.system import RobotSystem
 from tests._robots import ROBOTS
-from tests.test_collision_enforce import lbr7_scene  # noqa: F401  (the fixture)
+from tests.test_collision_enforce import lbr7_scene, swing_rows  # noqa: F401  (the fixture)
 
 
 def _model(alpha, slope, a, b, rho):
@@ -67,21 +64,14 @@ def test_the_optimiser_starts_its_line_search_at_the_first_step():
 
 def test_the_collision_rows_rates_along_a_step_are_their_directional_derivatives(lbr7_scene):  # noqa: F811
     model, scene = lbr7_scene
-    mesh = HermiteMesh("quintic", 1.5, 4)
-    q0, q1 = np.array([-0.9, 0.7, 0, -1.2, 0, 0.9, 0]), np.array([0.9, 0.8, 0, -1.0, 0, 1.0, 0])
-    C = minimum_jerk_guess(mesh, q0, np.zeros(7), q1, np.zeros(7))
-    points = base_points(mesh)
-    D = distances(model, scene, point_configurations(points, C))
-    p, k = np.nonzero(D < 0.2)
-    lam = np.random.default_rng(1).uniform(0, 2, p.size) * (np.arange(p.size) % 3 == 0)
-    terms = CollisionTerms(model, scene, points, p, k, lam, 50.0, np.full(p.size, 0.03))
+    C, points, D, terms = swing_rows(model, scene, near=0.2, every=3)
     dC = np.random.default_rng(2).normal(size=C.shape) * 0.1
     dC[0] = dC[-1] = 0.0
     a, b, rho = terms.step_rows(C, dC)
     h = 1e-6
     fd = -(terms.distances(C + h * dC) - terms.distances(C - h * dC)) / (2 * h)
     d = terms.distances(C)
-    np.testing.assert_allclose(a, lam / terms.rho_rows + 0.03 - d, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(a, terms.lam / terms.rho_rows + 0.03 - d, rtol=1e-12, atol=1e-15)
     assert np.median(np.abs(b - fd)) < 1e-7 * np.abs(fd).max() and np.mean(np.abs(b - fd) < 1e-5) >= 0.95
     np.testing.assert_array_equal(rho, terms.rho_rows)
 
