@@ -165,3 +165,21 @@ def random_tree_urdf(rng: np.random.Generator, n_joints: int = 7) -> str:
             f'<origin xyz="{xyz}" rpy="{rpy_j}"/><axis xyz="{" ".join(f"{x:.17g}" for x in axis)}"/>'
             '<limit lower="-1" upper="1" effort="10" velocity="2"/></joint>')
     return '<?xml version="1.0"?>\n<robot name="random">' + "".join(links + joints) + "</robot>"
+
+
+def steps_on_mesh(monkeypatch, N: int) -> list:
+    """A list that collects the steps of every replan ``hoc_cli.goals.free_time_sqp`` runs on a mesh of N elements
+    from now on (the plan's own ``iterations`` total the coarse stage's steps too)."""
+    import hoc_cli.goals.free_time_sqp as fts
+
+    steps: list = []
+    run = fts._run
+
+    def spy(record, *args, **options):
+        r = run(record, *args, **options)
+        if r.plan.mesh.N == N:
+            steps.append(r.plan.optimizer.iterations)
+        return r
+
+    monkeypatch.setattr(fts, "_run", spy)
+    return steps

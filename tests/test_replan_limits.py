@@ -25,7 +25,7 @@ from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.model import load_robot
 from hoc_cli.problem import Layout
 from hoc_cli.system import RobotSystem
-from tests._robots import ROBOTS, ROOT
+from tests._robots import ROBOTS, ROOT, steps_on_mesh
 
 MODEL = load_robot(ROBOTS / "two_link.urdf")
 SYSTEM = RobotSystem(MODEL)
@@ -209,7 +209,7 @@ def test_free_time_by_sqp_steps_meets_the_search(limits, fractions, cold_steps):
     assert sqp.result.mesh.uniform == (fractions is None)
 
 
-def test_free_time_first_on_a_coarse_mesh_meets_the_steps_on_the_mesh():
+def test_free_time_first_on_a_coarse_mesh_meets_the_steps_on_the_mesh(monkeypatch):
     """From a guess whose initial trajectory keeps the limits (T = 1.5 s; at 0.95 s it breaks the velocity limit and
     the restoration runs instead), ``minimize_time_sqp`` finds T on ``COARSE_N`` elements first and then needs a few
     steps in x and T on the mesh: the same optimum as the steps on the mesh alone (``coarse=0``: T to 1e-8,
@@ -219,11 +219,13 @@ def test_free_time_first_on_a_coarse_mesh_meets_the_steps_on_the_mesh():
 
     goals = goals_at(0.01)
     solver = goal_solver(SYSTEM, "quintic", 8, Q0, Z, goals, limits=LIMITS)
-    fine, coarse = (minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=1.5, weight=1.0, limits=LIMITS, coarse=c)
-                    for c in (0, COARSE_N))
+    fine = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=1.5, weight=1.0, limits=LIMITS, coarse=0)
+    on_mesh = steps_on_mesh(monkeypatch, 8)
+    coarse = minimize_time_sqp(solver, SYSTEM, goals, 0.6, 1.6, guess=1.5, weight=1.0, limits=LIMITS, coarse=COARSE_N)
     assert fine.converged and coarse.converged and coarse.bound is None
     assert len(fine.history) == 2 and len(coarse.history) == 1  # one plan on the mesh: the coarse optimum's steps
-    assert coarse.result.optimizer.iterations <= 6 < fine.result.optimizer.iterations
+    assert sum(on_mesh) <= 6 < fine.result.optimizer.iterations
+    assert coarse.result.optimizer.iterations > sum(on_mesh)  # the plan reports the coarse stage's steps too
     assert coarse.T == pytest.approx(fine.T, rel=1e-8)
     assert coarse.objective == pytest.approx(fine.objective, rel=1e-12)
     assert abs(coarse.dJ_dT + 1.0) <= 1e-6 * (coarse.J / coarse.T + 1.0)
