@@ -98,13 +98,16 @@ def _unit(M: np.ndarray) -> np.ndarray:
 
 
 def _cold_nnls(M: np.ndarray) -> np.ndarray:
-    """The w ≥ 0 minimising ‖M w − f‖ (scipy's Lawson-Hanson from no active row), its cap ``NNLS_ITER`` per column."""
-    from scipy.optimize import nnls  # imported on first use (0.25 s)
-
+    """The w ≥ 0 minimising ‖M w − f‖ (``hoc_cli.optimize.nnls``, Lawson-Hanson from no active row), its cap
+    ``NNLS_ITER`` per column. Not scipy's ``optimize.nnls``: its reimplementation (SciPy 1.15 on) can end at a point
+    that is not the minimiser, without a warning (scipy/scipy#25389); on the lbr7 catch's programme at its own
+    optimum (``hoc plan --init`` from its plan) SciPy 1.17.1's returned a step that broke its rows by 0.018 and
+    raised the model by 3.9, where the minimiser is the zero step.
+    """
     cap = max(1, NNLS_ITER * M.shape[1])
     try:
-        return nnls(M, _unit(M), maxiter=cap)[0]
-    except RuntimeError:  # its iteration cap (scipy raises): the callers' failed step, not a crash
+        return warm_nnls(M, _unit(M), max_iter=cap).w
+    except NumericalError:
         raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
 
 
