@@ -321,6 +321,20 @@ def _search(at, T0: float, T_min: float, T_max: float, rtol: float, max_solves: 
     return finish(best, None)
 
 
+def constraint_start(result, factor: float) -> dict:
+    """The warm start of a constraint's loop (``planner.plan``'s and ``goals.plan_goals``' ``constraint_warm`` and
+    ``working``) from ``result``, a plan with a constraint in ``1/factor`` times the duration: its outcome's
+    multipliers stretched to the new duration (``warm.stretched``) and its joint limits' working set; empty without
+    a constraint. Without them the limits' rounds of the next plan start from zero multipliers at their first ρ and
+    leave the warm start far from its limits (the lbr7 catch past a sphere: a fixed-T plan of minutes).
+    """
+    outcome = getattr(result, "constraint", None)
+    if outcome is None or outcome.warm is None:
+        return {}
+    limits = getattr(result, "limits", None)
+    return {"constraint_warm": outcome.warm.stretched(factor), "working": None if limits is None else limits.working}
+
+
 def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=None,
                       **plan_options) -> Callable[[float, "TimePoint | None"], TimePoint]:
     """``solve(T, nearest)`` for ``minimize_time`` on a joint goal: ``hoc_cli.planner.plan`` on N elements
@@ -331,8 +345,9 @@ def joint_goal_solver(system, order: str, N: int, q0, dq0, q1, dq1, *, limits=No
 
     def solve(T: float, nearest: TimePoint | None) -> TimePoint:
         C_init = None if nearest is None else rescale(nearest.result.coeffs, nearest.T, T)
+        warm = {} if nearest is None else constraint_start(nearest.result, T / nearest.T)
         result = plan(system, HermiteMesh(order, T, N), q0, dq0, q1, dq1, C_init=C_init, limits=limits,
-                      **plan_options)
+                      **warm, **plan_options)
         return TimePoint(T=T, J=result.J, dJ_dT=plan_time_derivative(result, system, limits), result=result)
 
     return solve

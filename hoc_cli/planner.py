@@ -166,14 +166,14 @@ class _Session:
 
     def __init__(self, system: System, boundary, *, cost: str, method: str, max_iter: int, precondition: bool,
                  callback: Callable[[IterLog], None] | None, limits: JointLimits | None,
-                 working: np.ndarray | None, constraint=None) -> None:
+                 working: np.ndarray | None, constraint=None, constraint_warm=None) -> None:
         self.system, self.boundary, self.cost, self.method = system, boundary, cost, method
         self.max_iter, self.precondition, self.callback = max_iter, precondition, callback
         self.limits = limits if limits is not None and limits.any else None
         self.working = working
         self.duals = None  # the last converged level's multipliers (``Duals``): the next solve's warm start
         self.constraint = constraint  # an outer loop of its own around each level's solve (``plan``)
-        self.constraint_warm = None  # ... and what it hands to the next level
+        self.constraint_warm = constraint_warm  # ... and what it hands to the next level
         self.outcome = None  # ... and its outcome on the last level
         self.spent = 0  # iterations not counted against max_iter (each of the constraint's inner solves has its own)
         self.totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0}
@@ -310,7 +310,7 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
          tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None, G: int | None = None,
          precondition: bool = True, continuation: bool = True,
          callback: Callable[[IterLog], None] | None = None, limits: JointLimits | None = None,
-         working: np.ndarray | None = None, constraint=None) -> PlanResult:
+         working: np.ndarray | None = None, constraint=None, constraint_warm=None) -> PlanResult:
     """Solve the optimal-control problem on ``mesh`` from the minimum-jerk guess (or ``C_init``).
 
     Coarse to fine (``continuation``, unless ``C_init`` is given), over ``continuation_levels(N)``:
@@ -333,13 +333,14 @@ def plan(system: System, mesh: HermiteMesh, q0, dq0, q1, dq1, *, cost: str = "co
     runs inside its outer loop: ``constraint.solve(problem, x0, tol, minimize, warm=…, full=…, system=…,
     limits=…, working=…)`` returns (result, J without its terms, limits outcome, outcome); ``minimize`` is
     the unconstrained solve, the joint limits are terms of the constraint's own loop, the outcome's
-    ``warm`` starts the next level, and the finest level's outcome is ``PlanResult.constraint``. Without ``G`` its
+    ``warm`` starts the next level (the first from ``constraint_warm`` when given: e.g. the plan of a nearby T's,
+    stretched to this T), and the finest level's outcome is ``PlanResult.constraint``. Without ``G`` its
     full levels start at ``CONSTRAINT_EXTRA_G`` more Gauss points than the default (the quadrature check goes on).
     """
     start = time.perf_counter()
     session = _Session(system, (q0, dq0, q1, dq1), cost=cost, method=method, max_iter=max_iter,
                        precondition=precondition, callback=callback, limits=limits, working=working,
-                       constraint=constraint)
+                       constraint=constraint, constraint_warm=constraint_warm)
     full = [mesh.N]
     prev_mesh, C_prev = None, None
     if C_init is None and continuation and precondition:

@@ -59,6 +59,8 @@ from hoc_cli.collision.limit_rounds import LimitState, LimitWarm
 from hoc_cli.collision.scene import CollisionScene
 from hoc_cli.constraints.bounds import JointLimits
 from hoc_cli.constraints.points import PointSet
+from hoc_cli.constraints.prolong import Duals
+from hoc_cli.elements import HermiteMesh
 from hoc_cli.model.tree import RobotModel
 
 _log = logging.getLogger(__name__)  # the outer iterations at DEBUG level
@@ -101,6 +103,22 @@ class CollisionWarm:
     rho: float
     limits: LimitWarm | None = None
     N: int = 0
+
+    def stretched(self, factor: float) -> "CollisionWarm":
+        """The state for the same task in ``factor`` times the duration (a free T's next fixed-T plan, warm-started
+        from the nearest one's coefficients rescaled in time): the point times and weights scaled, each row's
+        multiplier kept; the joint limits' multipliers on their rows of the stretched mesh, ρ restarting from its ρ0
+        (as the goal rows' does, ``hoc_cli.goals.time_solver``).
+        """
+        limits = self.limits
+        if limits is not None:
+            rows = limits.duals.rows
+            mesh = rows.mesh
+            longer = (HermiteMesh(mesh.order, mesh.T * factor, mesh.N) if mesh.uniform
+                      else HermiteMesh.from_nodes(mesh.order, mesh.nodes * factor))
+            duals = Duals(dataclasses.replace(rows, mesh=longer), limits.duals.mu_lo, limits.duals.mu_hi)
+            limits = LimitWarm(duals, None, None)
+        return dataclasses.replace(self, t=self.t * factor, w=self.w * factor, limits=limits)
 
 
 @dataclass(frozen=True, eq=False)

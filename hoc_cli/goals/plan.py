@@ -199,7 +199,8 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
                method: str = "pr-cg", tol: float = 1e-10, max_iter: int = 5000, C_init: np.ndarray | None = None,
                G: int | None = None, limits=None, continuation: bool = True,
                callback: Callable[[IterLog], None] | None = None, terms: GoalTerms | None = None,
-               eq_tol: float = EQ_TOL, max_outer: int = 30, constraint=None) -> GoalResult:
+               eq_tol: float = EQ_TOL, max_outer: int = 30, constraint=None, constraint_warm=None,
+               working: np.ndarray | None = None) -> GoalResult:
     """Solve the optimal-control problem with ``goals`` on ``mesh`` (see the module docstring).
 
     ``terms`` warm-starts the multipliers and ρ (e.g. from the plan of a nearby T; ρ <= 0: the
@@ -211,12 +212,14 @@ def plan_goals(system, mesh: HermiteMesh, q0, dq0, goals: Goals, *, cost: str = 
     it) every level's solve runs inside its outer loop, the goal rows' loop being its inner minimisation (the rows
     stay in the problem's ``terms`` beside the constraint's: its polish and limits' rounds see them); the joint
     limits are then terms of the constraint's loop, and the finest level's outcome is ``GoalResult.constraint``.
+    ``constraint_warm``: the constraint's multipliers for the first level's loop (its ``warm``, e.g. the plan of a
+    nearby T's, stretched to this T), with ``working`` (K, n) the joint limits' pairs imposed from the start.
     """
     start = time.perf_counter()
     totals = {"it": 0, "ev": 0, "pre": 0, "restarts": 0, "outer": 0}
     history: list[IterLog] = []
     limited = limits is not None and limits.any
-    carry: dict = {"working": None, "spent": 0, "warm": None, "outcome": None}
+    carry: dict = {"working": working, "spent": 0, "warm": constraint_warm, "outcome": None}
 
     def inner(problem, x0: np.ndarray, tol_level: float) -> OptimizeResult:
         failures: list[NumericalError] = []

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from hoc_cli.free_time import TimePoint, plan_time_derivative, rescale
+from hoc_cli.free_time import TimePoint, constraint_start, plan_time_derivative, rescale
 from hoc_cli.goals.mesh import scaled_mesh
 from hoc_cli.goals.plan import plan_goals
 from hoc_cli.goals.warm import initial_plan
@@ -18,10 +18,10 @@ class GoalSolver:
     """``solve(T, nearest)`` for ``minimize_time`` with goals (``hoc_cli.goals.plan_goals``) on N elements,
     equal or with nodes at ``fractions`` (N + 1,) of T (``hoc_cli.goals.mesh``: the vias stay nodes).
 
-    Warm-started from ``nearest`` rescaled to T, with its multipliers (the first solve coarse to fine
-    from the initial guess): solves from scratch at distant T may land in other local minima, and
-    J*(T) would jump. The penalty restarts from its default (carrying one grown at another T was
-    measured 2-3× slower on the lbr7 catch). ``initial(T)``: the initial trajectory at T as a plan with
+    Warm-started from ``nearest`` rescaled to T, with its multipliers (with a constraint, its loop's and the
+    limits' too: ``hoc_cli.free_time.constraint_start``; the first solve coarse to fine from the initial guess):
+    solves from scratch at distant T may land in other local minima, and J*(T) would jump. The penalty restarts
+    from its default (carrying one grown at another T was measured 2-3× slower on the lbr7 catch). ``initial(T)``: the initial trajectory at T as a plan with
     zero multipliers (``hoc_cli.goals.warm.initial_plan``), the start of Newton steps from scratch.
     """
 
@@ -38,6 +38,7 @@ class GoalSolver:
         if nearest is not None:
             warm = {"C_init": rescale(nearest.result.coeffs, nearest.T, T),
                     "terms": dataclasses.replace(nearest.result.terms, rho=0.0)}
+            warm |= constraint_start(nearest.result, T / nearest.T)  # a constraint's and the limits' multipliers
         result = plan_goals(self.system, self.mesh(T), self.q0, self.dq0, self.goals, limits=self.limits, **warm,
                             **self.plan_options)
         d = plan_time_derivative(result, self.system, self.limits,
