@@ -17,10 +17,10 @@ PANDA = ERD / "panda_description" / "urdf" / "panda.urdf"
 
 @pytest.mark.skipif(not PANDA.exists(), reason="example-robot-data not installed")
 def test_the_panda_torque_move_ends_on_the_sqp_within_its_limits():
-    """N = 32 (levels 4, 16, 32). Measured: 424 iterations, the last level's SQP stalls at its QP's
-    accuracy and the augmented Lagrangian started from its multipliers finishes in a few rounds;
-    with every level's augmented Lagrangian restarted from λ = 0 (and the wrist's idle effort rows
-    kept) 870 iterations.
+    """N = 32 (levels 4, 16, 32). Measured: 391 iterations with numpy 2.4.6 / SciPy 1.17.1, the last level's SQP
+    converged (with earlier versions 424, the SQP stalled at its QP's accuracy and the augmented Lagrangian started
+    from its multipliers finished in a few rounds: rounding decides which); with every level's augmented Lagrangian
+    restarted from λ = 0 (and the wrist's idle effort rows kept) 870 iterations.
     """
     model = load_robot(PANDA, joints=[f"panda_joint{i}" for i in range(1, 8)], locked={"panda_finger_joint1": 0.02})
     q0 = np.array([0, -0.785398, 0, -2.35619, 0, 1.5707, 0.785398])
@@ -29,6 +29,6 @@ def test_the_panda_torque_move_ends_on_the_sqp_within_its_limits():
     r = plan(RobotSystem(model), HermiteMesh("quintic", 2.0, 32), q0, zero, q1, zero, cost="torque",
              limits=JointLimits.from_model(model))
     assert r.converged and r.limits.check.violations() == []
-    assert r.limits.sqp == "stalled" and r.limits.outer_iterations <= 10
+    assert r.limits.sqp in ("converged", "stalled") and r.limits.outer_iterations <= 10
     assert not r.limits.working[3].any()  # the wrist's effort rows left the working set
     assert r.optimizer.iterations <= 500, r.optimizer.iterations
