@@ -208,11 +208,11 @@ def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
             break
         infeasible = False
         for i, (term, m) in enumerate(zip(terms, ms)):
-            prev[i], stalled = update(term, base, x, m, prev[i], res.converged)
+            prev[i], out_of_range = update(term, base, x, m, prev[i], res.converged)
             if _log.isEnabledFor(logging.DEBUG):
                 _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} {type(term).__name__} "
                            f"violation {m.violation:.2e} rho {term.rho} within {m.within}")
-            infeasible |= stalled
+            infeasible |= out_of_range
         if infeasible:
             status, stop = "infeasible", "infeasible"
             if all(term.feasible_start(base, x_begin) for term in terms):
