@@ -168,3 +168,33 @@ def test_the_inner_solve_running_out_of_iterations_ends_the_loop():
     term = LinearRows([[1.0, 1.0]], [1.0], rho=1.0, rho0=1.0)
     out = auglag.minimize(Distance([0.0, 0.0]), (term,), np.zeros(2), 1e-12, spent, max_outer=40)
     assert (out.status, out.stop, out.outer, term.updates) == ("not_converged", "max_iter", 1, 0)
+
+
+class CountedDistance(Distance):
+    """``Distance`` counting its evaluations."""
+
+    def __init__(self, a) -> None:
+        super().__init__(a)
+        self.evals = 0
+
+    def evaluate(self, x: np.ndarray, grad: bool = True) -> _Ev:
+        self.evals += 1
+        return super().evaluate(x, grad)
+
+
+def test_the_polish_steps_from_the_inner_solves_last_evaluation_without_a_second_one_there():
+    """An inner solve that ends with the gradient at its point (as a line search's accepted step does): the polish
+    (``auglag.solve``) takes its Newton step from that evaluation; its only evaluation is the trial point's."""
+    def accepted(problem, x, tol):
+        res = newton_solve(problem, x, tol)
+        problem.evaluate(res.x)  # the accepted point's gradient
+        return res
+
+    a = np.array([0.3, -1.2, 2.0])
+    A = np.array([[1.0, 1.0, 1.0], [1.0, -2.0, 0.5]])
+    b = np.array([1.0, 0.25])
+    base = CountedDistance(a)
+    out = auglag.minimize(base, (LinearRows(A, b, rho=1.0, rho0=1.0),), np.zeros(3), 1e-12, accepted, max_outer=40)
+    assert (out.status, out.stop) == ("converged", "met")
+    np.testing.assert_allclose(out.x, a - A.T @ np.linalg.solve(A @ A.T, A @ a - b), atol=1e-12)
+    assert base.evals == 3 * out.outer  # each outer iteration: the Newton step's, the accepted point's, the trial's

@@ -134,15 +134,15 @@ def test_the_limits_rounds_penalty_grows_at_most_rho_max_times_its_start(workdir
 
     monkeypatch.setattr(limit_rounds, "RHO_MAX", 100.0)
     ratios = []
-    update = limit_rounds.LimitState.update
+    rounds = limit_rounds.LimitState.rounds
 
     def recorded(self, *args, **kwargs):
-        got = update(self, *args, **kwargs)
+        got = rounds(self, *args, **kwargs)
         if self.rho is not None:
-            ratios.append(self.rho / self.rho0)
+            ratios.append(self.rho / self.term.rho0)
         return got
 
-    monkeypatch.setattr(limit_rounds.LimitState, "update", recorded)
+    monkeypatch.setattr(limit_rounds.LimitState, "rounds", recorded)
     _budget(monkeypatch, 3 * ITERATIONS)
     r, s = plan(workdir, _catch(0.42))
     assert r.exit_code in (0, 1) and s is not None, r.stderr

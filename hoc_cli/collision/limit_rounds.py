@@ -1,20 +1,23 @@
-"""The joint limits as terms of the collision loop's augmented Lagrangian: one outer loop for both.
+"""The joint limits inside the collision loop: ``LimitTerm``'s rounds, its state carried across outer iterations.
 
 Each outer iteration of the collision loop (``enforce.CollisionConstraint``) minimises
-I + Φ_collision + Φ_limits (``LimitTerms``: the limits' own PHR terms) in a few rounds
-(``LimitState.rounds``); after each round the limits' multipliers are updated by the rules of
-``constraints.augmented_lagrangian`` (the (kind, joint) pairs found beyond their bounds join the
-working set, idle effort pairs leave it, λ ← μ, ρ × 10 when the worst violation did not fall to a
-quarter within the rounds, at most ``RHO_MAX``·ρ0), after a converged inner solve its polish (one full Newton step on
-I + Φ: it meets the limits to the rounding level the inner test cannot see). The collision's
-multipliers are updated by its loop after the rounds.
+I + Φ_collision + Φ_limits in a few rounds (``LimitState.rounds``). The limits are one
+``augmented_lagrangian.LimitTerm`` per level, driven by ``auglag``'s steps, the same as
+``auglag.minimize`` drives it: ``auglag.solve`` (the inner solve of the collision's problem plus Φ_limits,
+then ``auglag.polish``), ``LimitTerm.measure`` and ``auglag.update`` (λ ← μ, the working set, ρ × 10 when
+the worst violation did not fall to a quarter, at most ``RHO_MAX``·ρ0, the term's ``rho_max``). Their rules
+are ``LimitTerm``'s; this module decides only when the rounds stop. The collision's multipliers are updated
+by its loop after the rounds.
 
-The limits' multipliers, ρ and working set go on from one outer iteration to the next and from
-one solve to the next (``LimitWarm``), so the rounds of an outer iteration stop once the plan is
-within ``SETTLED``·σ of every limit (at most ``ROUNDS``): the collision loop needs the limits
-settled to judge its own progress, not met to 1e-9. Its final iterations (the clearance certified
-at the plan's tolerance) ask them met: every value within its true bounds (``check_limits``) and
-Σ μ|g| ≤ tol·|J| (at most ``EXACT_ROUNDS`` rounds an outer iteration).
+The term, with its multipliers, ρ and working set, goes on from one outer iteration to the next, and its
+multipliers and ρ from one solve to the next (``LimitWarm``), so the rounds of an outer iteration stop once
+the plan is within ``SETTLED``·σ of every limit (at most ``ROUNDS``): the collision loop needs the limits
+settled to judge its own progress, not met to 1e-9. Unlike ``auglag.minimize``, each round ends with the
+update (the next outer iteration starts from λ ← μ) and the rounds stop after any inner solve that did not
+converge (the collision loop decides what follows). Its final iterations (the clearance certified at the
+plan's tolerance) ask the limits met: ``LimitTerm``'s stopping test (every value within its true bounds and
+Σ μ|g| ≤ tol·|J|, at most ``EXACT_ROUNDS`` rounds an outer iteration). On full levels a round's converged
+inner solve is polished only in the final iterations.
 """
 from __future__ import annotations
 
@@ -25,12 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hoc_cli.constraints import auglag
-from hoc_cli.constraints import augmented_lagrangian as al
-from hoc_cli.constraints.auglag import Penalized, polish
-from hoc_cli.constraints.augmented_lagrangian import EnforceResult, idle_effort
-from hoc_cli.constraints.bounds import EFFORT, KINDS, JointLimits
-from hoc_cli.constraints.check import LimitCheck, check_limits
-from hoc_cli.constraints.penalty import LimitObjective, LimitRows, LimitTerms, PenaltyValue
+from hoc_cli.constraints.augmented_lagrangian import EnforceResult, LimitTerm
+from hoc_cli.constraints.bounds import KINDS, JointLimits
+from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.constraints.prolong import Duals, prolong, same_mesh
 
 _log = logging.getLogger(__name__)  # the limits' rounds at DEBUG level
@@ -50,8 +50,13 @@ class LimitWarm:
     rho0: float | None
 
 
+def _bare_cost(base, x: np.ndarray) -> float:
+    """I(q_h) without the collision's (and a goal's) terms: the cost that prices ρ0 and the complementarity test."""
+    return base.bare_cost(x)
+
+
 class LimitState:
-    """The joint limits' multipliers, penalty and working set across the collision loop's iterations on one mesh."""
+    """The joint limits' term (``LimitTerm``) across the collision loop's iterations on one mesh."""
 
     def __init__(self, system, limits: JointLimits, working: np.ndarray | None, problem,
                  warm: LimitWarm | None = None) -> None:
@@ -60,112 +65,60 @@ class LimitState:
         on the same mesh its multipliers and ρ go on, on another its multipliers are carried (``prolong``) and ρ
         starts again.
         """
-        self.system, self.limits = system, limits
         n = limits.n
         self.mesh = problem.mesh
-        self.rows = LimitRows.build(problem.mesh, problem.layout.free, n)
-        self.working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
-        self.lam_lo = tuple(np.zeros(self.rows.shape(k, n)) for k in range(len(KINDS)))
-        self.lam_hi = tuple(np.zeros(self.rows.shape(k, n)) for k in range(len(KINDS)))
-        self.rho: float | None = None
-        self.rho0: float | None = None
-        self.prev = math.inf
-        if warm is not None and self.working.any():
-            self.lam_lo, self.lam_hi = prolong(warm.duals, self.rows)
-            if same_mesh(warm.duals.rows, self.rows):
-                self.rho, self.rho0 = warm.rho, warm.rho0
-        self.check: LimitCheck | None = None
-        self.pv: PenaltyValue | None = None
+        rows = LimitRows.build(problem.mesh, problem.layout.free, n)
+        working = np.zeros((len(KINDS), n), bool) if working is None else working.copy()
+        lam_lo = tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
+        lam_hi = tuple(np.zeros(rows.shape(k, n)) for k in range(len(KINDS)))
+        rho = rho0 = None
+        if warm is not None and working.any():
+            lam_lo, lam_hi = prolong(warm.duals, rows)
+            if same_mesh(warm.duals.rows, rows):
+                rho, rho0 = warm.rho, warm.rho0
+        self.term = LimitTerm(system, limits, rows, working, lam_lo, lam_hi, False, rho=rho, rho0=rho0,
+                              rho_max=RHO_MAX, cost=_bare_cost)
         self.met = False
 
-    def _start_rho(self, J: float) -> None:
-        if self.rho is None:
-            self.rho = self.rho0 = al.RHO_START * max(abs(J), 1e-6) / self.mesh.T
+    @property
+    def rho(self) -> float | None:
+        return self.term.rho
 
-    def terms(self, J: float) -> LimitTerms:
-        """The limits' terms for the next inner solve (``J``: the plan's cost, for ρ0 when the first pair binds)."""
-        if self.working.any():
-            self._start_rho(J)
-        return LimitTerms(self.system, self.limits, self.rows, self.working, self.lam_lo, self.lam_hi,
-                          self.rho or 1.0, al.MARGIN)
-
-    @staticmethod
-    def problem(base, terms: LimitTerms):
-        """The inner problem: ``base`` (with its own ``terms``) plus the limits' terms, if any pair is imposed."""
-        return base if terms.empty else Penalized(base, (LimitObjective(terms),))
-
-    @staticmethod
-    def polish(problem, x: np.ndarray) -> np.ndarray:
-        """One full Newton step on I + Φ after a converged inner solve (``auglag.polish``), from the
-        inner solve's last evaluation when it was at x (its accepted point: no second evaluation there).
-        """
-        if not isinstance(problem, Penalized):
-            return x
-        ev = problem.last
-        if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
-            ev = None
-        return polish(problem, x, ev)
-
-    def update(self, terms: LimitTerms, C: np.ndarray, J: float, tol: float) -> bool:
-        """Check the plan C (J its cost), update λ, the working set and ρ; True when the limits are met."""
-        check = check_limits(self.system, self.limits, self.mesh, C)
-        pv = terms.evaluate(C, grad=False)
-        beyond = (check.hi_excess > 0) | (check.lo_excess > 0)
-        within = not beyond.any()
-        self.check, self.pv = check, pv
-        self.met = within and pv.complementarity() <= tol * max(abs(J), 1.0)
-        self.lam_lo, self.lam_hi = pv.mu_lo, pv.mu_hi
-        idle = idle_effort(pv, check) & self.working[EFFORT]
-        if idle.any():
-            self.working = self.working.copy()
-            self.working[EFFORT] &= ~idle
-        newly = beyond.any(axis=1) & ~self.working
-        if newly.any():
-            self.working = self.working | newly
-            self._start_rho(J)
-        excess = pv.max_violation()
-        falling = excess <= auglag.STALL_RATIO * self.prev
-        if (self.rho is not None and not within and excess > 0.25 * self.prev
-                and not (self.rho >= self.rho0 * auglag.RHO_RANGE and falling)):
-            self.rho = min(self.rho * auglag.RHO_GROWTH, self.rho0 * RHO_MAX)
-        self.prev = excess if excess > 0 else self.prev
-        return self.met
+    @property
+    def working(self) -> np.ndarray:
+        return self.term.working
 
     def settled(self) -> bool:
         """The plan's worst excess over a limit is within ``SETTLED``·σ (the collision loop may judge its own progress)."""
-        return self.check is not None and float(np.max(self.check.relative_excess(), initial=0.0)) <= SETTLED
+        check = self.term.check
+        return check is not None and float(np.max(check.relative_excess(), initial=0.0)) <= SETTLED
 
     def rounds(self, problem, x: np.ndarray, tol: float, minimize, *, exact: bool, polish: bool = True,
                spent=lambda: False):
         """Inner solves of ``problem`` (a ControlProblem with the collision's terms) plus the limits' terms, each
-        followed by the polish and the limits' update, until the limits are met (``exact``) or settled, at most
-        ``EXACT_ROUNDS`` or ``ROUNDS`` of them, or until ``spent()`` (the caller's iteration budget). Returns (the
-        last inner result, x, whether the limits are met).
+        followed by the polish (when ``polish`` or ``exact``) and the limits' update, until the limits are met
+        (``exact``) or settled, at most ``EXACT_ROUNDS`` or ``ROUNDS`` of them, until an inner solve does not
+        converge, or until ``spent()`` (the caller's iteration budget). Returns (the last inner result, x, whether
+        the limits are met).
         """
-        self.prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
-        known: list = [None, math.nan]  # [x, I(x)]: the cost of the last plan, for the next round's start
-
-        def bare(v: np.ndarray) -> float:
-            if known[0] is not v:
-                known[:] = [v, problem.bare_cost(v)]
-            return known[1]
-
+        term = self.term
+        prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
         for _ in range(EXACT_ROUNDS if exact else ROUNDS):
-            lt = self.terms(bare(x) if self.working.any() and self.rho is None else math.nan)  # J prices ρ0 only
-            inner = self.problem(problem, lt)
-            res = minimize(inner, x, tol)
-            x = self.polish(inner, res.x) if res.converged and (polish or exact) else res.x
-            met = self.update(lt, problem.coefficients(x), bare(x), tol)
+            res, x = auglag.solve(problem, (term,), x, tol, minimize, polish_step=polish or exact)
+            m = term.measure(problem, x, res, tol)
+            prev, _ = auglag.update(term, problem, x, m, prev, res.converged)
+            self.met = m.met
             if _log.isEnabledFor(logging.DEBUG):
-                _log.debug(f"limits round N {self.mesh.N} it {res.iterations} ev {res.n_evals} met {met} "
-                           f"excess {np.max(self.check.relative_excess()):.2e} rho {self.rho or 0:.3g}")
-            if met or (not exact and self.settled()) or not res.converged or spent():
+                _log.debug(f"limits round N {self.mesh.N} it {res.iterations} ev {res.n_evals} met {m.met} "
+                           f"excess {np.max(term.check.relative_excess()):.2e} rho {term.rho or 0:.3g}")
+            if m.met or (not exact and self.settled()) or not res.converged or spent():
                 break
-        return res, x, met
+        return res, x, self.met
 
     def warm(self) -> LimitWarm:
         """The state for the next solve (``LimitWarm``)."""
-        return LimitWarm(Duals(self.rows, self.lam_lo, self.lam_hi), self.rho, self.rho0)
+        term = self.term
+        return LimitWarm(Duals(term.rows, term.lam_lo, term.lam_hi), term.rho, term.rho0)
 
     def result(self, res, x: np.ndarray, J: float, outer: int) -> EnforceResult:
         """The limits' outcome of the level (``EnforceResult``, as the limits' own loop reports it)."""
@@ -175,6 +128,4 @@ class LimitState:
             status, message = "not_converged", f"every limit holds, but the inner solve stopped: {res.message}"
         else:
             status, message = "not_converged", "the joint limits were not met within the collision loop's iterations"
-        return EnforceResult(status=status, message=message, inner=res, x=x, J=J, outer_iterations=outer,
-                             rho=self.rho or 0.0, check=self.check, working=self.working, rows=self.rows,
-                             penalty=self.pv)
+        return self.term.result(status, message, res, x, J, outer)

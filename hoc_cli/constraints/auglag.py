@@ -23,8 +23,10 @@ multiplier update. One outer iteration:
    converging iteration is not an infeasible task). A term without it (``rho0`` None) is never called
    infeasible: its ρ stops at its cap.
 
-``Penalized`` is the inner problem (a base problem plus terms, with the evaluate/newton interface of
-the inner solver). Pure maths: no I/O.
+Steps 1 and 2 are ``solve``, step 4 (per term) ``update``: the collision loop's limit rounds
+(``hoc_cli.collision.limit_rounds``) run the same two on the limits' term with stopping tests of their
+own. ``Penalized`` is the inner problem (a base problem plus terms, with the evaluate/newton interface
+of the inner solver). Pure maths: no I/O.
 """
 from __future__ import annotations
 
@@ -191,15 +193,8 @@ def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
     its = evs = 0
     status, stop, outer = "not_converged", "outer", 0
     for outer in range(1, max_outer + 1):
-        problem = base
-        for term in terms:
-            term.begin(base, x)
-            problem = term.problem(problem)
-        res = inner_solve(problem, x, tol)
+        res, x = solve(base, terms, x, tol, inner_solve)
         its, evs = its + res.iterations, evs + res.n_evals
-        x = res.x
-        if res.converged and any(term.imposed for term in terms):
-            x = polish(problem, x)
         ms = [term.measure(base, x, res, tol) for term in terms]
         if all(m.met for m in ms):
             status, stop = ("converged" if res.converged else "not_converged"), "met"
@@ -213,17 +208,11 @@ def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
             break
         infeasible = False
         for i, (term, m) in enumerate(zip(terms, ms)):
-            term.update(base, x, m)
-            rho, rho0 = term.rho, term.rho0
-            falling = m.violation <= STALL_RATIO * prev[i]  # the multiplier updates still make progress
+            prev[i], out_of_range = update(term, base, x, m, prev[i], res.converged)
             if _log.isEnabledFor(logging.DEBUG):
                 _log.debug(f"outer {outer} it {res.iterations} ev {res.n_evals} {type(term).__name__} "
-                           f"violation {m.violation:.2e} rho {rho} within {m.within}")
-            if (rho is not None and not m.within and m.violation > DECREASE * prev[i] and res.converged
-                    and not (rho0 is not None and rho >= rho0 * RHO_RANGE and falling)):
-                term.rho = rho = min(rho * RHO_GROWTH, term.rho_cap)
-            prev[i] = m.violation if m.violation > 0 else prev[i]
-            infeasible |= rho0 is not None and rho > rho0 * RHO_RANGE and not m.within and not falling
+                           f"violation {m.violation:.2e} rho {term.rho} within {m.within}")
+            infeasible |= out_of_range
         if infeasible:
             status, stop = "infeasible", "infeasible"
             if all(term.feasible_start(base, x_begin) for term in terms):
@@ -232,3 +221,41 @@ def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
                 status, stop, x = "not_converged", "stalled", x_begin
             break
     return Outcome(status=status, stop=stop, res=res, x=x, outer=outer, iterations=its, n_evals=evs)
+
+
+def solve(base, terms: Sequence[Term], x: np.ndarray, tol: float,
+          inner_solve: Callable[[object, np.ndarray, float], object], polish_step: bool = True):
+    """Steps 1 and 2 of an outer iteration (module docstring): each term readied (``term.begin``), the inner solve
+    of I + Σ Φ from x, then, after a converged inner solve with rows imposed and ``polish_step``, ``polish`` from the
+    inner solve's last evaluation when it was at its x. Returns (the inner OptimizeResult, the plan x).
+    """
+    problem = base
+    for term in terms:
+        term.begin(base, x)
+        problem = term.problem(problem)
+    res = inner_solve(problem, x, tol)
+    x = res.x
+    if polish_step and res.converged and any(term.imposed for term in terms):
+        ev = getattr(problem, "last", None)  # the inner solve's accepted point: no second evaluation there
+        if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
+            ev = None
+        x = polish(problem, x, ev)
+    return res, x
+
+
+def update(term: Term, base, x: np.ndarray, m: Measure, prev: float, converged: bool) -> tuple[float, bool]:
+    """Step 4 of an outer iteration for one term (module docstring): λ ← μ (``term.update``), then ρ × ``RHO_GROWTH``
+    when, after a converged inner solve (``converged``), the worst violation ``m.violation`` did not fall to
+    ``DECREASE`` of ``prev`` (the previous one; ∞ at first), at most ``term.rho_cap``.
+
+    Returns (the violation the next one is compared with, whether the term is infeasible: ρ beyond
+    ``RHO_RANGE``·ρ0 with rows violated and the violation no longer falling by a tenth).
+    """
+    term.update(base, x, m)
+    rho, rho0 = term.rho, term.rho0
+    falling = m.violation <= STALL_RATIO * prev  # the multiplier updates still make progress
+    if (rho is not None and not m.within and m.violation > DECREASE * prev and converged
+            and not (rho0 is not None and rho >= rho0 * RHO_RANGE and falling)):
+        term.rho = rho = min(rho * RHO_GROWTH, term.rho_cap)
+    infeasible = rho0 is not None and rho > rho0 * RHO_RANGE and not m.within and not falling
+    return (m.violation if m.violation > 0 else prev), infeasible

@@ -289,27 +289,40 @@ def enforce(base, system, limits: JointLimits, x0: np.ndarray, tol: float,
 
 class LimitTerm:
     """The joint limits as the augmented Lagrangian's term (``auglag.Term``): box rows imposed per (kind, joint)
-    pair of the working set, the multipliers λ per row, ρ per unit time (module docstring, steps 1 to 4).
+    pair of the working set, the multipliers λ per row, ρ per unit time (module docstring, steps 1 to 4). The
+    limits' rules live here for every loop that imposes them: ``auglag.minimize`` (``enforce``) and the collision
+    loop's limit rounds (``hoc_cli.collision.limit_rounds``), which carry this term's λ, ρ and working set across
+    its outer iterations.
 
     ``rows``: the level's ``LimitRows``; ``working`` (K, n) bool, the pairs imposed from the start; ``lam_lo``,
     ``lam_hi``: the start's multipliers; ``warm``: they come from a previous solve on this mesh (ρ starts at
-    ``WARM_RHO``·ρ0). After ``auglag.minimize``: ``check`` (LimitCheck), ``pv`` (PenaltyValue, μ per row) and ``J``
-    (I without Φ) of the plan, ``working`` the pairs imposed at its end.
+    ``WARM_RHO``·ρ0); ``rho``, ``rho0``: a penalty carried from a previous solve on this mesh (else None: ρ0 is set
+    when the first pair binds); ``rho_max``: ρ at most ``rho_max``·ρ0 (∞: no cap, the infeasible verdict ends a
+    growing ρ); ``cost(base, x) -> J``: the plan's cost that prices ρ0 and the complementarity test (default
+    ``base.evaluate(x, grad=False).J``). After each ``measure``: ``check`` (LimitCheck), ``pv`` (PenaltyValue, μ per
+    row) and ``J`` of the plan; ``working`` the pairs imposed at its end.
     """
 
-    rho_cap = math.inf  # no cap: the infeasible verdict ends a growing ρ
     stop_on_failure = True
 
     def __init__(self, system, limits: JointLimits, rows: LimitRows, working: np.ndarray,
-                 lam_lo: tuple[np.ndarray, ...], lam_hi: tuple[np.ndarray, ...], warm: bool) -> None:
+                 lam_lo: tuple[np.ndarray, ...], lam_hi: tuple[np.ndarray, ...], warm: bool, *,
+                 rho: float | None = None, rho0: float | None = None, rho_max: float = math.inf,
+                 cost: Callable[[object, np.ndarray], float] | None = None) -> None:
         self.system, self.limits, self.rows, self.working = system, limits, rows, working
         self.lam_lo, self.lam_hi, self.warm = lam_lo, lam_hi, warm
-        self.rho: float | None = None
-        self.rho0: float | None = None
+        self.rho: float | None = rho
+        self.rho0: float | None = rho0
+        self.rho_max = rho_max
+        self.cost = cost or (lambda base, x: base.evaluate(x, grad=False).J)
         self.terms: LimitTerms | None = None  # Φ of the current inner solve
         self.check: LimitCheck | None = None
         self.pv: PenaltyValue | None = None
         self.J = math.nan
+
+    @property
+    def rho_cap(self) -> float:
+        return math.inf if self.rho0 is None else self.rho0 * self.rho_max
 
     def _start_rho(self, J: float, mesh) -> None:
         self.rho = self.rho0 = RHO_START * max(abs(J), 1e-6) / mesh.T
@@ -320,7 +333,7 @@ class LimitTerm:
 
     def begin(self, base, x: np.ndarray) -> None:
         if self.working.any() and self.rho is None:
-            self._start_rho(base.evaluate(x, grad=False).J, base.mesh)
+            self._start_rho(self.cost(base, x), base.mesh)
             if self.warm:
                 self.rho = WARM_RHO * self.rho0
         self.terms = LimitTerms(self.system, self.limits, self.rows, self.working, self.lam_lo, self.lam_hi,
@@ -341,7 +354,7 @@ class LimitTerm:
         C = base.coefficients(x)
         self.check = check_limits(self.system, self.limits, base.mesh, C)
         self.pv = self.terms.evaluate(C, grad=False)
-        self.J = base.evaluate(x, grad=False).J
+        self.J = self.cost(base, x)
         within = not _violated(self.check).any()
         return Measure(self.pv.max_violation(), within,
                        within and self.pv.complementarity() <= tol * max(abs(self.J), 1.0))
@@ -365,6 +378,14 @@ class LimitTerm:
             return False
         self.check, self.pv = start, self.terms.evaluate(base.coefficients(x), grad=False)
         return True
+
+    def result(self, status: str, message: str, res, x: np.ndarray, J: float, outer: int) -> EnforceResult:
+        """The limits' outcome (``EnforceResult``) at the plan x last measured: J its cost, ``outer`` the loop's outer
+        iterations, ``res`` its last inner OptimizeResult.
+        """
+        return EnforceResult(status=status, message=message, inner=res, x=x, J=J, outer_iterations=outer,
+                             rho=self.rho or 0.0, check=self.check, working=self.working, rows=self.rows,
+                             penalty=self.pv)
 
 
 _MESSAGES = {
@@ -398,6 +419,4 @@ def _rounds(base, system, limits: JointLimits, x: np.ndarray, tol: float,
                    else f"every limit holds, but the inner solve stopped: {res.message}")
     else:
         message = _MESSAGES[out.stop].format(res.message)
-    return EnforceResult(status=out.status, message=message, inner=res, x=out.x, J=base.evaluate(out.x, grad=False).J,
-                         outer_iterations=out.outer, rho=term.rho or 0.0, check=term.check, working=term.working,
-                         rows=rows, penalty=term.pv)
+    return term.result(out.status, message, res, out.x, base.evaluate(out.x, grad=False).J, out.outer)
