@@ -24,7 +24,8 @@ Only the (kind, joint) pairs of the working set take part; the others cost nothi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -155,6 +156,10 @@ class LimitTerms:
     system : the dynamics (for effort); limits : JointLimits; rows : LimitRows;
     working : (K, n) bool; lam_lo, lam_hi : per kind ≥ 0, the kind's row shape;
     rho : penalty per unit time [cost units / s]; margin : δ.
+
+    The last ``CACHE`` evaluations are kept by their coefficients: an inner iteration asks Φ at its accepted
+    point for the gradient, the Newton blocks and the first step's rows (``collision.step.limit_rows``), and
+    the collision loop's update asks it once more; each is evaluated once (the same numbers).
     """
 
     system: object
@@ -165,6 +170,9 @@ class LimitTerms:
     lam_hi: tuple[np.ndarray, ...]
     rho: float
     margin: float
+    _cache: list = field(default_factory=list, repr=False)  # [(C, PenaltyValue)], newest last
+
+    CACHE = 2
 
     @property
     def empty(self) -> bool:
@@ -204,6 +212,16 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
+        for C_kept, pv in self._cache:
+            if (not grad or pv.grad is not None) and np.array_equal(C_kept, C):
+                return pv if grad else dataclasses.replace(pv, grad=None)
+        pv = self._evaluate(C, grad)
+        self._cache.append((np.array(C), pv))
+        del self._cache[:-self.CACHE]
+        return pv
+
+    def _evaluate(self, C: np.ndarray, grad: bool) -> PenaltyValue:
+        """``evaluate`` without the cache."""
         V, X = self._values(C)
         _, _, sig = self._bounds
         value = 0.0

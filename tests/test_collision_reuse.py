@@ -1,0 +1,57 @@
+"""What an inner iteration of the collision loop evaluates once and reuses: the joint limits' penalty at the accepted
+point (gradient, Newton blocks, first step's rows), checked against fresh evaluations and counted."""
+from __future__ import annotations
+
+import numpy as np
+
+from hoc_cli.collision.step import limit_rows
+from hoc_cli.constraints import JointLimits
+from hoc_cli.constraints.augmented_lagrangian import MARGIN
+from hoc_cli.constraints.bounds import KINDS
+from hoc_cli.constraints.penalty import LimitRows, LimitTerms
+from hoc_cli.elements import HermiteMesh
+from hoc_cli.model import load_robot
+from hoc_cli.problem import ControlProblem
+from hoc_cli.system import RobotSystem
+from tests._robots import ROBOTS
+
+
+def _limit_terms():
+    model = load_robot(ROBOTS / "two_link.urdf")
+    system = RobotSystem(model)
+    problem = ControlProblem(system, HermiteMesh("quintic", 1.5, 6), [0.0, 0.0], [0.0, 0.0], [1.2, -0.6], [0.0, 0.0])
+    limits = JointLimits.from_arrays(model.joint_names, lower=[-0.1, -0.5], upper=[0.9, 0.2], velocity=[1.0, 0.5],
+                                     acceleration=[3.0, 2.0], effort=[5.0, 2.0])
+    rows = LimitRows.build(problem.mesh, problem.layout.free, 2)
+    rng = np.random.default_rng(5)
+    lam = [tuple(rng.uniform(0, 1, rows.shape(k, 2)) * (rng.uniform(size=rows.shape(k, 2)) < 0.3)
+                 for k in range(len(KINDS))) for _ in range(2)]
+    working = np.ones((len(KINDS), 2), bool)
+    make = lambda: LimitTerms(system, limits, rows, working, lam[0], lam[1], rho=300.0, margin=MARGIN)  # noqa: E731
+    C = problem.coefficients(problem.initial_guess())
+    dC = problem.layout.unpack(rng.normal(size=problem.layout.size) * 0.3, np.zeros_like(C))
+    return make, C, dC
+
+
+def test_the_limits_penalty_is_evaluated_once_at_a_point_for_the_gradient_the_newton_blocks_and_the_first_step(monkeypatch):
+    make, C, dC = _limit_terms()
+    fresh = make()
+    ref = fresh.evaluate(C)
+    ref_blocks = make().newton_blocks(C)
+    ref_rows = limit_rows(make(), C, dC)
+    terms = make()
+    calls = []
+    values = LimitTerms._values
+    monkeypatch.setattr(LimitTerms, "_values", lambda self, C: calls.append(np.array(C)) or values(self, C))
+    got = terms.evaluate(C)                       # the line search's trial, accepted: the gradient
+    blocks = terms.newton_blocks(C.copy())        # the Newton matrix there
+    rows = limit_rows(terms, C.copy(), dC)        # the first step from there (effort: its secant at C + dC too)
+    again = terms.evaluate(C.copy(), grad=False)  # the loop's update
+    assert len(calls) == 2 and np.array_equal(calls[1], C + dC), len(calls)  # C once, C + dC once
+    assert got.value == ref.value and np.array_equal(got.grad, ref.grad) and again.value == ref.value
+    assert again.grad is None
+    np.testing.assert_array_equal(blocks, ref_blocks)
+    for x, y in zip(rows, ref_rows):
+        np.testing.assert_array_equal(x, y)
+    other = terms.evaluate(C + 1e-3 * dC, grad=False)  # another point is evaluated
+    assert len(calls) == 3 and other.value != ref.value
