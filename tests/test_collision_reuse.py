@@ -1,9 +1,13 @@
 """What an inner iteration of the collision loop evaluates once and reuses: the joint limits' penalty at the accepted
-point (gradient, Newton blocks, first step's rows), checked against fresh evaluations and counted."""
+point (gradient, Newton blocks, first step's rows), the collision rows' poses and contacts (gradient, distance
+curvature), checked against fresh evaluations and counted."""
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
+from hoc_cli.collision.constraint import RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.step import limit_rows
 from hoc_cli.constraints import JointLimits
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
@@ -14,6 +18,7 @@ from hoc_cli.model import load_robot
 from hoc_cli.problem import ControlProblem
 from hoc_cli.system import RobotSystem
 from tests._robots import ROBOTS
+from tests.test_collision_enforce import lbr7_scene, swing_rows  # noqa: F401  (the fixture)
 
 
 def _limit_terms():
@@ -55,3 +60,28 @@ def test_the_limits_penalty_is_evaluated_once_at_a_point_for_the_gradient_the_ne
         np.testing.assert_array_equal(x, y)
     other = terms.evaluate(C + 1e-3 * dC, grad=False)  # another point is evaluated
     assert len(calls) == 3 and other.value != ref.value
+
+
+def test_the_distance_curvature_at_the_point_just_evaluated_reuses_its_poses_and_contacts(lbr7_scene, monkeypatch):  # noqa: F811
+    """The Newton matrix's −Σ μ ∇²d at the accepted point takes the body poses and contacts its gradient placed: the
+    same blocks as placed afresh (``pair_hessian`` from q), with every row evaluated and with rows skipped."""
+    import hoc_cli.collision.evaluate as ev
+
+    model, scene = lbr7_scene
+    rows_scene = sphere_rows_scene(scene)
+    C0, points, D, full = swing_rows(model, rows_scene, near=0.3, every=3)
+    full = dataclasses.replace(full, curvature=True, _last=[])
+    start = RowStart(point_configurations(points, C0), D[full.rows, full.pairs],
+                     row_reach(model, rows_scene, np.arange(rows_scene.size))[full.pairs])
+    C = C0 + 1e-3 * np.random.default_rng(9).normal(size=C0.shape)
+    poses = []
+    placed = ev._poses
+    for terms in (full, dataclasses.replace(full, start=start, _last=[], _anchor=[])):
+        ref = dataclasses.replace(terms, _last=[], _anchor=[]).curvature_blocks(C)  # no gradient at C: placed afresh
+        terms.evaluate(C)                                                           # the line search's accepted trial
+        monkeypatch.setattr(ev, "_poses", lambda model, q: poses.append(len(q)) or placed(model, q))
+        got = terms.curvature_blocks(C.copy())
+        monkeypatch.setattr(ev, "_poses", placed)
+        assert ref is not None and np.abs(ref).max() > 0
+        np.testing.assert_array_equal(got, ref)
+    assert poses == []

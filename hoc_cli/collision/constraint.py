@@ -25,7 +25,8 @@ from functools import cached_property
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import pair_gradient, pair_hessian, row_contacts
+from hoc_cli.collision.distance import Contact
+from hoc_cli.collision.evaluate import pair_gradient_geometry, pair_hessian, row_contacts
 from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
@@ -170,7 +171,7 @@ class CollisionTerms:
     bound: float
     start: RowStart | None = None
     curvature: bool = False
-    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
+    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q, placed] of the last gradient evaluation
     _anchor: list = field(default_factory=list, repr=False)  # [q (M, n), d (M,)]: where each row was last evaluated
 
     @cached_property
@@ -186,15 +187,32 @@ class CollisionTerms:
         used, inverse = self._used
         live = self._live(q)
         if live is None:
-            d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+            d, dd, placed = pair_gradient_geometry(self.model, self.scene, q[used], inverse, self.pairs)
+            placed = None if placed is None else (placed[0], inverse, np.arange(self.rows.size), placed[1])
         else:
             d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
+            placed = None
             if live.any():  # only the configurations the live rows use are placed
                 at, local = np.unique(inverse[live], return_inverse=True)
-                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used[at]], local, self.pairs[live])
+                d[live], dd[live], got = pair_gradient_geometry(self.model, self.scene, q[used[at]], local, self.pairs[live])
+                if got is not None:  # per row: its sample in the poses, its index in the contacts (−1: not placed)
+                    sample, where = np.full(self.rows.size, -1), np.full(self.rows.size, -1)
+                    sample[live], where[live] = local, np.arange(local.size)
+                    placed = (got[0], sample, where, got[1])
         self._anchor_at(q, d, live)
-        self._last[:] = [np.array(C), d, dd]
+        self._last[:] = [np.array(C), d, dd, placed]
         return d, dd
+
+    def _placed(self, C: np.ndarray, on: np.ndarray) -> tuple[np.ndarray, np.ndarray, Contact] | None:
+        """For the rows ``on`` (evaluated at C, the last gradient evaluation): (body poses T (K, n+1, 4, 4), each
+        row's sample in T (len(on),), their contacts), as ``_gradient`` placed them; None when not kept.
+        """
+        if not (self._last and np.array_equal(self._last[0], C)) or self._last[3] is None:
+            return None
+        T, sample, where, c = self._last[3]
+        k = where[on]
+        return T, sample[on], Contact(distance=c.distance[k], normal=c.normal[k], point_a=c.point_a[k],
+                                      point_b=c.point_b[k])
 
     def _anchor_at(self, q: np.ndarray, d: np.ndarray, live: np.ndarray | None) -> None:
         """The rows ``live`` (None: every row) were evaluated at configurations q (P, n) of the points, their distances
@@ -294,9 +312,14 @@ class CollisionTerms:
         if on.size == 0:
             return None
         used, inverse = self._used
-        q = point_configurations(self.points, C)[used]
-        Hq = group_sum(inverse[on], -mu[on, None, None] * pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on]),
-                       used.size)
+        placed = self._placed(C, on)
+        if placed is None:
+            q = point_configurations(self.points, C)[used]
+            H = pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on])
+        else:  # the poses and contacts of the gradient at C
+            T, sample, c = placed
+            H = pair_hessian(self.model, self.scene, None, sample, self.pairs[on], placed=(T, c))
+        Hq = group_sum(inverse[on], -mu[on, None, None] * H, used.size)
         which = np.unique(inverse[on])
         return q_blocks(self.points, Hq[which], used[which])
 
