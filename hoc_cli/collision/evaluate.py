@@ -305,11 +305,16 @@ def pair_gradient_geometry(model: RobotModel, scene: CollisionScene, q, rows,
     Zr, Or = Z[rows], O[rows]
     for body, point, sign in ((body_a, c.point_a, 1.0), (body_b, c.point_b, -1.0)):
         moved = anc[np.where(body < 0, n, body)]                      # (M, n)
-        if not moved.any():
+        some = np.flatnonzero(moved.any(axis=1))  # the rows a joint moves (B: self pairs); the others add zeros
+        if some.size == 0:
             continue
-        turn = np.einsum("mi,mij->mj", c.normal, cross(Zr, point[:, :, None] - Or, axis=1))
-        slide = np.einsum("mi,mij->mj", c.normal, Zr)
-        grad += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
+        if some.size == rows.size:
+            normal, Zs, Os, part = c.normal, Zr, Or, slice(None)
+        else:
+            normal, Zs, Os, point, moved, part = c.normal[some], Zr[some], Or[some], point[some], moved[some], some
+        turn = np.einsum("mi,mij->mj", normal, cross(Zs, point[:, :, None] - Os, axis=1))
+        slide = np.einsum("mi,mij->mj", normal, Zs)
+        grad[part] += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
     return c.distance, grad, (T, c)
 
 
