@@ -85,3 +85,33 @@ def test_the_distance_curvature_at_the_point_just_evaluated_reuses_its_poses_and
         assert ref is not None and np.abs(ref).max() > 0
         np.testing.assert_array_equal(got, ref)
     assert poses == []
+
+
+def test_the_banded_assembly_reuses_its_pattern_and_factors_the_summed_blocks():
+    """``BandedSPD.assemble`` places the blocks by a pattern kept per (blocks' shape, free mask): the factor is that of
+    the blocks summed densely (fixed rows and columns a scaled identity), with a second mask a pattern of its own."""
+    from scipy.linalg import cholesky
+
+    from hoc_cli.banded import BandedSPD, _pattern
+
+    rng = np.random.default_rng(11)
+    E, L, stride = 5, 12, 6
+    size = E * stride + L - stride
+    masks = [np.ones(size, bool), rng.uniform(size=size) < 0.8]
+    masks[1][0] = True
+    before = _pattern.cache_info()
+    for free in masks + masks:
+        A = rng.normal(size=(E, L, L))
+        blocks = np.einsum("eij,ekj->eik", A, A) + L * np.eye(L)
+        got = BandedSPD.assemble(blocks, stride, size, free, shift=0.0)
+        dense = np.zeros((size, size))
+        for e in range(E):
+            dense[e * stride:e * stride + L, e * stride:e * stride + L] += blocks[e]
+        dense = np.where(free[:, None] & free[None, :], dense, 0.0)
+        scale = np.mean(np.diag(dense)[free])
+        dense[~free, ~free] = scale
+        U = cholesky(dense)                                     # upper: the banded storage's rows are its diagonals
+        for k in range(L):
+            np.testing.assert_allclose(got.factor[L - 1 - k, k:], np.diag(U, k), rtol=1e-12, atol=1e-12)
+    after = _pattern.cache_info()
+    assert after.misses - before.misses <= 2 and after.hits - before.hits >= 2
