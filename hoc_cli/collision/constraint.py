@@ -244,7 +244,7 @@ class CollisionTerms:
         live = (self.lam > 0) | (d_anchor - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
         return None if live.all() else live
 
-    @property
+    @cached_property
     def rho_rows(self) -> np.ndarray:
         """ρ_r = ρ·w_r (M,), cost units / m²."""
         return self.rho * self.points.weight[self.rows]
@@ -297,7 +297,10 @@ class CollisionTerms:
         dq = point_configurations(self.points, dC)
         with np.errstate(invalid="ignore"):
             a = self.lam / rr + self.bound - d
-        return a, -np.einsum("mj,mj->m", dd, dq[self.rows]), rr
+        b = np.zeros(self.rows.size)
+        on = np.flatnonzero(np.isfinite(d))  # rows skipped at C take no part in the step's model
+        b[on] = -np.einsum("mj,mj->m", dd[on], dq[self.rows[on]])
+        return a, b, rr
 
     def curvature_blocks(self, C: np.ndarray) -> np.ndarray | None:
         """Element blocks (N, 2mn, 2mn) of −Σ_r μ_r ∇²d_r over the rows with μ_r > 0 and d_r > 0 at C (None without

@@ -182,6 +182,11 @@ class LimitTerms:
     def _bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return effective_bounds(self.limits, self.margin)
 
+    @property
+    def sigma(self) -> np.ndarray:
+        """σ (K, n): the size of each kind's limit per joint (``effective_bounds``), kept with the terms."""
+        return self._bounds[2]
+
     def _values(self, C: np.ndarray):
         mesh = self.rows.mesh
         loc = mesh.local_coefficients(C)
