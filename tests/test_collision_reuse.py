@@ -115,3 +115,25 @@ def test_the_banded_assembly_reuses_its_pattern_and_factors_the_summed_blocks():
             np.testing.assert_allclose(got.factor[L - 1 - k, k:], np.diag(U, k), rtol=1e-12, atol=1e-12)
     after = _pattern.cache_info()
     assert after.misses - before.misses <= 2 and after.hits - before.hits >= 2
+
+
+def test_the_penalty_gradient_maps_the_points_of_active_rows_alone_with_the_same_numbers(lbr7_scene):  # noqa: F811
+    """∂Φ/∂C by ``PointSet.transpose_q`` over the points holding a row with μ > 0 equals ``transpose`` of the full
+    (3, P, n) sensitivities (q̇ and q̈ rows zero), bit for bit."""
+    from hoc_cli.collision.constraint import group_sum
+
+    model, scene = lbr7_scene
+    C0, points, D, terms = swing_rows(model, sphere_rows_scene(scene), near=0.3, every=5)
+    for C in (C0, C0 + 1e-2 * np.random.default_rng(12).normal(size=C0.shape)):
+        _, got = dataclasses.replace(terms, _last=[], _anchor=[]).evaluate(C)
+        d, dd = terms._gradient(C)
+        mu = terms.multipliers(d)
+        assert 0 < (mu > 0).sum() < mu.size
+        G = np.zeros((3, points.size, dd.shape[-1]))
+        G[0] = group_sum(terms.rows, -mu[:, None] * dd, points.size)
+        assert np.array_equal(got, points.transpose(G))
+    which = np.array([3, 7, 7, 20])  # a point twice: both added
+    Gq = np.random.default_rng(13).normal(size=(which.size, 7))
+    G = np.zeros((3, points.size, 7))
+    np.add.at(G[0], which, Gq)
+    np.testing.assert_allclose(points.transpose_q(Gq, which), points.transpose(G), rtol=1e-14, atol=1e-14)

@@ -175,6 +175,16 @@ class CollisionTerms:
     _anchor: list = field(default_factory=list, repr=False)  # [q (M, n), d (M,)]: where each row was last evaluated
 
     @cached_property
+    def _row_groups(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``group_sum``'s grouping of the rows by point: (the stable sort of ``rows``, each group's start in it, its
+        point).
+        """
+        order = np.argsort(self.rows, kind="stable")
+        idx = self.rows[order]
+        starts = np.flatnonzero(np.concatenate([[True], idx[1:] != idx[:-1]]))
+        return order, starts, idx[starts]
+
+    @cached_property
     def _used(self) -> tuple[np.ndarray, np.ndarray]:
         """(the points the rows use (U,), each row's index among them (M,))."""
         return np.unique(self.rows, return_inverse=True)
@@ -272,7 +282,6 @@ class CollisionTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
         """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
-        n = C.shape[-1]
         if self.rows.size == 0:
             return 0.0, (np.zeros_like(C) if grad else None)
         if grad:
@@ -284,9 +293,11 @@ class CollisionTerms:
         value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
         if not grad:
             return value, None
-        G = np.zeros((3, self.points.size, n))
-        G[0] = group_sum(self.rows, -mu[:, None] * dd, self.points.size)
-        return value, self.points.transpose(G)
+        order, starts, ids = self._row_groups
+        Gq = np.zeros((self.points.size, dd.shape[-1]))
+        Gq[ids] = np.add.reduceat((-mu[:, None] * dd)[order], starts, axis=0)  # ``group_sum`` by point, its sort kept
+        at = np.unique(self.rows[mu > 0])  # points without a row of μ > 0 add nothing
+        return value, self.points.transpose_q(Gq[at], at)
 
     def step_rows(self, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The rows' PHR arguments along C + α dC (dC (N+1, m, n)), linearised (``step.model_step``): (a (M,) =
