@@ -137,3 +137,23 @@ def test_the_penalty_gradient_maps_the_points_of_active_rows_alone_with_the_same
     G = np.zeros((3, points.size, 7))
     np.add.at(G[0], which, Gq)
     np.testing.assert_allclose(points.transpose_q(Gq, which), points.transpose(G), rtol=1e-14, atol=1e-14)
+
+
+def test_row_distances_place_only_the_rows_primitives_with_the_distances_of_every_pair(lbr7_scene):  # noqa: F811
+    """``row_distances`` (the certificate's midpoints: about one row per time) equals ``distances`` on every pair, spheres
+    in and out of boxes and self pairs included; the certificate's grouping of intervals equals ``np.unique``'s."""
+    from hoc_cli.collision.certify import _distinct
+    from hoc_cli.collision.evaluate import distances, row_distances
+
+    model, scene = lbr7_scene
+    q = np.random.default_rng(14).uniform(-2.5, 2.5, (150, model.n))
+    for sc in (scene, sphere_rows_scene(scene)):
+        every = distances(model, sc, q)
+        rng = np.random.default_rng(15)
+        rows, pairs = rng.integers(0, len(q), 3000), rng.integers(0, sc.size, 3000)
+        assert np.array_equal(row_distances(model, sc, q, rows, pairs), every[rows, pairs])
+    rng = np.random.default_rng(16)
+    e, a, b = rng.integers(0, 3, 60), rng.choice([0.0, 0.25, 0.5], 60), rng.choice([0.5, 0.75, 1.0], 60)
+    first, inverse = _distinct(e, a, b)
+    _, ref_first, ref_inverse = np.unique(np.stack([e, a, b]), axis=1, return_index=True, return_inverse=True)
+    assert np.array_equal(first, ref_first) and np.array_equal(inverse, ref_inverse.ravel())

@@ -219,6 +219,31 @@ def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np
     return out
 
 
+def row_distances(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np.ndarray:
+    """The signed distance (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q (K, n)): ``pair_distances``
+    with the primitives placed only where the rows need them (``row_contacts``), the same numbers; cheaper than
+    placing every primitive at every configuration when each configuration holds a few rows.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    a1, b1, a2, b2 = _placed_ends(model, scene, _poses(model, q), rows, pairs)
+    out = np.empty(rows.size)
+    fast = _cached("spheres", scene, lambda: _spheres(scene))[pairs]
+    if fast.any():
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        k = pairs[fast]
+        o = scene.other[k]
+        d, outside = _sphere_box_gap(a1[fast], scene.robot.radius[scene.prim[k]], obs["center"][o], obs["rot"][o],
+                                     obs["half"][o])
+        got = np.flatnonzero(fast)
+        out[got[outside]] = d[outside]
+        fast[got[~outside]] = False  # a centre in the box: its depth by the capsule path
+    rest = np.flatnonzero(~fast)
+    if rest.size:
+        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
+    return out
+
+
 def contacts(model: RobotModel, scene: CollisionScene, q) -> Contact:
     """Every pair at every configuration q (K, n): a Contact with arrays (K, Q) and (K, Q, 3)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
