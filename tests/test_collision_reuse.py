@@ -157,3 +157,27 @@ def test_row_distances_place_only_the_rows_primitives_with_the_distances_of_ever
     first, inverse = _distinct(e, a, b)
     _, ref_first, ref_inverse = np.unique(np.stack([e, a, b]), axis=1, return_index=True, return_inverse=True)
     assert np.array_equal(first, ref_first) and np.array_equal(inverse, ref_inverse.ravel())
+
+
+def test_a_carried_cost_hessian_serves_the_next_newton_matrix_at_that_point_once(monkeypatch):
+    """``ControlProblem.carry_hessian(x)``: the next Newton matrix, at x, takes the cost Hessian of the last one (no
+    sweep; the same matrix as the last one's cost part), and a Newton matrix elsewhere sweeps again."""
+    model = load_robot(ROBOTS / "two_link.urdf")
+    problem = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.5, 4), [0.0, 0.0], [0.0, 0.0], [1.2, -0.6],
+                             [0.0, 0.0])
+    x0 = problem.initial_guess()
+    rng = np.random.default_rng(17)
+    x1 = x0 + 1e-3 * rng.normal(size=x0.shape)
+    sweeps = []
+    sweep = ControlProblem.hessian_samples
+    monkeypatch.setattr(ControlProblem, "hessian_samples", lambda self, ev, samples=None: sweeps.append(1) or sweep(self, ev, samples))
+    e0 = problem.evaluate(x0)
+    P0 = problem.newton(e0)
+    problem.carry_hessian(x1)
+    P1 = problem.newton(problem.evaluate(x1))
+    assert len(sweeps) == 1
+    np.testing.assert_array_equal(P1.factor, P0.factor)  # the cost part alone: the same matrix
+    problem.newton(problem.evaluate(x1 + 1e-3))           # elsewhere: a sweep
+    problem.carry_hessian(x1)
+    problem.newton(problem.evaluate(x0))                  # carried to x1, asked at x0: a sweep
+    assert len(sweeps) == 3

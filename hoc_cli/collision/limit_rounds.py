@@ -155,6 +155,8 @@ class LimitState:
             inner = self.problem(problem, lt)
             res = minimize(inner, x, tol)
             x = self.polish(inner, res.x) if res.converged and (polish or exact) else res.x
+            if exact and x is not res.x:  # the polish step: the next round's first Newton matrix takes this one's cost Hessian
+                problem.carry_hessian(x)
             met = self.update(lt, problem.coefficients(x), bare(x), tol)
             if _log.isEnabledFor(logging.DEBUG):
                 _log.debug(f"limits round N {self.mesh.N} it {res.iterations} ev {res.n_evals} met {met} "
