@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross, sphere_box
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -169,11 +169,25 @@ def _contacts(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndar
         elif k == KIND_CAPSULE:
             c = capsule_capsule(a1[m], b1[m], r1[m], obs["ca"][o], obs["cb"][o], obs["cr"][o])
         elif k == KIND_BOX:
-            c = capsule_box(a1[m], b1[m], r1[m], obs["center"][o], obs["rot"][o], obs["half"][o])
+            c = _box_contacts(scene, a1[m], b1[m], r1[m], o, pairs[m], obs)
         else:
             c = capsule_halfspace(a1[m], b1[m], r1[m], obs["normal"][o], obs["offset"][o])
         out.distance[m], out.normal[m], out.point_a[m], out.point_b[m] = c.distance, c.normal, c.point_a, c.point_b
     return out
+
+
+def _box_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, r: np.ndarray, o: np.ndarray, pairs: np.ndarray,
+                  obs: dict) -> Contact:
+    """``capsule_box`` of rows (M,) against boxes ``o`` (M,): rows whose pair is a sphere's (``_spheres``; the
+    penalty's rows) by ``distance.sphere_box`` directly, the same numbers without capsule_box's broadcasting.
+    """
+    center, rot, half = obs["center"][o], obs["rot"][o], obs["half"][o]
+    if not _cached("spheres", scene, lambda: _spheres(scene))[pairs].all():
+        return capsule_box(a, b, r, center, rot, half)
+    got, done = sphere_box(a, r, center, rot, half)
+    if done.all():
+        return Contact(*got)
+    return capsule_box(a, b, r, center, rot, half)  # a centre in a box: its depth by the capsule path
 
 
 def _spheres(scene: CollisionScene) -> np.ndarray:
@@ -338,8 +352,9 @@ def pair_gradient_geometry(model: RobotModel, scene: CollisionScene, q, rows,
         else:
             normal, Zs, Os, point, moved, part = c.normal[some], Zr[some], Or[some], point[some], moved[some], some
         turn = np.einsum("mi,mij->mj", normal, cross(Zs, point[:, :, None] - Os, axis=1))
-        slide = np.einsum("mi,mij->mj", normal, Zs)
-        grad[part] += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
+        if not revolute.all():  # prismatic joints: the axis itself
+            turn = np.where(revolute, turn, np.einsum("mi,mij->mj", normal, Zs))
+        grad[part] += sign * np.where(moved, turn, 0.0)
     return c.distance, grad, (T, c)
 
 
