@@ -170,7 +170,7 @@ class LimitTerms:
     lam_hi: tuple[np.ndarray, ...]
     rho: float
     margin: float
-    _cache: list = field(default_factory=list, repr=False)  # [(C, PenaltyValue)], newest last
+    _cache: list = field(default_factory=list, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
 
     CACHE = 2
 
@@ -217,11 +217,16 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
-        for C_kept, pv in self._cache:
-            if (not grad or pv.grad is not None) and np.array_equal(C_kept, C):
-                return pv if grad else dataclasses.replace(pv, grad=None)
+        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None]
+            pv = entry[1]
+            if (not grad or pv.grad is not None) and np.array_equal(entry[0], C):
+                if grad or pv.grad is None:
+                    return pv
+                if entry[2] is None:
+                    entry[2] = dataclasses.replace(pv, grad=None)
+                return entry[2]
         pv = self._evaluate(C, grad)
-        self._cache.append((np.array(C), pv))
+        self._cache.append([np.array(C), pv, None])
         del self._cache[:-self.CACHE]
         return pv
 
@@ -234,14 +239,8 @@ class LimitTerms:
         gloc = np.zeros((self.rows.mesh.N, 2 * self.rows.mesh.m, self.limits.n))
         G = None
         for k in range(len(KINDS)):
-            gl, gh = self._residual(k, V[k])
-            rw = self.rho * self.rows.weight(k)
-            ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
-            mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
-            if np.ndim(rw):  # non-uniform mesh: a weight per row
-                value += float(np.sum((ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2) / (2 * rw)))
-            else:
-                value += float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+            gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
+            value += part
             g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
             if grad and V[k] is not None:
                 dV = (mh - ml) / sig[k]
@@ -254,6 +253,23 @@ class LimitTerms:
             Gk = self.rows.to_coefficients(gloc)
             G = Gk if G is None else G + Gk
         return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+
+    def _kind(self, k: int, V: np.ndarray | None) -> tuple:
+        """Kind k's (g_lo, g_hi, μ_lo, μ_hi, its part of Φ) from its values V (None: not imposed)."""
+        gl, gh = self._residual(k, V)
+        rw = self.rho * self.rows.weight(k)
+        ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
+        mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
+        if np.ndim(rw):  # non-uniform mesh: a weight per row
+            part = float(np.sum((ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2) / (2 * rw)))
+        else:
+            part = float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+        return gl, gh, ml, mh, part
+
+    @cached_property
+    def _idle(self) -> dict:
+        """``_kind`` of the kinds no joint imposes (the same at every C), kept: {k: (g_lo, g_hi, μ_lo, μ_hi, part)}."""
+        return {k: self._kind(k, None) for k in range(len(KINDS)) if not self.working[k].any()}
 
     def newton_blocks(self, C: np.ndarray, pv: PenaltyValue | None = None) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of Φ's (Gauss-Newton) Hessian at C (``pv``: these terms at C, if known)."""
