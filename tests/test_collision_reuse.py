@@ -181,3 +181,21 @@ def test_a_carried_cost_hessian_serves_the_next_newton_matrix_at_that_point_once
     problem.carry_hessian(x1)
     problem.newton(problem.evaluate(x0))                  # carried to x1, asked at x0: a sweep
     assert len(sweeps) == 3
+
+
+def test_the_kinematic_limit_blocks_kept_for_the_same_active_rows_are_those_made_afresh():
+    """``LimitTerms.newton_blocks`` keeps its kinematic kinds' blocks by the active rows: at another point with the same
+    active rows the same blocks as made afresh, with other active rows the new ones (a guard: a stale kept block fails)."""
+    make, C, dC = _limit_terms()
+    terms = make()
+    first = terms.newton_blocks(C)
+    pv = terms.evaluate(C, grad=False)
+    for scale in (1e-9, 0.3):
+        C2 = C + scale * dC
+        pv2 = terms.evaluate(C2, grad=False)
+        same = all(np.array_equal((terms.lam_lo[k] + terms.rho * terms.rows.weight(k) * a.g_lo[k] > 0),
+                                  (terms.lam_lo[k] + terms.rho * terms.rows.weight(k) * pv2.g_lo[k] > 0))
+                   for k in range(4) for a in (pv,))
+        assert same == (scale < 1e-6)
+        np.testing.assert_array_equal(terms.newton_blocks(C2), make().newton_blocks(C2))
+    assert not np.array_equal(terms.newton_blocks(C + 0.3 * dC), first)

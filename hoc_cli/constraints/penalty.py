@@ -171,6 +171,7 @@ class LimitTerms:
     rho: float
     margin: float
     _cache: list = field(default_factory=list, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
+    _kinematic_kept: list = field(default_factory=list, repr=False)  # [active rows' key, kinematic Newton blocks]
 
     CACHE = 2
 
@@ -277,15 +278,22 @@ class LimitTerms:
         N, m = mesh.N, mesh.m
         pv = self.evaluate(C, grad=False) if pv is None else pv
         _, _, sig = self._bounds
-        blocks = np.zeros((N, 2 * m, n, 2 * m, n))
-        eff = None
+        actives = []
         for k in range(len(KINDS)):
             rw = self.rho * self.rows.weight(k)
-            active = (self.lam_lo[k] + rw * pv.g_lo[k] > 0) | (self.lam_hi[k] + rw * pv.g_hi[k] > 0)
-            if not active.any():
-                continue
-            c = np.where(active, rw / sig[k] ** 2, 0.0)
-            if k < KINEMATIC:
+            actives.append((self.lam_lo[k] + rw * pv.g_lo[k] > 0) | (self.lam_hi[k] + rw * pv.g_hi[k] > 0))
+        # the kinematic kinds' blocks depend on C through the active rows alone: kept for the next call with the same
+        key = b"".join(a.tobytes() for a in actives[:KINEMATIC])
+        kept = self._kinematic_kept
+        if kept and kept[0] == key:
+            out = kept[1]
+        else:
+            blocks = np.zeros((N, 2 * m, n, 2 * m, n))
+            for k in range(KINEMATIC):
+                if not actives[k].any():
+                    continue
+                rw = self.rho * self.rows.weight(k)
+                c = np.where(actives[k], rw / sig[k] ** 2, 0.0)
                 R = self.rows.rows[k]
                 W = np.einsum("erj,ra,rb->ejab", c, R, R)  # (N, n, 2m, 2m)
                 if self.rows.scale is not None:
@@ -293,9 +301,12 @@ class LimitTerms:
                     W = W * (S[:, None, :, None] * S[:, None, None, :])
                 for j in range(n):
                     blocks[:, :, j, :, j] += W[:, j]
-            else:
-                eff = c
-        out = blocks.reshape(N, 2 * m * n, 2 * m * n)
+            out = blocks.reshape(N, 2 * m * n, 2 * m * n)
+            out.flags.writeable = False
+            self._kinematic_kept[:] = [key, out]
+        eff = None
+        if actives[EFFORT].any():
+            eff = np.where(actives[EFFORT], self.rho * self.rows.weight(EFFORT) / sig[EFFORT] ** 2, 0.0)
         if eff is not None:
             which = np.flatnonzero(eff.any(axis=1))
             X = self.rows.points.apply(C)[:, which]
