@@ -53,6 +53,28 @@ def element_blocks(op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
     return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1) * (cols[:, :, None] * cols[:, None, :])
 
 
+@lru_cache(maxsize=16)
+def _pattern(E: int, L: int, stride: int, size: int, free: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where ``BandedSPD.assemble`` puts E element blocks (L, L) at offsets e·stride in the upper band storage
+    (L, size), for the free mask ``free`` (its bytes, bool (size,)): (a, b) the upper-triangle indices of a block,
+    flat (E·L(L+1)/2,) each entry's index in the storage raveled, keep (L, size) the storage entries that touch no
+    fixed coefficient. Read-only, cached: a solve assembles the same pattern at every Newton matrix.
+    """
+    u = L - 1
+    a, b = np.triu_indices(L)
+    rows = u + a - b
+    cols = (np.arange(E)[:, None] * stride + b[None, :]).ravel()
+    flat = np.tile(rows, E) * size + cols
+    mask = np.frombuffer(free, dtype=bool)
+    d = np.arange(u + 1)[:, None]
+    j = np.arange(size)[None, :]
+    i = j - (u - d)
+    keep = (i >= 0) & mask[np.clip(i, 0, size - 1)] & mask[j]
+    for x in (a, b, flat, keep):
+        x.flags.writeable = False
+    return a, b, flat, keep
+
+
 @dataclass(frozen=True, eq=False)
 class BandedSPD:
     """A symmetric positive-definite banded matrix on the free coefficients, Cholesky-factored.
@@ -76,16 +98,8 @@ class BandedSPD:
         """
         E, L, _ = blocks.shape
         u = L - 1
-        a, b = np.triu_indices(L)
-        rows = u + a - b
-        cols = (np.arange(E)[:, None] * stride + b[None, :]).ravel()
-        flat = np.tile(rows, E) * size + cols
+        a, b, flat, keep = _pattern(E, L, stride, size, np.asarray(free, dtype=bool).tobytes())
         ab = np.bincount(flat, weights=blocks[:, a, b].ravel(), minlength=(u + 1) * size).reshape(u + 1, size)
-        # zero every entry that touches a fixed coefficient, then put a unit scale on fixed diagonals
-        d = np.arange(u + 1)[:, None]
-        j = np.arange(size)[None, :]
-        i = j - (u - d)
-        keep = (i >= 0) & free[np.clip(i, 0, size - 1)] & free[j]
         ab = np.where(keep, ab, 0.0)
         diag = ab[u]
         scale = float(np.mean(diag[free])) if free.any() else 1.0

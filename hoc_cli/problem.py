@@ -198,6 +198,7 @@ class ControlProblem:
         self.terms: tuple = ()  # extra objective terms (module docstring, "Hooks"); set by an outer loop
         self.last: Evaluation | None = None
         self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
+        self._carried: np.ndarray | None = None  # x where the kept Hessian serves the next Newton matrix (``carry_hessian``)
 
     # -- design vector ---------------------------------------------------------------------------------
     def initial_guess(self) -> np.ndarray:
@@ -395,12 +396,23 @@ class ControlProblem:
         at ev; those of the last ev are kept, so a second Newton matrix at the same point (other ``extra``
         terms, another shift) costs no second Hessian sweep.
         """
-        kept = self._kept_hessians
+        kept, carried = self._kept_hessians, self._carried
         if kept is not None and kept[0] is ev:
+            return kept[1], kept[2]
+        self._carried = None
+        if kept is not None and carried is not None and np.array_equal(ev.x, carried):
+            self._kept_hessians = (ev, kept[1], kept[2])
             return kept[1], kept[2]
         Hs, GNs = self.hessian_samples(ev)
         self._kept_hessians = (ev, element_blocks(self.op_h, Hs), GNs)
         return self._kept_hessians[1], GNs
+
+    def carry_hessian(self, x: np.ndarray) -> None:
+        """Let the cost's Hessian of the last Newton matrix serve the next one too when that is at x (its terms' blocks
+        are made afresh): for a step too small to change it to the Newton matrix's use (the collision loop's final
+        limit rounds, after a polish step). Nothing when no Hessian is kept.
+        """
+        self._carried = None if self._kept_hessians is None else np.array(x)
 
     def hessian_samples(self, ev: Evaluation, samples: SampleGradients | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample Hessian of L and its positive semi-definite part, each (K_h, 3n, 3n), at ev.x.

@@ -20,11 +20,12 @@ Symbols: N elements, n joints, Q pairs; times in s, distances in m.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from math import comb
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import distances, pair_distances, world_capsules
+from hoc_cli.collision.evaluate import distances, row_distances
 from hoc_cli.collision.robot import reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.extrema import element_polynomials, extrema
@@ -100,6 +101,18 @@ def pair_speeds(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: 
     return _speeds(scene, R[e], vmax[e], pair).reshape(N, Q)
 
 
+@lru_cache(maxsize=8)
+def _bernstein(D: int) -> tuple[np.ndarray, np.ndarray]:
+    """(C(a, b) (D, D), the power-to-Bernstein map β_i = Σ_k C(i,k)/C(d,k) c_k (D, D)) for D coefficients (d = D − 1);
+    read-only, kept.
+    """
+    j = np.arange(D)
+    binom = np.array([[comb(a, b) for b in range(D)] for a in range(D)], dtype=float)  # C(a, b)
+    to_bernstein = np.where(j[:, None] >= j[None, :], binom / binom[D - 1][None, :], 0.0)
+    binom.flags.writeable = to_bernstein.flags.writeable = False
+    return binom, to_bernstein
+
+
 def velocity_bounds(poly: np.ndarray, e: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
     """Bounds (M, n) on |q̇_j| over [s0, s1] ⊂ [0, 1] of elements e (each (M,)), from the power coefficients
     ``poly`` (N, n, D) of q̇ in the local coordinate (``element_polynomials(mesh, C, 1)``).
@@ -111,12 +124,11 @@ def velocity_bounds(poly: np.ndarray, e: np.ndarray, s0: np.ndarray, s1: np.ndar
     D = c.shape[-1]
     L = (s1 - s0)[:, None]
     j = np.arange(D)
-    binom = np.array([[comb(a, b) for b in range(D)] for a in range(D)], dtype=float)  # C(a, b)
+    binom, to_bernstein = _bernstein(D)
     # shifted[k] = Σ_{j >= k} c_j C(j, k) s0^(j−k) L^k
     power = np.where(j[:, None] >= j[None, :], s0[:, None, None] ** np.maximum(j[:, None] - j[None, :], 0), 0.0)
     shift = binom * power * L[:, :, None] ** j[None, None, :]    # (M, D_j, D_k)
     shifted = np.einsum("mij,mjk->mik", c, shift)                # (M, n, D)
-    to_bernstein = np.where(j[:, None] >= j[None, :], binom / binom[D - 1][None, :], 0.0)  # β_i = Σ_k C(i,k)/C(d,k) c_k
     beta = np.einsum("ik,mnk->mni", to_bernstein, shifted)
     return np.abs(beta).max(axis=-1) * (1 + SAFETY)
 
@@ -173,8 +185,8 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
         s0, sm, s1 = (t0 - start) / h, (tm - start) / h, (t1 - start) / h
         halves = np.concatenate([s0, sm]), np.concatenate([sm, s1])
         ee, pp = np.tile(e, 2), np.tile(pair, 2)
-        _, first, inverse = np.unique(np.stack([ee, *halves]), axis=1, return_index=True, return_inverse=True)
-        vmax = velocity_bounds(poly, ee[first], halves[0][first], halves[1][first])[inverse.ravel()]  # rad/s (m/s)
+        first, inverse = _distinct(ee, *halves)
+        vmax = velocity_bounds(poly, ee[first], halves[0][first], halves[1][first])[inverse]  # rad/s (m/s)
         speed = np.minimum(np.tile(speed, 2), _speeds(scene, R[ee], vmax, pp))
         t0, t1 = np.concatenate([t0, tm]), np.concatenate([tm, t1])
         d0, d1 = np.concatenate([d0, dm]), np.concatenate([dm, d1])
@@ -198,14 +210,31 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
                        speed=V)
 
 
+def _distinct(*keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, inverse): the index of the first occurrence of each distinct tuple of ``keys`` (each (M,)), in the
+    tuples' lexicographic order, and each row's place among them (M,), as ``np.unique(np.stack(keys), axis=1,
+    return_index=True, return_inverse=True)`` gives them, by one stable lexicographic sort.
+    """
+    order = np.lexsort(keys[::-1])
+    new = np.ones(order.size, dtype=bool)
+    for k in keys:
+        sk = k[order]
+        new[1:] &= sk[1:] == sk[:-1]
+    new = ~new
+    new[:1] = True
+    group = np.cumsum(new) - 1
+    inverse = np.empty(order.size, dtype=int)
+    inverse[order] = group
+    return order[new], inverse
+
+
 def _distances_at(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray, t: np.ndarray,
                   pair: np.ndarray) -> np.ndarray:
     """Signed distances (M,) m of pair ``pair[i]`` at time ``t[i]`` (each (M,)): the primitives placed once per
     distinct time (many pairs share an interval's midpoint).
     """
     times, inverse = np.unique(t, return_inverse=True)
-    a, b = world_capsules(model, scene, mesh.evaluate(C, times))
-    return pair_distances(scene, a, b, inverse.ravel(), pair)
+    return row_distances(model, scene, mesh.evaluate(C, times), inverse.ravel(), pair)
 
 
 def _merge(scene: CollisionScene, t0, t1, d, lb, pair, margin: float) -> tuple[dict, ...]:

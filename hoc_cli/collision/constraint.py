@@ -25,7 +25,8 @@ from functools import cached_property
 
 import numpy as np
 
-from hoc_cli.collision.evaluate import pair_gradient, pair_hessian, row_contacts
+from hoc_cli.collision.distance import Contact
+from hoc_cli.collision.evaluate import pair_gradient_geometry, pair_hessian, row_contacts
 from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
@@ -170,8 +171,18 @@ class CollisionTerms:
     bound: float
     start: RowStart | None = None
     curvature: bool = False
-    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q] of the last gradient evaluation
+    _last: list = field(default_factory=list, repr=False)  # [C, d, ∂d/∂q, placed] of the last gradient evaluation
     _anchor: list = field(default_factory=list, repr=False)  # [q (M, n), d (M,)]: where each row was last evaluated
+
+    @cached_property
+    def _row_groups(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``group_sum``'s grouping of the rows by point: (the stable sort of ``rows``, each group's start in it, its
+        point).
+        """
+        order = np.argsort(self.rows, kind="stable")
+        idx = self.rows[order]
+        starts = np.flatnonzero(np.concatenate([[True], idx[1:] != idx[:-1]]))
+        return order, starts, idx[starts]
 
     @cached_property
     def _used(self) -> tuple[np.ndarray, np.ndarray]:
@@ -186,15 +197,32 @@ class CollisionTerms:
         used, inverse = self._used
         live = self._live(q)
         if live is None:
-            d, dd = pair_gradient(self.model, self.scene, q[used], inverse, self.pairs)
+            d, dd, placed = pair_gradient_geometry(self.model, self.scene, q[used], inverse, self.pairs)
+            placed = None if placed is None else (placed[0], inverse, np.arange(self.rows.size), placed[1])
         else:
             d, dd = np.full(self.rows.size, np.inf), np.zeros((self.rows.size, C.shape[-1]))
+            placed = None
             if live.any():  # only the configurations the live rows use are placed
                 at, local = np.unique(inverse[live], return_inverse=True)
-                d[live], dd[live] = pair_gradient(self.model, self.scene, q[used[at]], local, self.pairs[live])
+                d[live], dd[live], got = pair_gradient_geometry(self.model, self.scene, q[used[at]], local, self.pairs[live])
+                if got is not None:  # per row: its sample in the poses, its index in the contacts (−1: not placed)
+                    sample, where = np.full(self.rows.size, -1), np.full(self.rows.size, -1)
+                    sample[live], where[live] = local, np.arange(local.size)
+                    placed = (got[0], sample, where, got[1])
         self._anchor_at(q, d, live)
-        self._last[:] = [np.array(C), d, dd]
+        self._last[:] = [np.array(C), d, dd, placed]
         return d, dd
+
+    def _placed(self, C: np.ndarray, on: np.ndarray) -> tuple[np.ndarray, np.ndarray, Contact] | None:
+        """For the rows ``on`` (evaluated at C, the last gradient evaluation): (body poses T (K, n+1, 4, 4), each
+        row's sample in T (len(on),), their contacts), as ``_gradient`` placed them; None when not kept.
+        """
+        if not (self._last and np.array_equal(self._last[0], C)) or self._last[3] is None:
+            return None
+        T, sample, where, c = self._last[3]
+        k = where[on]
+        return T, sample[on], Contact(distance=c.distance[k], normal=c.normal[k], point_a=c.point_a[k],
+                                      point_b=c.point_b[k])
 
     def _anchor_at(self, q: np.ndarray, d: np.ndarray, live: np.ndarray | None) -> None:
         """The rows ``live`` (None: every row) were evaluated at configurations q (P, n) of the points, their distances
@@ -226,7 +254,7 @@ class CollisionTerms:
         live = (self.lam > 0) | (d_anchor - move * (1 + PRUNE_SLACK) - PRUNE_SLACK < self.bound)
         return None if live.all() else live
 
-    @property
+    @cached_property
     def rho_rows(self) -> np.ndarray:
         """ρ_r = ρ·w_r (M,), cost units / m²."""
         return self.rho * self.points.weight[self.rows]
@@ -254,7 +282,6 @@ class CollisionTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray | None]:
         """(Φ, ∂Φ/∂C (N+1, m, n) or None) at coefficients C (N+1, m, n)."""
-        n = C.shape[-1]
         if self.rows.size == 0:
             return 0.0, (np.zeros_like(C) if grad else None)
         if grad:
@@ -266,9 +293,11 @@ class CollisionTerms:
         value = float(np.sum((mu ** 2 - self.lam ** 2) / (2 * rr)))
         if not grad:
             return value, None
-        G = np.zeros((3, self.points.size, n))
-        G[0] = group_sum(self.rows, -mu[:, None] * dd, self.points.size)
-        return value, self.points.transpose(G)
+        order, starts, ids = self._row_groups
+        Gq = np.zeros((self.points.size, dd.shape[-1]))
+        Gq[ids] = np.add.reduceat((-mu[:, None] * dd)[order], starts, axis=0)  # ``group_sum`` by point, its sort kept
+        at = np.unique(self.rows[mu > 0])  # points without a row of μ > 0 add nothing
+        return value, self.points.transpose_q(Gq[at], at)
 
     def step_rows(self, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The rows' PHR arguments along C + α dC (dC (N+1, m, n)), linearised (``step.model_step``): (a (M,) =
@@ -279,7 +308,10 @@ class CollisionTerms:
         dq = point_configurations(self.points, dC)
         with np.errstate(invalid="ignore"):
             a = self.lam / rr + self.bound - d
-        return a, -np.einsum("mj,mj->m", dd, dq[self.rows]), rr
+        b = np.zeros(self.rows.size)
+        on = np.flatnonzero(np.isfinite(d))  # rows skipped at C take no part in the step's model
+        b[on] = -np.einsum("mj,mj->m", dd[on], dq[self.rows[on]])
+        return a, b, rr
 
     def curvature_blocks(self, C: np.ndarray) -> np.ndarray | None:
         """Element blocks (N, 2mn, 2mn) of −Σ_r μ_r ∇²d_r over the rows with μ_r > 0 and d_r > 0 at C (None without
@@ -294,9 +326,14 @@ class CollisionTerms:
         if on.size == 0:
             return None
         used, inverse = self._used
-        q = point_configurations(self.points, C)[used]
-        Hq = group_sum(inverse[on], -mu[on, None, None] * pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on]),
-                       used.size)
+        placed = self._placed(C, on)
+        if placed is None:
+            q = point_configurations(self.points, C)[used]
+            H = pair_hessian(self.model, self.scene, q, inverse[on], self.pairs[on])
+        else:  # the poses and contacts of the gradient at C
+            T, sample, c = placed
+            H = pair_hessian(self.model, self.scene, None, sample, self.pairs[on], placed=(T, c))
+        Hq = group_sum(inverse[on], -mu[on, None, None] * H, used.size)
         which = np.unique(inverse[on])
         return q_blocks(self.points, Hq[which], used[which])
 

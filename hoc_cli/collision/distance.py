@@ -107,8 +107,15 @@ def capsule_capsule(a1, b1, r1, a2, b2, r2) -> Contact:
     s, t = segment_segment(a1, b1, a2, b2)
     x1 = a1 + s[..., None] * (b1 - a1)
     x2 = a2 + t[..., None] * (b2 - a2)
-    fallback, _ = _unit(cross(b1 - a1, b2 - a2), _perpendicular(b1 - a1 + (b2 - a2)))
-    n, gap = _unit(x1 - x2, fallback)
+    v = x1 - x2
+    gap = np.linalg.norm(v, axis=-1)
+    ok = gap > 0
+    n = v / np.where(ok, gap, 1.0)[..., None]
+    if not ok.all():  # the segments meet: the fallback normal where they do (``_unit``'s, the same numbers)
+        e1, e2 = np.broadcast_arrays(b1 - a1, b2 - a2)
+        meet = ~ok
+        fallback, _ = _unit(cross(e1[meet], e2[meet]), _perpendicular(e1[meet] + e2[meet]))
+        n[meet] = fallback
     r1, r2 = np.asarray(r1, dtype=float), np.asarray(r2, dtype=float)
     return Contact(distance=gap - r1 - r2, normal=n, point_a=x1 - r1[..., None] * n, point_b=x2 + r2[..., None] * n)
 
@@ -143,7 +150,12 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     ball = np.flatnonzero(np.all(a == b, axis=-1))  # spheres (the rows standing for capsules against obstacles)
     if ball.size == 0:
         return _capsule_box_rows(a, b, r, center, R, h)
-    got, done = _sphere_box(a[ball], r[ball], center[ball], R[ball], h[ball])
+    if ball.size == M:  # every row a sphere (the penalty's rows): no gathering unless a centre is in a box
+        got, done = sphere_box(*(np.ascontiguousarray(x) for x in (a, r, center, R, h)))  # as the gathered rows
+        if done.all():
+            return Contact(*got)
+    else:
+        got, done = sphere_box(a[ball], r[ball], center[ball], R[ball], h[ball])
     out = Contact(distance=np.empty(M), normal=np.empty((M, 3)), point_a=np.empty((M, 3)), point_b=np.empty((M, 3)))
     fields = ("distance", "normal", "point_a", "point_b")
     for f, v in zip(fields, got):
@@ -158,16 +170,17 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     return out
 
 
-def _sphere_box(c, r, center, R, h):
-    """``capsule_box`` for spheres (a = b = c, (S, 3)) outside the box: ((distance, normal, point_a, point_b), done
-    (S,) bool); rows not done (the centre within rounding of the box) take the capsule path. The same operations as
-    the capsule path with a zero direction (its segment parameter is 0), so the same numbers.
+def sphere_box(c, r, center, R, h):
+    """``capsule_box`` for spheres (a = b = c, (S, 3), rows of C-contiguous arrays) outside the box: ((distance,
+    normal, point_a, point_b), done (S,) bool); rows not done (the centre within rounding of the box) take the capsule
+    path. The same operations as the capsule path with a zero direction (its segment parameter is 0), so the same
+    numbers.
     """
     p = np.matmul((c - center)[..., None, :], R)[..., 0, :]
     h, _ = np.broadcast_arrays(h, p)
     y = np.clip(p, -h, h)
     n_box, gap = _unit(p - y, np.zeros(3))
-    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1) + np.linalg.norm(np.zeros_like(p), axis=-1)
+    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1)  # + |d| = 0 on the capsule path
     done = ~(gap <= 1e-12 * scale)
     normal = np.matmul(R, n_box[..., None])[..., 0]
     point_a = np.matmul(R, p[..., None])[..., 0] + center - r[..., None] * normal

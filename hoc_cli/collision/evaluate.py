@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross, sphere_box
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -88,13 +88,27 @@ def row_contacts(model: RobotModel, scene: CollisionScene, q, rows, pairs, axes:
     q = np.atleast_2d(np.asarray(q, dtype=float))
     rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
     T = _poses(model, q)
+    c = _placed_contacts(model, scene, T, rows, pairs)
+    return (c, _axes(T, model.n)) if axes else c
+
+
+def _placed_ends(model: RobotModel, scene: CollisionScene, T: np.ndarray, rows: np.ndarray,
+                 pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(a1, b1, a2, b2), each (M, 3): the ends of each row's robot primitive and (self pairs; zeros otherwise) of
+    its other primitive, from body poses T (K, n+1, 4, 4) at the rows' samples ``rows`` (M,).
+    """
     a1, b1 = _row_ends(model, scene, T, rows, scene.prim[pairs])
     self_rows = scene.kind[pairs] == KIND_SELF
     a2, b2 = np.zeros_like(a1), np.zeros_like(b1)
     if self_rows.any():
         a2[self_rows], b2[self_rows] = _row_ends(model, scene, T, rows[self_rows], scene.other[pairs[self_rows]])
-    c = _contacts(scene, a1, b1, a2, b2, pairs)
-    return (c, _axes(T, model.n)) if axes else c
+    return a1, b1, a2, b2
+
+
+def _placed_contacts(model: RobotModel, scene: CollisionScene, T: np.ndarray, rows: np.ndarray,
+                     pairs: np.ndarray) -> Contact:
+    """The contacts (M,) of ``pairs`` at the samples ``rows`` of body poses T (K, n+1, 4, 4)."""
+    return _contacts(scene, *_placed_ends(model, scene, T, rows, pairs), pairs)
 
 
 def world_capsules(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
@@ -155,11 +169,25 @@ def _contacts(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndar
         elif k == KIND_CAPSULE:
             c = capsule_capsule(a1[m], b1[m], r1[m], obs["ca"][o], obs["cb"][o], obs["cr"][o])
         elif k == KIND_BOX:
-            c = capsule_box(a1[m], b1[m], r1[m], obs["center"][o], obs["rot"][o], obs["half"][o])
+            c = _box_contacts(scene, a1[m], b1[m], r1[m], o, pairs[m], obs)
         else:
             c = capsule_halfspace(a1[m], b1[m], r1[m], obs["normal"][o], obs["offset"][o])
         out.distance[m], out.normal[m], out.point_a[m], out.point_b[m] = c.distance, c.normal, c.point_a, c.point_b
     return out
+
+
+def _box_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, r: np.ndarray, o: np.ndarray, pairs: np.ndarray,
+                  obs: dict) -> Contact:
+    """``capsule_box`` of rows (M,) against boxes ``o`` (M,): rows whose pair is a sphere's (``_spheres``; the
+    penalty's rows) by ``distance.sphere_box`` directly, the same numbers without capsule_box's broadcasting.
+    """
+    center, rot, half = obs["center"][o], obs["rot"][o], obs["half"][o]
+    if not _cached("spheres", scene, lambda: _spheres(scene))[pairs].all():
+        return capsule_box(a, b, r, center, rot, half)
+    got, done = sphere_box(a, r, center, rot, half)
+    if done.all():
+        return Contact(*got)
+    return capsule_box(a, b, r, center, rot, half)  # a centre in a box: its depth by the capsule path
 
 
 def _spheres(scene: CollisionScene) -> np.ndarray:
@@ -202,6 +230,31 @@ def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np
     rest = np.flatnonzero(~fast)
     if rest.size:
         out[rest] = pair_contacts(scene, a, b, rows[rest], pairs[rest]).distance
+    return out
+
+
+def row_distances(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np.ndarray:
+    """The signed distance (M,) of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (q (K, n)): ``pair_distances``
+    with the primitives placed only where the rows need them (``row_contacts``), the same numbers; cheaper than
+    placing every primitive at every configuration when each configuration holds a few rows.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
+    a1, b1, a2, b2 = _placed_ends(model, scene, _poses(model, q), rows, pairs)
+    out = np.empty(rows.size)
+    fast = _cached("spheres", scene, lambda: _spheres(scene))[pairs]
+    if fast.any():
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        k = pairs[fast]
+        o = scene.other[k]
+        d, outside = _sphere_box_gap(a1[fast], scene.robot.radius[scene.prim[k]], obs["center"][o], obs["rot"][o],
+                                     obs["half"][o])
+        got = np.flatnonzero(fast)
+        out[got[outside]] = d[outside]
+        fast[got[~outside]] = False  # a centre in the box: its depth by the capsule path
+    rest = np.flatnonzero(~fast)
+    if rest.size:
+        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
     return out
 
 
@@ -261,18 +314,29 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
     one pass of the body poses. Exact wherever the witness points are unique (the distance is
     differentiable there).
     """
+    d, grad, _ = pair_gradient_geometry(model, scene, q, rows, pairs)
+    return d, grad
+
+
+def pair_gradient_geometry(model: RobotModel, scene: CollisionScene, q, rows,
+                           pairs) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, Contact] | None]:
+    """``pair_gradient``'s (d (M,), ∂d/∂q (M, n)) and what it placed: (the body poses T (K, n+1, 4, 4) at q, the
+    rows' contacts (M,)), which ``pair_hessian`` takes for the same rows (None without joints).
+    """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
     n = model.n
     if n == 0:
         a, b = world_capsules(model, scene, q)
         c = pair_contacts(scene, a, b, rows, pairs)
-        return c.distance, np.zeros((rows.size, n))
-    c, (Z, O) = row_contacts(model, scene, q, rows, pairs, axes=True)  # Z, O (K, 3, n): joint axes, points on them
+        return c.distance, np.zeros((rows.size, n)), None
+    T = _poses(model, q)
+    c = _placed_contacts(model, scene, T, rows, pairs)
+    Z, O = _axes(T, n)  # (K, 3, n): joint axes, points on them
     robot = scene.robot
     grad = np.zeros((rows.size, n))
     if rows.size == 0:
-        return c.distance, grad
+        return c.distance, grad, (T, c)
     revolute = ~np.asarray(model.is_prismatic, dtype=bool)
     anc = _cached("ancestors", model, lambda: _ancestors(model))
     body_a = robot.body[scene.prim[pairs]]
@@ -280,12 +344,18 @@ def pair_gradient(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> t
     Zr, Or = Z[rows], O[rows]
     for body, point, sign in ((body_a, c.point_a, 1.0), (body_b, c.point_b, -1.0)):
         moved = anc[np.where(body < 0, n, body)]                      # (M, n)
-        if not moved.any():
+        some = np.flatnonzero(moved.any(axis=1))  # the rows a joint moves (B: self pairs); the others add zeros
+        if some.size == 0:
             continue
-        turn = np.einsum("mi,mij->mj", c.normal, cross(Zr, point[:, :, None] - Or, axis=1))
-        slide = np.einsum("mi,mij->mj", c.normal, Zr)
-        grad += sign * np.where(moved, np.where(revolute, turn, slide), 0.0)
-    return c.distance, grad
+        if some.size == rows.size:
+            normal, Zs, Os, part = c.normal, Zr, Or, slice(None)
+        else:
+            normal, Zs, Os, point, moved, part = c.normal[some], Zr[some], Or[some], point[some], moved[some], some
+        turn = np.einsum("mi,mij->mj", normal, cross(Zs, point[:, :, None] - Os, axis=1))
+        if not revolute.all():  # prismatic joints: the axis itself
+            turn = np.where(revolute, turn, np.einsum("mi,mij->mj", normal, Zs))
+        grad[part] += sign * np.where(moved, turn, 0.0)
+    return c.distance, grad, (T, c)
 
 
 def distance_gradient(model: RobotModel, scene: CollisionScene, q) -> tuple[np.ndarray, np.ndarray]:
@@ -357,7 +427,8 @@ def _kinematic_curvature(normal: np.ndarray, Z: np.ndarray, J: np.ndarray, moved
     return np.where(moved[:, :, None] & moved[:, None, :], K, 0.0)
 
 
-def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np.ndarray:
+def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs,
+                 placed: tuple[np.ndarray, Contact] | None = None) -> np.ndarray:
     """∇²d (M, n, n), m/rad², of pair ``pairs[m]`` at configuration ``q[rows[m]]`` (rows with d > 0): the curvature
     the Newton matrix of the penalty takes (−μ ∇²d). Revolute joints only (a prismatic joint adds nothing).
 
@@ -372,8 +443,10 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np
     linear). Exact wherever d is twice differentiable (tested against central differences of ``pair_gradient``),
     except for a capsule (a ≠ b) against a box, whose witness's slide along the segment is left out (the
     penalty's rows against boxes are spheres: ``constraint.sphere_rows_scene``).
+
+    ``placed``: (the body poses T (K, n+1, 4, 4) at q, the rows' contacts (M,)) when already computed
+    (``pair_gradient_geometry`` on these rows: the same numbers); q is then not read.
     """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
     rows, pairs = np.asarray(rows, dtype=int), np.asarray(pairs, dtype=int)
     n = model.n
     M = rows.size
@@ -381,14 +454,11 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> np
     if n == 0 or M == 0:
         return H
     robot = scene.robot
-    T = _poses(model, q)
+    T = _poses(model, np.atleast_2d(np.asarray(q, dtype=float))) if placed is None else placed[0]
     prim, other, kind = scene.prim[pairs], scene.other[pairs], scene.kind[pairs]
     self_rows = kind == KIND_SELF
-    a1, b1 = _row_ends(model, scene, T, rows, prim)
-    a2, b2 = np.zeros_like(a1), np.zeros_like(b1)
-    if self_rows.any():
-        a2[self_rows], b2[self_rows] = _row_ends(model, scene, T, rows[self_rows], other[self_rows])
-    c = _contacts(scene, a1, b1, a2, b2, pairs)
+    a1, b1, a2, b2 = _placed_ends(model, scene, T, rows, pairs)
+    c = _contacts(scene, a1, b1, a2, b2, pairs) if placed is None else placed[1]
     obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
     capsule_obstacle = kind == KIND_CAPSULE
     a2[capsule_obstacle], b2[capsule_obstacle] = obs["ca"][other[capsule_obstacle]], obs["cb"][other[capsule_obstacle]]

@@ -105,6 +105,8 @@ class LimitState:
         prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
         for _ in range(EXACT_ROUNDS if exact else ROUNDS):
             res, x = auglag.solve(problem, (term,), x, tol, minimize, polish_step=polish or exact)
+            if exact and x is not res.x:  # the polish step: the next round's first Newton matrix takes this one's cost Hessian
+                problem.carry_hessian(x)
             m = term.measure(problem, x, res, tol)
             prev, _ = auglag.update(term, problem, x, m, prev, res.converged)
             self.met = m.met

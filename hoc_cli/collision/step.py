@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 from hoc_cli.constraints.bounds import EFFORT
-from hoc_cli.constraints.penalty import effective_bounds
 
 
 def model_step(slope: float, a: np.ndarray, b: np.ndarray, rho: np.ndarray) -> float:
@@ -50,18 +49,18 @@ def limit_rows(terms, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.nda
     at = terms.evaluate(C, grad=False)
     to = terms.evaluate(C + dC, grad=False) if terms.working[EFFORT].any() else None
     loc = terms.rows.mesh.local_coefficients(dC)
-    sig = effective_bounds(terms.limits, terms.margin)[2]
+    sig = terms.sigma
     a, b, rho = [], [], []
-    for k in range(len(at.g_lo)):
-        rw = np.broadcast_to(terms.rho * terms.rows.weight(k), np.shape(at.g_lo[k]))
-        if k == EFFORT:
-            rates = (None, None) if to is None else (to.g_lo[k] - at.g_lo[k], to.g_hi[k] - at.g_hi[k])
-        else:
-            dV = terms.rows.apply(k, loc) / sig[k] if terms.working[k].any() else None
-            rates = (None, None) if dV is None else (-dV, dV)
-        for lam, g0, rate in zip((terms.lam_lo[k], terms.lam_hi[k]), (at.g_lo[k], at.g_hi[k]), rates):
-            with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"):
+        for k in range(len(at.g_lo)):
+            rw = np.broadcast_to(terms.rho * terms.rows.weight(k), np.shape(at.g_lo[k]))
+            if k == EFFORT:
+                rates = (None, None) if to is None else (to.g_lo[k] - at.g_lo[k], to.g_hi[k] - at.g_hi[k])
+            else:
+                dV = terms.rows.apply(k, loc) / sig[k] if terms.working[k].any() else None
+                rates = (None, None) if dV is None else (-dV, dV)
+            for lam, g0, rate in zip((terms.lam_lo[k], terms.lam_hi[k]), (at.g_lo[k], at.g_hi[k]), rates):
                 a.append((lam / rw + g0).ravel())
                 b.append(np.zeros(g0.size) if rate is None else np.where(np.isfinite(g0), rate, 0.0).ravel())
-            rho.append(rw.ravel())
+                rho.append(rw.ravel())
     return np.concatenate(a), np.concatenate(b), np.concatenate(rho)

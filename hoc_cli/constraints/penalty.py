@@ -24,7 +24,8 @@ Only the (kind, joint) pairs of the working set take part; the others cost nothi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -155,6 +156,10 @@ class LimitTerms:
     system : the dynamics (for effort); limits : JointLimits; rows : LimitRows;
     working : (K, n) bool; lam_lo, lam_hi : per kind ≥ 0, the kind's row shape;
     rho : penalty per unit time [cost units / s]; margin : δ.
+
+    The last ``CACHE`` evaluations are kept by their coefficients: an inner iteration asks Φ at its accepted
+    point for the gradient, the Newton blocks and the first step's rows (``collision.step.limit_rows``), and
+    the collision loop's update asks it once more; each is evaluated once (the same numbers).
     """
 
     system: object
@@ -165,6 +170,10 @@ class LimitTerms:
     lam_hi: tuple[np.ndarray, ...]
     rho: float
     margin: float
+    _cache: list = field(default_factory=list, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
+    _kinematic_kept: list = field(default_factory=list, repr=False)  # [active rows' key, kinematic Newton blocks]
+
+    CACHE = 2
 
     @property
     def empty(self) -> bool:
@@ -173,6 +182,11 @@ class LimitTerms:
     @cached_property
     def _bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return effective_bounds(self.limits, self.margin)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """σ (K, n): the size of each kind's limit per joint (``effective_bounds``), kept with the terms."""
+        return self._bounds[2]
 
     def _values(self, C: np.ndarray):
         mesh = self.rows.mesh
@@ -204,6 +218,21 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
+        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None]
+            pv = entry[1]
+            if (not grad or pv.grad is not None) and np.array_equal(entry[0], C):
+                if grad or pv.grad is None:
+                    return pv
+                if entry[2] is None:
+                    entry[2] = dataclasses.replace(pv, grad=None)
+                return entry[2]
+        pv = self._evaluate(C, grad)
+        self._cache.append([np.array(C), pv, None])
+        del self._cache[:-self.CACHE]
+        return pv
+
+    def _evaluate(self, C: np.ndarray, grad: bool) -> PenaltyValue:
+        """``evaluate`` without the cache."""
         V, X = self._values(C)
         _, _, sig = self._bounds
         value = 0.0
@@ -211,14 +240,8 @@ class LimitTerms:
         gloc = np.zeros((self.rows.mesh.N, 2 * self.rows.mesh.m, self.limits.n))
         G = None
         for k in range(len(KINDS)):
-            gl, gh = self._residual(k, V[k])
-            rw = self.rho * self.rows.weight(k)
-            ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
-            mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
-            if np.ndim(rw):  # non-uniform mesh: a weight per row
-                value += float(np.sum((ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2) / (2 * rw)))
-            else:
-                value += float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+            gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
+            value += part
             g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
             if grad and V[k] is not None:
                 dV = (mh - ml) / sig[k]
@@ -232,21 +255,45 @@ class LimitTerms:
             G = Gk if G is None else G + Gk
         return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
 
+    def _kind(self, k: int, V: np.ndarray | None) -> tuple:
+        """Kind k's (g_lo, g_hi, μ_lo, μ_hi, its part of Φ) from its values V (None: not imposed)."""
+        gl, gh = self._residual(k, V)
+        rw = self.rho * self.rows.weight(k)
+        ml = np.maximum(0.0, self.lam_lo[k] + rw * gl)
+        mh = np.maximum(0.0, self.lam_hi[k] + rw * gh)
+        if np.ndim(rw):  # non-uniform mesh: a weight per row
+            part = float(np.sum((ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2) / (2 * rw)))
+        else:
+            part = float(np.sum(ml**2 - self.lam_lo[k] ** 2 + mh**2 - self.lam_hi[k] ** 2)) / (2 * rw)
+        return gl, gh, ml, mh, part
+
+    @cached_property
+    def _idle(self) -> dict:
+        """``_kind`` of the kinds no joint imposes (the same at every C), kept: {k: (g_lo, g_hi, μ_lo, μ_hi, part)}."""
+        return {k: self._kind(k, None) for k in range(len(KINDS)) if not self.working[k].any()}
+
     def newton_blocks(self, C: np.ndarray, pv: PenaltyValue | None = None) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of Φ's (Gauss-Newton) Hessian at C (``pv``: these terms at C, if known)."""
         mesh, n = self.rows.mesh, self.limits.n
         N, m = mesh.N, mesh.m
         pv = self.evaluate(C, grad=False) if pv is None else pv
         _, _, sig = self._bounds
-        blocks = np.zeros((N, 2 * m, n, 2 * m, n))
-        eff = None
+        actives = []
         for k in range(len(KINDS)):
             rw = self.rho * self.rows.weight(k)
-            active = (self.lam_lo[k] + rw * pv.g_lo[k] > 0) | (self.lam_hi[k] + rw * pv.g_hi[k] > 0)
-            if not active.any():
-                continue
-            c = np.where(active, rw / sig[k] ** 2, 0.0)
-            if k < KINEMATIC:
+            actives.append((self.lam_lo[k] + rw * pv.g_lo[k] > 0) | (self.lam_hi[k] + rw * pv.g_hi[k] > 0))
+        # the kinematic kinds' blocks depend on C through the active rows alone: kept for the next call with the same
+        key = b"".join(a.tobytes() for a in actives[:KINEMATIC])
+        kept = self._kinematic_kept
+        if kept and kept[0] == key:
+            out = kept[1]
+        else:
+            blocks = np.zeros((N, 2 * m, n, 2 * m, n))
+            for k in range(KINEMATIC):
+                if not actives[k].any():
+                    continue
+                rw = self.rho * self.rows.weight(k)
+                c = np.where(actives[k], rw / sig[k] ** 2, 0.0)
                 R = self.rows.rows[k]
                 W = np.einsum("erj,ra,rb->ejab", c, R, R)  # (N, n, 2m, 2m)
                 if self.rows.scale is not None:
@@ -254,9 +301,12 @@ class LimitTerms:
                     W = W * (S[:, None, :, None] * S[:, None, None, :])
                 for j in range(n):
                     blocks[:, :, j, :, j] += W[:, j]
-            else:
-                eff = c
-        out = blocks.reshape(N, 2 * m * n, 2 * m * n)
+            out = blocks.reshape(N, 2 * m * n, 2 * m * n)
+            out.flags.writeable = False
+            self._kinematic_kept[:] = [key, out]
+        eff = None
+        if actives[EFFORT].any():
+            eff = np.where(actives[EFFORT], self.rho * self.rows.weight(EFFORT) / sig[EFFORT] ** 2, 0.0)
         if eff is not None:
             which = np.flatnonzero(eff.any(axis=1))
             X = self.rows.points.apply(C)[:, which]

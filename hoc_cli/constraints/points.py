@@ -72,6 +72,20 @@ class PointSet:
         out[1:] += gloc[:, m:]
         return out
 
+    def transpose_q(self, Gq: np.ndarray, which: np.ndarray) -> np.ndarray:
+        """``transpose`` of sensitivities to q alone, Gq (P', n) at the points ``which`` (P',; the other points' and
+        the q̇, q̈ sensitivities zero): the coefficient gradient (N+1, m, n), the same numbers without the zeros.
+        """
+        N, m = self.mesh.N, self.mesh.m
+        n = Gq.shape[-1]
+        per_point = self.B[0, which][:, :, None] * Gq[:, None, :]  # (P', 2m, n)
+        gloc = np.zeros((N, 2 * m, n))
+        np.add.at(gloc, self.e[which], per_point)
+        out = np.zeros((N + 1, m, n))
+        out[:-1] += gloc[:, :m]
+        out[1:] += gloc[:, m:]
+        return out
+
     def sample_blocks(self, Hs: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
         """Σ_p Ã_pᵀ Hs_p Ã_p over points: element blocks (N, 2mn, 2mn) of per-point Hessians in (q, q̇, q̈).
 
