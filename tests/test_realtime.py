@@ -224,6 +224,35 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
     assert up.violation < 0.1 * viol0
 
 
+def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_plan_is_the_same(catch, monkeypatch):
+    """The point after an update's last allowed step (``max_steps``): no step starts there, so ℒ's derivatives are
+    not evaluated (``evaluate_point(..., derivatives=False)``); the plan, its J, goal rows and stationarity (evaluated
+    when read) are those of the same update with them.
+    """
+    import hoc_cli.goals.replan_qp as replan_qp
+
+    problem, plan = catch
+    evaluate, calls = replan_qp.evaluate_point, []
+
+    def spy(*a, derivatives=True, **k):
+        calls.append(derivatives)
+        return evaluate(*a, derivatives=derivatives, **k)
+
+    t = 0.05
+    target = Target(P0 + [0.01, -0.005, 0.0] + V0 * t + 0.5 * G * t**2, V0 + G * t, G)
+    rp = Replanner(problem, plan, max_steps=1)
+    cur = rp.current
+    x, saved = (cur.state(t)[0], cur.state(t, 1)[0]), rp.state()
+    monkeypatch.setattr(replan_qp, "evaluate_point", spy)
+    up = rp.update(t, x, target, budget_s=10.0)
+    assert up.steps == 1 and calls[-1] is False and calls.count(False) == 1
+    rp.restore(saved)
+    monkeypatch.setattr(replan_qp, "evaluate_point", lambda *a, derivatives=True, **k: evaluate(*a, **k))
+    ref = rp.update(t, x, target, budget_s=10.0)
+    assert np.array_equal(up.coeffs, ref.coeffs) and up.T == ref.T and up.guarded == ref.guarded
+    assert up.J == ref.J and up.violation == ref.violation and up.stationarity == ref.stationarity > 0.0
+
+
 def test_a_budget_below_one_step_still_takes_exactly_one_and_a_long_one_converges(catch):
     """Without measured step times (no warm-up) nothing predicts a step's time: the first update takes exactly one
     step whatever its budget. With the warm-up's times the same budget skips the update.

@@ -77,8 +77,8 @@ class Target:
     acceleration: np.ndarray
 
 
-class DeferredCost:
-    """A cost evaluated on first use: ``float(cost)`` calls ``evaluate()`` (no arguments, a float) once and keeps it."""
+class Deferred:
+    """A number evaluated on first use: ``float(value)`` calls ``evaluate()`` (no arguments, a float) once and keeps it."""
 
     def __init__(self, evaluate: Callable[[], float]) -> None:
         self._evaluate: Callable[[], float] | None = evaluate
@@ -93,7 +93,7 @@ class DeferredCost:
 @dataclass(frozen=True, eq=False)
 class CyclePlan:
     """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost
-    (``cost``: the number, or a ``DeferredCost`` that evaluates it on the first read of ``J``: the controller does not
+    (``cost``: the number, or a ``Deferred`` that evaluates it on the first read of ``J``: the controller does not
     need it, so an update whose limits' guard projected its plan leaves the projected plan's cost to whoever reads it);
     ``J_steps`` the cost at the steps' last point (before the guard's projection; that of a cold plan, its J), which
     sets the next update's augmentation ρ.
@@ -107,7 +107,8 @@ class CyclePlan:
     time left, the start could not be evaluated, or the result failed the limits' check: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
-    [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
+    [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual; ``kkt``: the
+    number, or a ``Deferred`` evaluated when read, as the steps' last point is evaluated without ℒ's derivatives);
     ``guarded`` whether the limits' guard had to project; ``wall_time_s`` the update [s]; ``worked`` whether the
     update ran SQP work (its plan may still have been held or abandoned: its time counts as compute).
     """
@@ -115,12 +116,12 @@ class CyclePlan:
     t0: float
     mesh: HermiteMesh
     coeffs: np.ndarray
-    cost: float | DeferredCost
+    cost: float | Deferred
     steps: int = 0
     status: str = "cold"
     decrement: float = math.nan
     violation: float = math.nan
-    stationarity: float = math.nan
+    kkt: float | Deferred = math.nan
     guarded: bool = False
     wall_time_s: float = 0.0
     worked: bool = False
@@ -128,8 +129,13 @@ class CyclePlan:
 
     @property
     def J(self) -> float:
-        """The plan's cost I (the problem's objective, without weight·T; a ``DeferredCost`` is evaluated now, once)."""
+        """The plan's cost I (the problem's objective, without weight·T; a ``Deferred`` is evaluated now, once)."""
         return float(self.cost)
+
+    @property
+    def stationarity(self) -> float:
+        """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the returned point (``kkt``; a ``Deferred`` is evaluated now, once)."""
+        return float(self.kkt)
 
     @property
     def T(self) -> float:
@@ -304,22 +310,26 @@ class Replanner:
             return self._hold(start, worked=True)
         guarded = safe is not C_new
         violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
-        cost: float | DeferredCost = pt.J
-        if guarded:  # the projected plan's own goal rows; its cost when it is read (``DeferredCost``)
-            cost = DeferredCost(functools.partial(pt.problem.value, pt.problem.layout.pack(safe)))
+        cost: float | Deferred = pt.J
+        if guarded:  # the projected plan's own goal rows; its cost when it is read (``Deferred``)
+            cost = Deferred(functools.partial(pt.problem.value, pt.problem.layout.pack(safe)))
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
                                   pt.where).violation(safe)
         if guarded and violation > GUARD_VIOLATION and violation > self._miss(mesh, C, goals):
             return self._hold(start, worked=True)  # the projection gave up the goal for a plan no closer to it than the shifted one
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
-        stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
+        kkt: float | Deferred = math.nan
+        if pt.g is not None:
+            kkt = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
+        elif out.derive is not None:  # the steps' last point was evaluated without ℒ's derivatives: when read
+            kkt = Deferred(functools.partial(_stationarity, out.derive, pt.J))
         now = time.perf_counter()
         if ended:
             self.wrap_times.append(now - marks[-1])
         self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, cost=cost, J_steps=pt.J, steps=out.steps, status=status,
                                  decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
-                                 stationarity=stationarity, guarded=guarded, wall_time_s=now - start, worked=True)
+                                 kkt=kkt, guarded=guarded, wall_time_s=now - start, worked=True)
         return self.current
 
     def _late(self, now: float, deadline: float) -> bool:
@@ -358,6 +368,11 @@ class Replanner:
         self.current = dataclasses.replace(self.current, steps=0, status=status, worked=worked,
                                            wall_time_s=time.perf_counter() - start)
         return self.current
+
+
+def _stationarity(derive: Callable, J: float) -> float:
+    """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the point ``derive()`` evaluates with its derivatives."""
+    return float(np.max(np.abs(derive().g), initial=0.0)) / max(abs(J), 1.0)
 
 
 def goals_with_target(goals: Goals, target: Target) -> Goals:
