@@ -30,6 +30,9 @@ from hoc_cli.realtime.loop import run_catch
 from hoc_cli.realtime.replanner import Replanner
 from hoc_cli.strategy import solve
 
+UNTIMED = 1e9  # [s] the budget of every update: the replanner's own skip and abandon rules (measured step times
+# against the budget) never act, even under valgrind on a loaded machine (updates of seconds), so each update does
+# the same work in every run
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -47,10 +50,10 @@ def captured_updates(scenario: str, N: int) -> tuple[Replanner, list]:
 
     def keep(t, x, target, budget_s, *, free_time=True):
         inputs.append((rp.state(), t, x, target, free_time))
-        return update(t, x, target, 10.0, free_time=free_time)
+        return update(t, x, target, UNTIMED, free_time=free_time)
 
     rp.update = keep
-    run_catch(problem, plan, sc.throw, sc.observer, dataclasses.replace(sc.cycle, budget=10.0), replanner=rp, timed=False)
+    run_catch(problem, plan, sc.throw, sc.observer, dataclasses.replace(sc.cycle, budget=UNTIMED), replanner=rp, timed=False)
     rp.update = update
     return rp, inputs
 
@@ -59,7 +62,7 @@ def replay(rp: Replanner, inp: tuple):
     """The update of ``inp`` from its state again; its plan."""
     state, t, x, target, free_time = inp
     rp.restore(state)
-    return rp.update(t, x, target, 10.0, free_time=free_time)
+    return rp.update(t, x, target, UNTIMED, free_time=free_time)
 
 
 def main() -> None:

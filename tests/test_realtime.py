@@ -224,6 +224,68 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
     assert up.violation < 0.1 * viol0
 
 
+def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_plan_is_the_same(catch, monkeypatch):
+    """The point after an update's last allowed step (``max_steps``): no step starts there, so ℒ's derivatives are
+    not evaluated (``evaluate_point(..., derivatives=False)``); the plan, its J, goal rows and stationarity (evaluated
+    when read) are those of the same update with them.
+    """
+    import hoc_cli.goals.replan_qp as replan_qp
+
+    problem, plan = catch
+    evaluate, calls = replan_qp.evaluate_point, []
+
+    def spy(*a, derivatives=True, **k):
+        calls.append(derivatives)
+        return evaluate(*a, derivatives=derivatives, **k)
+
+    t = 0.05
+    target = Target(P0 + [0.01, -0.005, 0.0] + V0 * t + 0.5 * G * t**2, V0 + G * t, G)
+    rp = Replanner(problem, plan, max_steps=1)
+    cur = rp.current
+    x, saved = (cur.state(t)[0], cur.state(t, 1)[0]), rp.state()
+    monkeypatch.setattr(replan_qp, "evaluate_point", spy)
+    up = rp.update(t, x, target, budget_s=10.0)
+    assert up.steps == 1 and calls[-1] is False and calls.count(False) == 1
+    rp.restore(saved)
+    monkeypatch.setattr(replan_qp, "evaluate_point", lambda *a, derivatives=True, **k: evaluate(*a, **k))
+    ref = rp.update(t, x, target, budget_s=10.0)
+    assert np.array_equal(up.coeffs, ref.coeffs) and up.T == ref.T and up.guarded == ref.guarded
+    assert up.J == ref.J and up.violation == ref.violation and up.stationarity == ref.stationarity > 0.0
+
+
+def test_a_projected_plans_cost_is_evaluated_when_read_and_is_the_cost_of_its_coefficients(catch, monkeypatch):
+    """An update whose guard projected its plan does not evaluate the projected plan's cost (the controller does not
+    need it): ``J`` evaluates it when read, once, and it is the cost of the returned coefficients (a problem built
+    afresh on the plan's mesh).
+    """
+    from hoc_cli.goals.plan import GoalProblem
+    from hoc_cli.realtime.replanner import Deferred
+
+    problem, plan = catch
+    rp = Replanner(problem, plan, max_steps=1)
+    value, calls = GoalProblem.value, []
+    monkeypatch.setattr(GoalProblem, "value", lambda self, x: calls.append(1) or value(self, x))
+    p1, v1 = P0 + [0.01, -0.005, 0.0], V0 + [0.02, 0.0, -0.03]
+    guarded = []
+    for k in range(6):
+        tk = 0.05 + 0.01 * k
+        cur, n = rp.current, len(calls)
+        up = rp.update(tk, (cur.state(tk)[0], cur.state(tk, 1)[0]), Target(p1 + v1 * tk + 0.5 * G * tk**2, v1 + G * tk, G),
+                       budget_s=10.0)
+        assert len(calls) == n  # no cost evaluated in the update
+        if up.guarded:
+            guarded.append(up)
+    assert guarded  # (the first 4 of the 6)
+    for up in guarded:
+        assert isinstance(up.cost, Deferred)
+        n = len(calls)
+        J = up.J
+        assert up.J == J and len(calls) == n + 1  # evaluated once
+        fresh = GoalProblem(problem.system, up.mesh, up.coeffs[0, 0], up.coeffs[0, 1], problem.goals(), G=rp.G)
+        assert abs(value(fresh, fresh.layout.pack(up.coeffs)) - J) <= 1e-12 * abs(J)
+        assert abs(up.J_steps - J) <= 1e-5 * abs(J) and up.J_steps != J  # the steps' point, before the projection (3e-11 to 8e-7)
+
+
 def test_a_budget_below_one_step_still_takes_exactly_one_and_a_long_one_converges(catch):
     """Without measured step times (no warm-up) nothing predicts a step's time: the first update takes exactly one
     step whatever its budget. With the warm-up's times the same budget skips the update.

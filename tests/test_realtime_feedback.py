@@ -20,7 +20,7 @@ def catch():
     problem = lbr7_catch_problem()
     plan = hoc_cli.solve(problem)
     res = plan.result
-    return problem, CyclePlan(t0=0.0, mesh=res.mesh, coeffs=np.array(res.coeffs), J=float(res.J))
+    return problem, CyclePlan(t0=0.0, mesh=res.mesh, coeffs=np.array(res.coeffs), cost=float(res.J))
 
 
 def _end(problem, plan):

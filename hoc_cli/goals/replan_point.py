@@ -96,12 +96,16 @@ def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cach
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
-                   cache: dict, active: ActiveRows | None = None, fractions=None) -> LagrangianPoint:
+                   cache: dict, active: ActiveRows | None = None, fractions=None, derivatives: bool = True) -> LagrangianPoint:
     """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
     dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
     ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
-    mesh's nodes as fractions of T (None: N equal elements).
+    mesh's nodes as fractions of T (None: N equal elements). ``derivatives`` False (no limit terms): J, the rows
+    c and their Jacobian D only, the cost by inverse dynamics alone (``GoalProblem.value``'s numbers); g, ``samples``
+    and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last).
     """
+    if not derivatives:
+        return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions)
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     mesh = problem.mesh
     lt = pv = None
@@ -157,6 +161,28 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
     return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where, s, A_full)
+
+
+def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache: dict, active, fractions):
+    """``evaluate_point`` without derivatives (its ``derivatives`` False): J, c, D at (T, C)."""
+    problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
+    ev = problem.evaluate(x, grad=False)
+    c, D, res = np.zeros(0), np.zeros((0, x.size)), None
+    npts = len(problem.points)
+    if problem.points:
+        terms = GoalTerms(problem.mesh, problem.points, lam[:npts], 0.0, where)
+        res = terms.residuals(C)
+        c, dc = terms.jacobian(C, res)
+        D = dc.reshape(len(c), -1)[:, problem.layout.free]
+    A_full = None
+    if active is not None:
+        A, A_full = active.jacobian(rows, limits, problem.layout.free)
+        c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
+        D = np.vstack([D, A])
+    return LagrangianPoint(problem, x, C, ev.J, ev, None, c, D, math.nan, None, None, rows, res, math.nan, where, None,
+                           A_full)
 
 
 @dataclass(frozen=True, eq=False)

@@ -40,6 +40,7 @@ exact extrema check to confirm. Pure maths: no I/O.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -166,6 +167,7 @@ class QPReplan:
     decrement: float
     factor: np.ndarray | None = None
     check: object = None
+    derive: Callable[[], object] | None = None  # when ``point`` has no derivatives (g None): the point with them
 
 
 class OutOfTime(Exception):
@@ -190,8 +192,11 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         (at the point before the step) and it carries no factor.
     quick : the Newton matrix with the goal rows' full curvature is factored once as it is, and when it is not
         positive definite the curvature's negative part is dropped at once (``_newton``; without it the cost's
-        positive semi-definite part is first added in growing multiples, up to 13 more factorisations): the
-        real-time replanner's steps, where time counts.
+        positive semi-definite part is first added in growing multiples, up to 13 more factorisations); with ``stop``,
+        the point after the ``max_steps``-th step (where ``stop`` ends the steps) is evaluated without ℒ's derivatives
+        (``evaluate_point(..., derivatives=False)``: its g None; the result's ``derive()`` evaluates them there, and
+        should ``stop`` not end the steps they are evaluated before the next one): the real-time replanner's steps,
+        where time counts.
     late : asked with a checkpoint's name (``CHECKPOINTS``) at each checkpoint of a step (before the Newton
         matrix, before the T column's evaluation, before each programme, before the trial point); True stops the
         steps there (a hard time budget: the real-time replanner): in the first step ``OutOfTime`` is raised (the
@@ -211,9 +216,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     npts = len(lam) - 1
     cache: dict = {}
 
-    def at(T_, C_, lam_, active_):
+    def at(T_, C_, lam_, active_, derivatives=True):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
-                              free is not None, cache, active_, fractions=fractions)
+                              free is not None, cache, active_, fractions=fractions, derivatives=derivatives)
 
     def at_rows(T_):  # the kinematic rows of the mesh at T_
         return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
@@ -240,6 +245,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             if stop is not None and steps and stop(steps):
                 U_last = None  # the last factor is the point's before the step
                 break
+            if pt.g is None:  # evaluated as the last point (``last`` below), but the steps go on: with its derivatives
+                pt = at(T, pt.C, lam, active)
             evals += 1
             problem, C = pt.problem, pt.C
             layout = problem.layout
@@ -376,9 +383,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             goal_parts = list(np.split(nu, np.cumsum([v.size for v in lam[:npts]])[:-1])) if npts else []
             lam_new = goal_parts + [mu[held]]  # (no goal rows, e.g. joint vias pinned on nodes: the working set's alone)
 
+            # the point after the last step ``stop`` will allow (the real-time path): no derivatives of ℒ there
+            last = quick and stop is not None and steps == max_steps
+
             def trial_at(alpha: float):
                 T_a = T + alpha * dT
-                return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active)
+                return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active,
+                               not last)
 
             def violation_at(alpha: float) -> float:
                 T_a = T + alpha * dT
@@ -388,7 +399,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = None
             if test is not None:
                 accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-            corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at, goal_rows_at, lam_new, new_active, r,
+            at_trial = functools.partial(at, derivatives=not last)
+            corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
                                                                     programme=prog)
@@ -410,8 +422,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         if not done:  # no step completed: the caller keeps its plan
             raise
         steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
+    derive = functools.partial(at, T, pt.C, lam, active) if pt.g is None else None
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement, factor=U_last, check=check)
+                    decrement=decrement, factor=U_last, check=check, derive=derive)
 
 
 def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:

@@ -39,9 +39,11 @@ Pure maths: no I/O.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,9 +77,26 @@ class Target:
     acceleration: np.ndarray
 
 
+class Deferred:
+    """A number evaluated on first use: ``float(value)`` calls ``evaluate()`` (no arguments, a float) once and keeps it."""
+
+    def __init__(self, evaluate: Callable[[], float]) -> None:
+        self._evaluate: Callable[[], float] | None = evaluate
+        self._value = math.nan
+
+    def __float__(self) -> float:
+        if self._evaluate is not None:
+            self._value, self._evaluate = float(self._evaluate()), None
+        return self._value
+
+
 @dataclass(frozen=True, eq=False)
 class CyclePlan:
-    """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost.
+    """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost
+    (``cost``: the number, or a ``Deferred`` that evaluates it on the first read of ``J``: the controller does not
+    need it, so an update whose limits' guard projected its plan leaves the projected plan's cost to whoever reads it);
+    ``J_steps`` the cost at the steps' last point (before the guard's projection; that of a cold plan, its J), which
+    sets the next update's augmentation ρ.
 
     Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
     replanner's ``max_steps``) |
@@ -88,7 +107,8 @@ class CyclePlan:
     time left, the start could not be evaluated, or the result failed the limits' check: the plan in force kept) | "cold" (the
     replanner's first plan); ``decrement`` the last programme's model decrease relative to |J| (at the point the
     last step started from: how far that point was from converged); ``violation`` max |c| over the goal rows
-    [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual);
+    [m, m/s] and ``stationarity`` max |∇ₓℒ| / max(|J|, 1) at the returned point (the KKT residual; ``kkt``: the
+    number, or a ``Deferred`` evaluated when read, as the steps' last point is evaluated without ℒ's derivatives);
     ``guarded`` whether the limits' guard had to project; ``wall_time_s`` the update [s]; ``worked`` whether the
     update ran SQP work (its plan may still have been held or abandoned: its time counts as compute).
     """
@@ -96,15 +116,26 @@ class CyclePlan:
     t0: float
     mesh: HermiteMesh
     coeffs: np.ndarray
-    J: float
+    cost: float | Deferred
     steps: int = 0
     status: str = "cold"
     decrement: float = math.nan
     violation: float = math.nan
-    stationarity: float = math.nan
+    kkt: float | Deferred = math.nan
     guarded: bool = False
     wall_time_s: float = 0.0
     worked: bool = False
+    J_steps: float = math.nan
+
+    @property
+    def J(self) -> float:
+        """The plan's cost I (the problem's objective, without weight·T; a ``Deferred`` is evaluated now, once)."""
+        return float(self.cost)
+
+    @property
+    def stationarity(self) -> float:
+        """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the returned point (``kkt``; a ``Deferred`` is evaluated now, once)."""
+        return float(self.kkt)
 
     @property
     def T(self) -> float:
@@ -146,7 +177,8 @@ class Replanner:
         active = from_multipliers(pen) if pen is not None else ActiveRows.empty()
         self.active = active if active is not None else ActiveRows.empty()
         self.mu = self.active.gather(pen.mu_lo, pen.mu_hi) if pen is not None and active is not None else np.zeros(0)
-        self.current = CyclePlan(t0=t0, mesh=result.mesh, coeffs=np.array(result.coeffs), J=float(result.J))
+        self.current = CyclePlan(t0=t0, mesh=result.mesh, coeffs=np.array(result.coeffs), cost=float(result.J),
+                                 J_steps=float(result.J))
         self.step_times: deque = deque(maxlen=HISTORY)  # between two steps of one update [s]
         self.first_times: deque = deque(maxlen=HISTORY)  # from the update's start to its first step's end [s]
         self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return, of updates the budget or
@@ -253,7 +285,7 @@ class Replanner:
 
         try:
             out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
-                           tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J), 1.0),
+                           tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J_steps), 1.0),
                            floor=VIOLATION_FLOOR, stop=stop, quick=True, late=late)
         except OutOfTime:
             return self._hold(start, "abandoned", worked=True)
@@ -278,22 +310,26 @@ class Replanner:
             return self._hold(start, worked=True)
         guarded = safe is not C_new
         violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
-        J = pt.J
-        if guarded:  # the projected plan's own cost and goal rows
-            J = float(pt.problem.value(pt.problem.layout.pack(safe)))
+        cost: float | Deferred = pt.J
+        if guarded:  # the projected plan's own goal rows; its cost when it is read (``Deferred``)
+            cost = Deferred(functools.partial(pt.problem.value, pt.problem.layout.pack(safe)))
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
                                   pt.where).violation(safe)
-        if guarded and violation > max(GUARD_VIOLATION, self._miss(mesh, C, goals)):
+        if guarded and violation > GUARD_VIOLATION and violation > self._miss(mesh, C, goals):
             return self._hold(start, worked=True)  # the projection gave up the goal for a plan no closer to it than the shifted one
         self.lam, self.active, self.mu = [np.array(v) for v in out.lam[:npts]], out.active, np.array(out.lam[-1])
         status = "converged" if out.status.name == "CONVERGED" else "budget" if len(marks) > 1 else "stalled"
-        stationarity = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
+        kkt: float | Deferred = math.nan
+        if pt.g is not None:
+            kkt = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
+        elif out.derive is not None:  # the steps' last point was evaluated without ℒ's derivatives: when read
+            kkt = Deferred(functools.partial(_stationarity, out.derive, pt.J))
         now = time.perf_counter()
         if ended:
             self.wrap_times.append(now - marks[-1])
-        self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, J=J, steps=out.steps, status=status,
+        self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, cost=cost, J_steps=pt.J, steps=out.steps, status=status,
                                  decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
-                                 stationarity=stationarity, guarded=guarded, wall_time_s=now - start, worked=True)
+                                 kkt=kkt, guarded=guarded, wall_time_s=now - start, worked=True)
         return self.current
 
     def _late(self, now: float, deadline: float) -> bool:
@@ -332,6 +368,11 @@ class Replanner:
         self.current = dataclasses.replace(self.current, steps=0, status=status, worked=worked,
                                            wall_time_s=time.perf_counter() - start)
         return self.current
+
+
+def _stationarity(derive: Callable, J: float) -> float:
+    """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the point ``derive()`` evaluates with its derivatives."""
+    return float(np.max(np.abs(derive().g), initial=0.0)) / max(abs(J), 1.0)
 
 
 def goals_with_target(goals: Goals, target: Target) -> Goals:
