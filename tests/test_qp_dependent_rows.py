@@ -4,8 +4,8 @@ A limit held along a whole element makes its Bernstein rows linearly dependent, 
 all active up to rounding. The programme ``qp_step.solve_qp`` then has d = 0 as its minimiser (the gradient is a
 combination of the rows' and the goal rows' normals, with μ ≥ 0). Its least-distance form is solved by
 Lawson-Hanson NNLS; SciPy's ``optimize.nnls`` (1.15 on) can end such a problem at a point that is not its
-minimiser (scipy/scipy#25389: on these programmes, steps of |d| ~ 100 that break the rows): hoc's own NNLS
-(``hoc_cli.optimize.nnls``) solves them. The reference is the KKT point built into each programme.
+minimiser (scipy/scipy#25389: on these programmes, steps of |d| ~ 100 that break the rows): its answer is checked
+against the KKT conditions and hoc's own NNLS (``hoc_cli.optimize.nnls``) solves those it gets wrong. The reference is the KKT point built into each programme.
 """
 from __future__ import annotations
 

@@ -26,6 +26,7 @@ from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.nnls import nnls as warm_nnls
 
 NNLS_ITER = 50  # Lawson-Hanson iterations per row of the least-distance programme before it is given up
+KKT_RTOL = 1e-9  # an NNLS answer's dual v_j above this × ‖M_j‖ × ‖residual‖ (or in size, where w_j > 0): not a minimiser
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,17 +99,37 @@ def _unit(M: np.ndarray) -> np.ndarray:
 
 
 def _cold_nnls(M: np.ndarray) -> np.ndarray:
-    """The w ≥ 0 minimising ‖M w − f‖ (``hoc_cli.optimize.nnls``, Lawson-Hanson from no active row), its cap
-    ``NNLS_ITER`` per column. Not scipy's ``optimize.nnls``: its reimplementation (SciPy 1.15 on) can end at a point
-    that is not the minimiser, without a warning (scipy/scipy#25389); on the lbr7 catch's programme at its own
-    optimum (``hoc plan --init`` from its plan) SciPy 1.17.1's returned a step that broke its rows by 0.018 and
-    raised the model by 3.9, where the minimiser is the zero step.
+    """The w ≥ 0 minimising ‖M w − f‖ from no active row, its cap ``NNLS_ITER`` per column: scipy's Lawson-Hanson
+    (compiled), its answer kept when it meets the KKT conditions (``_minimises``), else ``hoc_cli.optimize.nnls``'s.
+    SciPy's reimplementation (1.15 on) can end at a point that is not the minimiser, without a warning
+    (scipy/scipy#25389): on the lbr7 catch's programme at its own optimum (``hoc plan --init`` from its plan) SciPy
+    1.17.1's returned a step that broke its rows by 0.018 and raised the model by 3.9, where the minimiser is the
+    zero step; hoc's own NNLS finds it.
     """
+    from scipy.optimize import nnls  # imported on first use (0.25 s)
+
     cap = max(1, NNLS_ITER * M.shape[1])
+    f = _unit(M)
     try:
-        return warm_nnls(M, _unit(M), max_iter=cap).w
-    except NumericalError:
+        w = nnls(M, f, maxiter=cap)[0]
+    except RuntimeError:  # its iteration cap (scipy raises): hoc's, with the same cap, decides
+        w = None
+    if w is not None and _minimises(M, f, w):
+        return w
+    try:
+        return warm_nnls(M, f, max_iter=cap).w
+    except NumericalError:  # the callers' failed step, not a crash
         raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
+
+
+def _minimises(M: np.ndarray, f: np.ndarray, w: np.ndarray) -> bool:
+    """Whether w (k,) meets the KKT conditions of min ‖M w − f‖ over w ≥ 0 to ``KKT_RTOL``: w ≥ 0, and the dual
+    v = Mᵀ(f − M w) at most ``KKT_RTOL``·‖M_j‖·‖f − M w‖ everywhere, and as small in size where w > 0.
+    """
+    r = f - M @ w
+    v = M.T @ r
+    tol = KKT_RTOL * np.linalg.norm(M, axis=0) * max(float(np.linalg.norm(r)), 1e-300)
+    return bool(np.all(w >= 0.0) and np.all(v <= tol) and np.all(np.abs(v[w > 0.0]) <= tol[w > 0.0]))
 
 
 class Programme:
