@@ -10,9 +10,7 @@ from __future__ import annotations
 import pytest
 import yaml
 from _collision_tasks import ROOT, plan, task_folder
-from test_collision_stall import LAMP, LBR7, TABLE
-
-from hoc_cli.goals import plan as goal_plan
+from test_collision_stall import LAMP, LBR7, TABLE, budget
 
 ITERATIONS = 1500  # inner iterations allowed in all (the search takes about 500)
 
@@ -23,25 +21,11 @@ def workdir(tmp_path, monkeypatch):
 
 
 def test_the_free_time_catch_past_the_lamp_ends_certified_within_its_limits(workdir, monkeypatch):
-    spent = [0]
-    inner = goal_plan.minimize
-
-    def counted(*args, callback=None, **kwargs):
-        def each(log):
-            spent[0] += 1
-            if spent[0] > ITERATIONS:
-                raise RuntimeError(f"{spent[0]} inner iterations: the search crawls")
-            if callback is not None:
-                callback(log)
-
-        return inner(*args, callback=each, **kwargs)
-
-    monkeypatch.setattr(goal_plan, "minimize", counted)
+    budget(monkeypatch, ITERATIONS)
     doc = yaml.safe_load((ROOT / "configs" / "catch_ball.yaml").read_text())
     doc.pop("output", None)
     doc |= {"N": 8, "collision": {"margin": 0.01, "robot": LBR7, "obstacles": [TABLE, LAMP]}}
     r, s = plan(workdir, doc)
-    print("inner iterations", spent[0])
     assert r.exit_code == 0, (r.stderr, r.exception)
     assert s["converged"] and s["collision_active"] and s["T_converged"]
     c = s["min_clearance"]

@@ -42,7 +42,7 @@ def _catch(T: float) -> dict:
     return doc | {"T": T, "N": 8, "collision": {"margin": 0.01, "robot": LBR7, "obstacles": [TABLE, LAMP]}}
 
 
-def _budget(monkeypatch, limit: int) -> None:
+def budget(monkeypatch, limit: int) -> None:
     """Every inner solve of ``plan_goals`` counted: beyond ``limit`` iterations in all the plan is stopped."""
     spent = [0]
     inner = goal_plan.minimize
@@ -61,7 +61,7 @@ def _budget(monkeypatch, limit: int) -> None:
 
 
 def test_the_catch_past_the_lamp_within_its_limits_ends_certified_in_a_few_hundred_iterations(workdir, monkeypatch):
-    _budget(monkeypatch, ITERATIONS)
+    budget(monkeypatch, ITERATIONS)
     r, s = plan(workdir, _catch(0.42))
     assert r.exit_code == 0, (r.stderr, r.exception)
     assert s["converged"] and s["collision_enforce"]["status"] == "converged"
@@ -120,7 +120,7 @@ def test_the_goal_rows_penalty_grows_at_most_rho_range_times_its_start(workdir, 
 
     monkeypatch.setattr(goal_plan.GoalTerms, "start", classmethod(recorded_start))
     monkeypatch.setattr(goals, "plan_goals", recorded)
-    _budget(monkeypatch, ITERATIONS)
+    budget(monkeypatch, ITERATIONS)
     r, s = plan(workdir, _catch(0.42))
     assert r.exit_code in (0, 1) and s is not None, r.stderr
     assert len(started) == 1 and results
@@ -143,7 +143,7 @@ def test_the_limits_rounds_penalty_grows_at_most_rho_max_times_its_start(workdir
         return got
 
     monkeypatch.setattr(limit_rounds.LimitState, "rounds", recorded)
-    _budget(monkeypatch, 3 * ITERATIONS)
+    budget(monkeypatch, 3 * ITERATIONS)
     r, s = plan(workdir, _catch(0.42))
     assert r.exit_code in (0, 1) and s is not None, r.stderr
     assert ratios and max(ratios) <= 100.0 * (1 + 1e-12) and max(ratios) > 10.0

@@ -210,6 +210,22 @@ def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.nd
     return gap - r, ~(gap <= 1e-12 * scale)
 
 
+def _fill_sphere_box(scene: CollisionScene, centres: np.ndarray, pairs: np.ndarray, fast: np.ndarray,
+                     out: np.ndarray) -> None:
+    """The rows where ``fast`` (M,) holds (a sphere of ``pairs`` (M,) against a box), their sphere centres ``centres``
+    (F, 3) in the root frame: each distance written into ``out`` (M,) where the centre lies outside the box
+    (``_sphere_box_gap``), and ``fast`` cleared where it lies inside (its depth by the capsule path).
+    """
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+    k = pairs[fast]
+    o = scene.other[k]
+    d, outside = _sphere_box_gap(centres, scene.robot.radius[scene.prim[k]], obs["center"][o], obs["rot"][o],
+                                 obs["half"][o])
+    got = np.flatnonzero(fast)
+    out[got[outside]] = d[outside]
+    fast[got[~outside]] = False
+
+
 def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """The signed distance (M,) of pair ``pairs[m]`` at sample ``rows[m]``, from world capsules a, b (K, P, 3):
     ``pair_contacts``' distance, the same numbers, without the normals and witnesses where a sphere lies outside a
@@ -219,14 +235,7 @@ def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np
     out = np.empty(rows.size)
     fast = _cached("spheres", scene, lambda: _spheres(scene))[pairs]
     if fast.any():
-        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
-        k = pairs[fast]
-        o = scene.other[k]
-        d, outside = _sphere_box_gap(a[rows[fast], scene.prim[k]], scene.robot.radius[scene.prim[k]], obs["center"][o],
-                                     obs["rot"][o], obs["half"][o])
-        got = np.flatnonzero(fast)
-        out[got[outside]] = d[outside]
-        fast[got[~outside]] = False  # a centre in the box: its depth by the capsule path
+        _fill_sphere_box(scene, a[rows[fast], scene.prim[pairs[fast]]], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
         out[rest] = pair_contacts(scene, a, b, rows[rest], pairs[rest]).distance
@@ -244,14 +253,7 @@ def row_distances(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> n
     out = np.empty(rows.size)
     fast = _cached("spheres", scene, lambda: _spheres(scene))[pairs]
     if fast.any():
-        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
-        k = pairs[fast]
-        o = scene.other[k]
-        d, outside = _sphere_box_gap(a1[fast], scene.robot.radius[scene.prim[k]], obs["center"][o], obs["rot"][o],
-                                     obs["half"][o])
-        got = np.flatnonzero(fast)
-        out[got[outside]] = d[outside]
-        fast[got[~outside]] = False  # a centre in the box: its depth by the capsule path
+        _fill_sphere_box(scene, a1[fast], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
         out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
