@@ -170,8 +170,8 @@ class LimitTerms:
     lam_hi: tuple[np.ndarray, ...]
     rho: float
     margin: float
-    _cache: list = field(default_factory=list, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
-    _kinematic_kept: list = field(default_factory=list, repr=False)  # [active rows' key, kinematic Newton blocks]
+    _cache: list = field(default_factory=list, init=False, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
+    _kinematic_kept: list = field(default_factory=list, init=False, repr=False)  # [active rows' key, kinematic Newton blocks]
 
     CACHE = 2
 
