@@ -253,3 +253,37 @@ def test_the_coarse_steps_in_x_and_t_stop_near_the_coarse_optimum_s_distance_to_
     assert steps[0][0] == steps[1][0] and steps[0][1] < steps[1][1]  # the steps at the guess, then those in x and T
     assert sum(steps[0]) < sum(steps[1])
     assert loose.J == pytest.approx(full.J, rel=1e-12) and loose.T == pytest.approx(full.T, rel=1e-9)
+
+
+def test_a_free_t_coarse_stage_takes_its_own_violation_floor(monkeypatch):
+    """The coarse stage of a free T steps with ``FREE_COLD_FLOOR`` (its steps move the target), a fixed-T goal plan's
+    with ``COLD_FLOOR``; the lbr7 catch at N = 8 takes no more steps with it than with ``COLD_FLOOR`` (19 and 20
+    measured), to the same optimum (J to 1e-12, T to 1e-9)."""
+    import hoc_cli.goals.free_time_sqp as fts
+
+    problem = lbr7_catch_problem(N=8)
+    arm, limits, goals = problem.system, problem.limits, problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    floors: list = []
+    run = fts.replan
+
+    def spied(*args, **kwargs):
+        r = run(*args, **kwargs)
+        floors[-1].append((args[1].mesh.N, kwargs.get("violation_floor"), r.steps))
+        return r
+
+    monkeypatch.setattr(fts, "replan", spied)
+    out, free_floor = [], fts.FREE_COLD_FLOOR
+    for floor in (free_floor, fts.COLD_FLOOR):
+        monkeypatch.setattr(fts, "FREE_COLD_FLOOR", floor)
+        floors.append([])
+        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    own, cold = out
+    assert own.converged and cold.converged
+    assert [f for n, f, _ in floors[0] if n == 4] == [free_floor] * 2 and free_floor > fts.COLD_FLOOR
+    assert sum(s for *_, s in floors[0]) <= sum(s for *_, s in floors[1])
+    assert own.J == pytest.approx(cold.J, rel=1e-12) and own.T == pytest.approx(cold.T, rel=1e-9)
+    floors.append([])
+    start = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits).initial(0.42)
+    assert fts.plan_fixed_time(arm, start, goals, limits) is not None
+    assert floors[2][0][1] == fts.COLD_FLOOR  # its steps from the initial trajectory
