@@ -130,3 +130,20 @@ def test_a_corrected_step_reports_its_programme_s_multipliers(catch, monkeypatch
                merit=True)
     assert r.converged and checked
     assert max(checked) <= 1e-9
+
+
+def test_the_first_step_in_x_and_t_after_the_fixed_t_steps_moves_t(catch):
+    """The lbr7 catch's coarse steps at the guess T (``minimize_time_sqp``'s first stage on 4 elements, to its loose
+    accuracy), then one step in x and T from their plan, which carries their last Newton matrix: that step makes its
+    own (the T column exact) and moves T towards the optimum, 0.419 s, by more than 0.01 s (0.04 measured; with the
+    fixed-T steps' matrix and a differenced T column, 7e-7)."""
+    from hoc_cli.goals.free_time_sqp import COARSE_START_ACCURACY, FREE_COLD_FLOOR
+    from hoc_cli.goals.replan import TimeRange
+
+    arm, limits, goals, start = catch
+    at_guess = replan(arm, start, goals, limits=limits, fallback=False, max_steps=COLD_STEPS,
+                      violation_floor=FREE_COLD_FLOOR, merit=True, accuracy=COARSE_START_ACCURACY)
+    assert at_guess.plan.optimizer.status.name == "CONVERGED" and at_guess.plan.newton_factor is not None
+    one = replan(arm, at_guess.plan, goals, free=TimeRange(0.3, 0.5), limits=limits, fallback=False, max_steps=1,
+                 violation_floor=FREE_COLD_FLOOR)
+    assert one.steps == 1 and 0.36 < one.T < 0.42

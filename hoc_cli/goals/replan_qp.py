@@ -15,7 +15,10 @@ working set's rows (the limits hold the motion there; zero along steps that keep
 column b = ∂∇ℒ/∂T, h = ∂²ℒ/∂T² along the rescaled family are exact (``replan_point.time_column``: from the
 cost's per-sample Hessians the Newton matrix was made of, so one evaluation of ℒ per step), and so are the rows'
 T columns c_T, a_T (a Bernstein row of d^k q/dt^k scales as T^−k); only at a step whose Newton matrix was made
-elsewhere (the previous replan's last) are b and h a forward difference at T + δ. The programme's multipliers are the next ones: the rows with μ > 0 are the
+elsewhere (the previous replan's last: on the real-time path, ``quick``, or with T fixed) are b and h a forward difference
+at T + δ. Offline steps in x and T make their first Newton matrix afresh: against the fixed-T steps' last matrix the
+differenced column's h − bᵀH⁻¹b came out 1e7 on the lbr7 catch (−700 with its own matrix), and the first step in T
+moved T by 7e-7 s instead of 0.04 s. The programme's multipliers are the next ones: the rows with μ > 0 are the
 next working set (their μ·g_A enters ℒ's T derivatives). Since every step's working set is that of its
 own programme, a change of the active limits costs no extra rounds. A step that would break a Bernstein row
 outside the programme (g > 0 at the step's end; far from the optimum, steps are long) is re-solved with those rows
@@ -264,7 +267,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             E, cg = pt.D[:r], pt.c[:r]
             g_I = pt.g - pt.D.T @ np.concatenate(lam) if pt.D.size else pt.g
             Hs = None  # the cost's per-sample Hessians of the Newton matrix U (the T column's b, h come from them)
-            if steps == 0 and _fits(plan0.newton_factor, pt.x.size):
+            if steps == 0 and _fits(plan0.newton_factor, pt.x.size) and (quick or free is None):
                 U = plan0.newton_factor  # the previous replan's last Newton matrix, at this very x (no samples: b, h differenced)
             elif U_last is not None and keeps_factor(decrement, pt.J):
                 U = U_last  # the last step was tiny: its Newton matrix serves the stopping test (and a last step)
