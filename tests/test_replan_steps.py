@@ -126,7 +126,7 @@ def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
     early, full = out
     assert early.converged and full.converged
     assert steps[0][0] <= 8 < steps[1][0]  # 7 and 9 measured
-    assert sum(steps[0]) < sum(steps[1])  # 20 and 22
+    assert sum(steps[0]) < sum(steps[1])  # 18 and 20
     assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
     # a start that passes the loose test itself (its first programme's decrease is no distance to the optimum; the torque
     # catch's) gets the steps at the full accuracy from it: the same steps as with the full accuracy throughout
@@ -227,7 +227,7 @@ def test_a_free_t_goal_plan_reports_every_step_that_made_it(monkeypatch):
 
 def test_the_coarse_steps_in_x_and_t_stop_near_the_coarse_optimum_s_distance_to_the_mesh_s(monkeypatch):
     """The coarse steps in x and T stop at ``COARSE_FREE_ACCURACY`` (1e-4, about the coarse optimum's distance to the
-    mesh's): the lbr7 catch at N = 8 takes fewer steps there than to ``COARSE_ACCURACY`` (9 and 10 measured) and as many
+    mesh's): the lbr7 catch at N = 8 takes fewer steps there than to ``COARSE_ACCURACY`` (7 and 8 measured) and as many
     on the mesh, to the same optimum (J to 1e-12, T to 1e-9)."""
     import hoc_cli.goals.free_time_sqp as fts
 
@@ -257,7 +257,7 @@ def test_the_coarse_steps_in_x_and_t_stop_near_the_coarse_optimum_s_distance_to_
 
 def test_a_free_t_coarse_stage_takes_its_own_violation_floor(monkeypatch):
     """The coarse stage of a free T steps with ``FREE_COLD_FLOOR`` (its steps move the target), a fixed-T goal plan's
-    with ``COLD_FLOOR``; the lbr7 catch at N = 8 takes no more steps with it than with ``COLD_FLOOR`` (19 and 20
+    with ``COLD_FLOOR``; the lbr7 catch at N = 8 takes no more steps with it than with ``COLD_FLOOR`` (18 and 19
     measured), to the same optimum (J to 1e-12, T to 1e-9)."""
     import hoc_cli.goals.free_time_sqp as fts
 

@@ -30,8 +30,8 @@ same first-order conditions as the search's end.
 On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. on
 ``COARSE_N`` elements (resampled, or restored there) keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
 of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
-steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 6 to 7 + 8 to 10 steps on 4 elements
-and 4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 78 + 11 steps on
+steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 6 to 7 + 7 steps on 4 elements and
+4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 78 + 10 steps on
 4 elements and 6 + 1 on the mesh; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
 ``FINE_STEPS`` and steps at the coarse T (merit test) and in x and T follow. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
@@ -85,15 +85,15 @@ COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N 
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 FREE_COLD_FLOOR = 2e-2  # the same on the coarse stage of a free T, whose steps in x and T move the target (the lbr7
-# catch: a corrected step at 1.2e-2 was halved thrice, twice; the catch and UR5 tasks of bench_free_steps.py 111 -> 106
-# steps; the fixed-T goal plans keep COLD_FLOOR: the Panda reach took 46 steps with this floor, 41 with that)
+# catch: 1 cm halved a corrected step at 1.2e-2 thrice, twice); the fixed-T goal plans keep COLD_FLOOR (the Panda reach:
+# 46 steps with 2 cm, 41 with 1 cm)
 COARSE_ACCURACY = 1e-6  # the coarse stage's stopping test (decrement and ∂ℒ/∂T relative, goal rows in m, rad, m/s), as
 # ``plan_goals``' coarse levels: its optimum differs from the mesh's by the discretisation (5e-4 of J on the lbr7 catch)
 COARSE_FREE_ACCURACY = 1e-4  # the same test of the coarse steps in x and T: about the coarse optimum's distance to the
-# mesh's (the lbr7 catch: J 5e-4, T 2e-4 relative), which the steps on the mesh cover anyway (9 steps there instead of
-# 10 to COARSE_ACCURACY, then 4 on the mesh either way)
+# mesh's (the lbr7 catch: J 5e-4, T 2e-4 relative), which the steps on the mesh cover anyway (7 steps there instead of
+# 8 to COARSE_ACCURACY, then 4 on the mesh either way)
 COARSE_START_ACCURACY = 1e-3  # the same test of the coarse steps at the guess T before those in x and T (a free T): they
-# only start the steps in x and T, which move T by 20 % on the lbr7 catch (7 steps there instead of 9, then 9 either way);
+# only start the steps in x and T, which move T by 20 % on the lbr7 catch (7 steps there instead of 9, then 7 either way);
 # not at the start itself (the lbr7 catch under the torque cost: its first programme predicts 0.24 of J = 614, where
 # the optimum at the guess is 458; from there the steps in x and T took 110-120 where they take 23 from that optimum)
 
