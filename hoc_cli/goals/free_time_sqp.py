@@ -30,10 +30,9 @@ same first-order conditions as the search's end.
 On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the start of 1. on
 ``COARSE_N`` elements (resampled, or restored there) keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
 of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
-steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 21 + 15 steps on 4 elements and
-5 to 6 on the mesh, where 1. and 2. on the mesh take 25 + 22 (each a programme of up to ~700 unknowns at
-N = 32). Under the torque cost: 98 + 22 steps on 4 elements and 7 + 1 on the mesh, where 1. and 2. on the mesh
-take 86 + 37; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
+steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 6 to 7 + 7 steps on 4 elements and
+4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 78 + 10 steps on
+4 elements and 6 + 1 on the mesh; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
 ``FINE_STEPS`` and steps at the coarse T (merit test) and in x and T follow. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
 1e-10 to 5e-9 relative on the catch, measured). Its limit multipliers are then re-estimated by least squares
@@ -42,10 +41,10 @@ depends on the path). When a coarse stage does not converge, 1. and 2. run on th
 
 The coarse stage stops at a relative accuracy of ``COARSE_ACCURACY`` (the model decrease, the goal rows and ∂ℒ/∂T;
 the limit rows and the exact check as on the mesh), as ``plan_goals``' coarse levels: its optimum differs from the
-mesh's by the discretisation anyway (the lbr7 catch: 18 + 14 steps there instead of 21 + 15, the same optimum). With a
-free T its steps at the guess stop sooner, at ``COARSE_START_ACCURACY``: they only start the steps in x and T, which
-move T away from the guess (the lbr7 catch: 5 + 17 steps there instead of 18 + 13, the same optimum on the mesh); not
-at their start, whose first programme can predict a small decrease far from the optimum (the torque catch's).
+mesh's by the discretisation anyway. With a free T its steps in x and T stop at ``COARSE_FREE_ACCURACY``, about that
+difference (the lbr7 catch: J 5e-4, T 2e-4 relative), and its steps at the guess sooner, at ``COARSE_START_ACCURACY``:
+they only start the steps in x and T, which move T away from the guess by 20 %; not at their start, whose first
+programme can predict a small decrease far from the optimum (the torque catch's).
 
 ``plan_fixed_time`` is 1. alone at a fixed T (no restoration: T cannot move), coarse first where that applies, with
 the quadrature test and ``_canonical_multipliers``: ``hoc_cli.solve``'s fixed-T goal plan within enforced limits
@@ -85,10 +84,16 @@ COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory befo
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
+FREE_COLD_FLOOR = 2e-2  # the same on the coarse stage of a free T, whose steps in x and T move the target (the lbr7
+# catch: 1 cm halved a corrected step at 1.2e-2 thrice, twice); the fixed-T goal plans keep COLD_FLOOR (the Panda reach:
+# 46 steps with 2 cm, 41 with 1 cm)
 COARSE_ACCURACY = 1e-6  # the coarse stage's stopping test (decrement and ∂ℒ/∂T relative, goal rows in m, rad, m/s), as
 # ``plan_goals``' coarse levels: its optimum differs from the mesh's by the discretisation (5e-4 of J on the lbr7 catch)
+COARSE_FREE_ACCURACY = 1e-4  # the same test of the coarse steps in x and T: about the coarse optimum's distance to the
+# mesh's (the lbr7 catch: J 5e-4, T 2e-4 relative), which the steps on the mesh cover anyway (7 steps there instead of
+# 8 to COARSE_ACCURACY, then 4 on the mesh either way)
 COARSE_START_ACCURACY = 1e-3  # the same test of the coarse steps at the guess T before those in x and T (a free T): they
-# only start the steps in x and T, which move T by 20 % on the lbr7 catch (5 steps there instead of 18, then 17 for 13);
+# only start the steps in x and T, which move T by 20 % on the lbr7 catch (7 steps there instead of 9, then 7 either way);
 # not at the start itself (the lbr7 catch under the torque cost: its first programme predicts 0.24 of J = 614, where
 # the optimum at the guess is 458; from there the steps in x and T took 110-120 where they take 23 from that optimum)
 
@@ -197,7 +202,7 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
                    coarse: int, level=None, record: list | None = None):
     """The free-T optimum on the mesh of ``start`` (the initial trajectory at the guess, or the restored one) by way of
     ``coarse`` elements: ``start`` resampled to them (zero multipliers), the steps from scratch at its T and the steps in x and T there (each step a small
-    programme; the goal rows' violation floor ``COLD_FLOOR``, as far from the optimum), then the coarse optimum
+    programme; the goal rows' violation floor ``FREE_COLD_FLOOR``, ``COLD_FLOOR`` at a fixed T, as far from the optimum), then the coarse optimum
     resampled to the mesh at its T (multipliers and working set by least squares, ``hoc_cli.goals.warm.previous_plan``)
     and the steps in x and T from it (at most ``FINE_STEPS``; when they do not converge, steps at the coarse T from
     it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
@@ -221,14 +226,15 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
     if _breaks_limits(system, plan, limits):
         return None
     start_accuracy = COARSE_ACCURACY if span is None else COARSE_START_ACCURACY  # T fixed: this is the coarse optimum
-    r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=COLD_FLOOR,
+    floor = COLD_FLOOR if span is None else FREE_COLD_FLOOR
+    r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=floor,
              merit=True, accuracy=start_accuracy)
     if r.steps == 0 and start_accuracy != COARSE_ACCURACY:  # the start itself passed: its model says little there
         r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                 violation_floor=COLD_FLOOR, merit=True, accuracy=COARSE_ACCURACY)
+                 violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
     if _met(r) and span is not None:
         r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
-                 violation_floor=COLD_FLOOR, accuracy=COARSE_ACCURACY)
+                 violation_floor=floor, accuracy=COARSE_FREE_ACCURACY)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
