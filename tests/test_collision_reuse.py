@@ -229,3 +229,21 @@ def test_the_report_takes_the_certificate_of_the_plan_the_loop_certified(tmp_pat
     moved = dataclasses.replace(result, coeffs=result.coeffs * (1 + 1e-12))
     collision_summary(model, scene, mode, moved)
     assert len(asked) == 2
+
+
+def test_world_capsules_are_the_rotated_and_translated_ends_with_a_sphere_s_b_its_a(lbr7_scene):  # noqa: F811
+    """``world_capsules`` (every primitive at every sample, written out without einsum's broadcast) equals R·a + t and
+    R·b + t by ``np.einsum`` from the body poses, on a scene of capsules and one of spheres along them (b is a)."""
+    import hoc_cli.collision.evaluate as ev
+
+    model, scene = lbr7_scene
+    q = np.random.default_rng(18).uniform(-2.5, 2.5, (40, model.n))
+    for sc in (scene, sphere_rows_scene(scene)):
+        a, b = ev.world_capsules(model, sc, q)
+        body, la, lb = ev._primitive_frames(model, sc)
+        T = ev._poses(model, q)[:, np.where(body < 0, model.n, body)]
+        for got, x in ((a, la), (b, lb)):
+            ref = np.einsum("kpij,pj->kpi", T[..., :3, :3], x) + T[..., :3, 3]
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
+        ball = np.all(sc.robot.a == sc.robot.b, axis=1)
+        assert ball.any() == (sc is not scene) and np.array_equal(a[:, ball], b[:, ball])
