@@ -8,9 +8,12 @@ the script prints per problem the CPU time of the plan (``time.process_time``), 
 Newton matrices, then per level (N = 2, the coarse level; N = 8) the CPU time and calls of the parts of an inner
 iteration: an evaluation of J + Φ and its gradient (the cost's samples, the collision rows, the joint limits'
 penalty), a Newton matrix (the cost's Hessian sweep, the distances' curvature, the factorisation with its
-modification), the first step's rows; and the certificates and the distances of every pair at the points (once an
-outer iteration). The parts nest (an evaluation holds its rows' and its cost's time); CPU time on a shared machine
-varies with the load: compare runs made together.
+modification), the first step's rows; the polish after a limits' round (its evaluation and Newton matrix are counted
+in those lines too) and the limits' measure after each round (its exact check of the limits); the certificates and the
+distances of every pair at the points (once an outer iteration); and the solve itself (``planner.plan``, what the
+summary's ``wall_time_s`` times: loading the task and the report are outside it). The parts nest (an evaluation holds
+its rows' and its cost's time; the joint limits' penalty is a term of the inner problem beside the evaluation, not in
+it); CPU time on a shared machine varies with the load: compare runs made together, or instruction counts.
 """
 from __future__ import annotations
 
@@ -35,7 +38,7 @@ PARTS = {
     "evaluation (J + Φ, gradient)": ("problem", "evaluate"),
     "  the cost's samples": ("problem", "sample_gradients"),
     "  the collision rows": ("terms", "evaluate"),
-    "  the joint limits' penalty (every call)": ("limits", "evaluate"),
+    "the joint limits' penalty (every call; beside the evaluation)": ("limits", "evaluate"),
     "Newton matrix": ("problem", "newton"),
     "  the cost's Hessian sweep": ("problem", "hessian_samples"),
     "  the distances' curvature": ("terms", "curvature_blocks"),
@@ -43,8 +46,12 @@ PARTS = {
     "  factorisation (and modification)": ("problem", "positive_definite"),
     "first step: the collision rows": ("terms", "step_rows"),
     "first step: the limits' rows": ("step", "limit_rows"),
+    "polish (one Newton step after a limits' round)": ("auglag", "polish"),
+    "the limits' measure (after each round)": ("limit_term", "measure"),
+    "  their exact check": ("augmented_lagrangian", "check_limits"),
     "certificate": ("enforce", "certify"),
     "distances of every pair at the points": ("enforce", "distances"),
+    "the solve (planner.plan: wall_time_s)": ("planner", "plan"),
 }
 
 
@@ -53,7 +60,10 @@ def _instrument(acc: dict, calls: collections.Counter) -> None:
     import hoc_cli.collision.constraint as constraint
     import hoc_cli.collision.enforce as enforce
     import hoc_cli.collision.step as step
+    import hoc_cli.constraints.auglag as auglag
+    import hoc_cli.constraints.augmented_lagrangian as augmented_lagrangian
     import hoc_cli.constraints.penalty as penalty
+    import hoc_cli.planner as planner
     import hoc_cli.problem as problem
 
     def level(args) -> int | None:
@@ -81,7 +91,8 @@ def _instrument(acc: dict, calls: collections.Counter) -> None:
         setattr(owner, name, timed)
 
     owners = {"problem": problem.ControlProblem, "terms": constraint.CollisionTerms, "limits": penalty.LimitTerms,
-              "step": step, "enforce": enforce}
+              "step": step, "enforce": enforce, "auglag": auglag, "limit_term": augmented_lagrangian.LimitTerm,
+              "augmented_lagrangian": augmented_lagrangian, "planner": planner}
     for label, (owner, name) in PARTS.items():
         wrap(owners[owner], name, label)
 
@@ -131,10 +142,10 @@ def main() -> None:
             total += cpu
             print(f"{i:>3} {cpu:>6.2f} {s['cost']:>10.4f} {s['iterations']:>10} {s['evaluations']:>11} {s['hessians']:>6}")
     print(f"CPU in all {total:.2f} s")
-    print(f"{'part':<44} {'N':>3} {'CPU s':>7} {'calls':>6} {'ms a call':>9}")
+    print(f"{'part':<52} {'N':>3} {'CPU s':>7} {'calls':>6} {'ms a call':>9}")
     order = {label: k for k, label in enumerate(PARTS)}
     for (label, N), v in sorted(acc.items(), key=lambda kv: (kv[0][1] is None, kv[0][1] or 0, order[kv[0][0]])):
-        print(f"{label:<44} {'-' if N is None else N:>3} {v:>7.2f} {calls[(label, N)]:>6} {1e3 * v / calls[(label, N)]:>9.2f}")
+        print(f"{label:<52} {'-' if N is None else N:>3} {v:>7.2f} {calls[(label, N)]:>6} {1e3 * v / calls[(label, N)]:>9.2f}")
 
 
 if __name__ == "__main__":

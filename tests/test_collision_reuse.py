@@ -199,3 +199,51 @@ def test_the_kinematic_limit_blocks_kept_for_the_same_active_rows_are_those_made
         assert same == (scale < 1e-6)
         np.testing.assert_array_equal(terms.newton_blocks(C2), make().newton_blocks(C2))
     assert not np.array_equal(terms.newton_blocks(C + 0.3 * dC), first)
+
+
+def test_the_report_takes_the_certificate_of_the_plan_the_loop_certified(tmp_path, monkeypatch):
+    """``hoc plan``'s summary of an enforced plan takes the collision loop's certificate of the same coefficients (no
+    second ``certify``): ``min_clearance`` and ``collisions`` equal those of the plan certified afresh; another plan
+    (other coefficients) is certified again."""
+    from _collision_tasks import plan, task_folder
+
+    import hoc_cli.collision.certify as certify_module
+    import hoc_cli.report.summary as summary_module
+    from hoc_cli.report.collision import collision_summary
+    from tests.test_collision_enforce import BALL, two_link
+
+    workdir = task_folder(tmp_path, monkeypatch, ("two_link.urdf",))
+    asked, seen = [], []
+    certify = certify_module.certify
+    monkeypatch.setattr(certify_module, "certify", lambda *a, **k: asked.append(1) or certify(*a, **k))
+    monkeypatch.setattr(summary_module, "collision_summary",
+                        lambda model, scene, mode, result: seen.append((model, scene, mode, result))
+                        or collision_summary(model, scene, mode, result))
+    r, s = plan(workdir, two_link([BALL], N=4))
+    assert r.exit_code == 0, r.stderr
+    assert s["collision_mode"] == "enforce" and s["min_clearance"]["certified"] and asked == []
+    model, scene, mode, result = seen[0]
+    fresh = collision_summary(model, scene, mode, dataclasses.replace(result, constraint=None))
+    assert len(asked) == 1 and {k: s[k] for k in fresh if k != "collision_mode"} == {
+        k: v for k, v in fresh.items() if k != "collision_mode"}
+    moved = dataclasses.replace(result, coeffs=result.coeffs * (1 + 1e-12))
+    collision_summary(model, scene, mode, moved)
+    assert len(asked) == 2
+
+
+def test_world_capsules_are_the_rotated_and_translated_ends_with_a_sphere_s_b_its_a(lbr7_scene):  # noqa: F811
+    """``world_capsules`` (every primitive at every sample, written out without einsum's broadcast) equals R·a + t and
+    R·b + t by ``np.einsum`` from the body poses, on a scene of capsules and one of spheres along them (b is a)."""
+    import hoc_cli.collision.evaluate as ev
+
+    model, scene = lbr7_scene
+    q = np.random.default_rng(18).uniform(-2.5, 2.5, (40, model.n))
+    for sc in (scene, sphere_rows_scene(scene)):
+        a, b = ev.world_capsules(model, sc, q)
+        body, la, lb = ev._primitive_frames(model, sc)
+        T = ev._poses(model, q)[:, np.where(body < 0, model.n, body)]
+        for got, x in ((a, la), (b, lb)):
+            ref = np.einsum("kpij,pj->kpi", T[..., :3, :3], x) + T[..., :3, 3]
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
+        ball = np.all(sc.robot.a == sc.robot.b, axis=1)
+        assert ball.any() == (sc is not scene) and np.array_equal(a[:, ball], b[:, ball])

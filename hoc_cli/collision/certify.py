@@ -72,11 +72,26 @@ class Certificate:
         return {"min_clearance": clearance, "collisions": [dict(c) for c in self.collisions]}
 
 
+_REACH: dict = {}  # (id(model), id(geometry)) → (model, geometry, ``reach``'s (R0, S)): constant per robot
+
+
+def _robot_reach(model: RobotModel, geometry) -> tuple[np.ndarray, np.ndarray]:
+    """``robot.reach(model, geometry)``, made once per (model, geometry) pair (read-only arrays)."""
+    entry = _REACH.get((id(model), id(geometry)))
+    if entry is None or entry[0] is not model or entry[1] is not geometry:
+        if len(_REACH) > 16:
+            _REACH.clear()
+        R0, S = reach(model, geometry)
+        R0.flags.writeable = S.flags.writeable = False
+        entry = _REACH[(id(model), id(geometry))] = (model, geometry, (R0, S))
+    return entry[2]
+
+
 def _reach_per_element(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray) -> np.ndarray:
     """(N, P, n) bounds on |∂x/∂q_j| for the points x of each primitive on each element (``reach``)."""
     q = extrema(mesh, C, 0)
     qmax = np.maximum(np.abs(q.max), np.abs(q.min)) * (1 + SAFETY)          # (N, n), for prismatic joints
-    R0, S = reach(model, scene.robot)                                        # (P, n), (P, n, n)
+    R0, S = _robot_reach(model, scene.robot)                                 # (P, n), (P, n, n)
     return R0[None] + np.einsum("pjk,ek->epj", S, qmax)
 
 
@@ -91,11 +106,14 @@ def _speeds(scene: CollisionScene, R: np.ndarray, vmax: np.ndarray, pair: np.nda
     return V
 
 
-def pair_speeds(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray) -> np.ndarray:
-    """(N, Q) bounds V on |d/dt| of every pair's signed distance on every element, m/s (module docstring)."""
+def pair_speeds(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.ndarray,
+                R: np.ndarray | None = None) -> np.ndarray:
+    """(N, Q) bounds V on |d/dt| of every pair's signed distance on every element, m/s (module docstring); ``R``:
+    ``_reach_per_element`` at C when already made.
+    """
     dq = extrema(mesh, C, 1)
     vmax = np.maximum(np.abs(dq.max), np.abs(dq.min)) * (1 + SAFETY)        # (N, n)
-    R = _reach_per_element(model, scene, mesh, C)                            # (N, P, n)
+    R = _reach_per_element(model, scene, mesh, C) if R is None else R      # (N, P, n)
     N, Q = mesh.N, scene.size
     e, pair = np.repeat(np.arange(N), Q), np.tile(np.arange(Q), N)
     return _speeds(scene, R[e], vmax[e], pair).reshape(N, Q)
@@ -149,8 +167,8 @@ def certify(model: RobotModel, scene: CollisionScene, mesh: HermiteMesh, C: np.n
         return Certificate(margin, True, np.inf, np.inf, None, None, (), 0, np.zeros((N, 0)))
     nodes = mesh.nodes
     D = distances(model, scene, mesh.evaluate(C, nodes))                    # (N+1, Q)
-    V = pair_speeds(model, scene, mesh, C)
     R = _reach_per_element(model, scene, mesh, C)                            # (N, P, n)
+    V = pair_speeds(model, scene, mesh, C, R)
     poly = element_polynomials(mesh, C, 1)                                   # (N, n, D): q̇ in s
     evaluations = D.size
     e = np.repeat(np.arange(N), Q)

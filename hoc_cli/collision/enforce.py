@@ -128,7 +128,8 @@ class CollisionOutcome:
     status : "converged" | "infeasible" | "not_converged"; message; certificate : the plan's (None on
     coarse levels); outer_iterations; rho; rows : rows imposed last; points : points used;
     start : "start" (the level's start: the guess or the coarser level's plan), "guess" (the minimum-jerk
-    guess, after the coarser plan failed) or "via" (a via guess); warm : multipliers for the next level.
+    guess, after the coarser plan failed) or "via" (a via guess); warm : multipliers for the next level;
+    proved : what ``certificate`` is the certificate of: (model, scene, mesh, coefficients (N+1, m, n)), or None.
     """
 
     status: str
@@ -140,6 +141,19 @@ class CollisionOutcome:
     points: int
     start: str
     warm: CollisionWarm | None
+    proved: tuple | None = None
+
+    def certificate_of(self, model: RobotModel, scene: CollisionScene, mesh, C: np.ndarray) -> Certificate | None:
+        """``certificate`` when it is ``certify(model, scene, mesh, C)``'s (the same model and scene, the same mesh and
+        coefficients: the report of the plan the loop certified takes it instead of certifying it again), else None.
+        """
+        if self.certificate is None or self.proved is None:
+            return None
+        m, sc, me, coeffs = self.proved
+        same_mesh = me is mesh or (me.order == mesh.order and np.array_equal(me.nodes, mesh.nodes))
+        if m is model and sc is scene and same_mesh and np.array_equal(coeffs, C):
+            return self.certificate
+        return None
 
     def summary(self) -> dict:
         """``collision_enforce`` for the JSON summary."""
@@ -332,7 +346,8 @@ class CollisionConstraint:
                     if not full:
                         status, message = "converged", f"clear at the points (outer iterations: {outer})"
                         break
-                    cert = certify(model, exact, mesh, problem.coefficients(x))
+                    proved = problem.coefficients(x)
+                    cert = certify(model, exact, mesh, proved)
                     if cert.certified and not tight:  # once more with the plan's tolerance, λ updated
                         tight = True
                         continue
@@ -370,6 +385,7 @@ class CollisionConstraint:
             problem.terms = own
         C = problem.coefficients(x)
         if cert is None and full:
+            proved = C
             cert = certify(model, exact, mesh, C)
         if status != "converged":
             if cert is not None:
@@ -391,5 +407,5 @@ class CollisionConstraint:
         warm_next = CollisionWarm(points.t, points.weight, lam, rho, None if lim is None else lim.warm(), mesh.N)
         outcome = CollisionOutcome(status=status, message=message, certificate=cert if full else None,
                                    outer_iterations=outer, rho=rho, rows=rows, points=points.size, start=start,
-                                   warm=warm_next)
+                                   warm=warm_next, proved=(model, exact, mesh, np.array(proved)) if full and cert is not None else None)
         return dataclasses.replace(res, x=x), J, er, outcome

@@ -14,6 +14,8 @@ breakpoints −a_r/b_r.
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from hoc_cli.constraints.bounds import EFFORT
@@ -51,8 +53,13 @@ def limit_rows(terms, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.nda
     loc = terms.rows.mesh.local_coefficients(dC)
     sig = terms.sigma
     a, b, rho = [], [], []
+    idle = _idle_rows(terms, at)
     with np.errstate(invalid="ignore"):
         for k in range(len(at.g_lo)):
+            if k in idle:  # no joint imposes kind k: its rows the same at every C (a = −∞, b = 0)
+                for part, got in zip((a, b, rho), idle[k]):
+                    part.extend(got)
+                continue
             rw = np.broadcast_to(terms.rho * terms.rows.weight(k), np.shape(at.g_lo[k]))
             if k == EFFORT:
                 rates = (None, None) if to is None else (to.g_lo[k] - at.g_lo[k], to.g_hi[k] - at.g_hi[k])
@@ -64,3 +71,25 @@ def limit_rows(terms, C: np.ndarray, dC: np.ndarray) -> tuple[np.ndarray, np.nda
                 b.append(np.zeros(g0.size) if rate is None else np.where(np.isfinite(g0), rate, 0.0).ravel())
                 rho.append(rw.ravel())
     return np.concatenate(a), np.concatenate(b), np.concatenate(rho)
+
+
+_IDLE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # LimitTerms → ``_idle_rows``
+
+
+def _idle_rows(terms, at) -> dict:
+    """{k: ((a_lo, a_hi), (b_lo, b_hi), (ρ_lo, ρ_hi))} of ``limit_rows`` for the kinds no joint of ``terms`` imposes (their
+    g = −∞ whatever C: ``at``, the terms' ``PenaltyValue`` at any C), made once per terms.
+    """
+    got = _IDLE.get(terms)
+    if got is None:
+        got = {}
+        with np.errstate(invalid="ignore"):
+            for k in range(len(at.g_lo)):
+                if terms.working[k].any():
+                    continue
+                rw = np.broadcast_to(terms.rho * terms.rows.weight(k), np.shape(at.g_lo[k]))
+                sides = [((lam / rw + g0).ravel(), np.zeros(g0.size), rw.ravel())
+                         for lam, g0 in zip((terms.lam_lo[k], terms.lam_hi[k]), (at.g_lo[k], at.g_hi[k]))]
+                got[k] = tuple(zip(*sides))
+        _IDLE[terms] = got
+    return got

@@ -172,6 +172,7 @@ class LimitTerms:
     margin: float
     _cache: list = field(default_factory=list, init=False, repr=False)  # [[C, PenaltyValue, without gradient]], newest last
     _kinematic_kept: list = field(default_factory=list, init=False, repr=False)  # [active rows' key, kinematic Newton blocks]
+    _offs: dict = field(default_factory=dict, init=False, repr=False)  # kind → ``_off``'s masks
 
     CACHE = 2
 
@@ -209,12 +210,24 @@ class LimitTerms:
         lo, hi, sig = self._bounds
         g_hi = (V - hi[k]) / sig[k]
         g_lo = (lo[k] - V) / sig[k]
-        off = ~self.working[k] | np.zeros(shape, bool)
-        if k < 2:  # q and q̇ rows set by x0, x1 alone are data, not constraints
-            off = off | self.rows.data[k][:, :, None]
-        g_hi = np.where(off | ~np.isfinite(hi[k]), -np.inf, g_hi)
-        g_lo = np.where(off | ~np.isfinite(lo[k]), -np.inf, g_lo)
+        off_lo, off_hi = self._off(k)
+        g_hi = np.where(off_hi, -np.inf, g_hi)
+        g_lo = np.where(off_lo, -np.inf, g_lo)
         return g_lo, g_hi
+
+    def _off(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Kind k's rows that are not constraints (the kind's row shape, bool): of the lower and of the upper bounds
+        (a joint not in the working set, a bound that is infinite; q and q̇ rows set by x0, x1 alone are data), the
+        same at every C: made once per kind.
+        """
+        got = self._offs.get(k)
+        if got is None:
+            lo, hi, _ = self._bounds
+            off = ~self.working[k] | np.zeros(self.rows.shape(k, self.limits.n), bool)
+            if k < 2:  # q and q̇ rows set by x0, x1 alone are data, not constraints
+                off = off | self.rows.data[k][:, :, None]
+            got = self._offs[k] = (off | ~np.isfinite(lo[k]), off | ~np.isfinite(hi[k]))
+        return got
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""

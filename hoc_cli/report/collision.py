@@ -135,9 +135,11 @@ def collision_summary(model, scene: CollisionScene | None, mode: str, result) ->
         return {"collision_mode": mode}
     from hoc_cli.collision.certify import certify
 
-    cert = certify(model, scene, result.mesh, result.coeffs)  # every written plan: its own check
-    out = {"collision_mode": mode, **cert.summary()}
     outcome = getattr(result, "constraint", None)
+    cert = None if outcome is None else outcome.certificate_of(model, scene, result.mesh, result.coeffs)
+    if cert is None:  # every written plan: its own check (the enforcement loop's, when it certified this plan)
+        cert = certify(model, scene, result.mesh, result.coeffs)
+    out = {"collision_mode": mode, **cert.summary()}
     if outcome is not None:
         out["collision_enforce"] = outcome.summary()
         if outcome.status != "converged":
