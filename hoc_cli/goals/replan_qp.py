@@ -302,24 +302,30 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 grad = np.concatenate([g_I, [F_I]])
                 E = np.hstack([E, cT[:, None]])
             failed, kept = False, None
-            prog = Programme(U, grad, E)  # the elimination of E shared by the rounds and the correction
+            # the elimination of E shared by the rounds and the correction; quick: each row transformed once (``keys``)
+            prog = Programme(U, grad, E, keyed=quick)
+            keys = None
             for rounds in range(EXPAND_ROUNDS + 1):
                 cand = ActiveRows.where(lo_mask, hi_mask)
                 A, A_full = cand.jacobian(pt.rows, limits, layout.free)
                 values = A_full @ C.ravel()
                 gA = values + cand.offsets(limits)
                 rhs_A = -gA
+                if quick:
+                    keys = row_keys(cand)
                 if free is not None:  # rows of d^k q/dt^k: T^−k along the family (``row_time_derivatives``)
                     aT = row_time_derivatives(values, cand.kind, T, A_full @ V1.ravel())[0]
                     bounds = np.zeros((2, P + 1))
                     bounds[0, -1], bounds[1, -1] = 1.0, -1.0
                     A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
                     rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+                    if quick:
+                        keys = np.concatenate([keys, [-1, -2]])
                 due("programme")
                 try:
                     if quick and kept is not None:  # the last programme's active rows and the rows added first
                         step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
-                                               programme=prog)
+                                               programme=prog, keys=keys)
                     elif not quick and previous is not None and kept is None:
                         # over the last step's active rows and the new rows first: the same step, and the multipliers of
                         # dependent rows shared as the last step shared them (from every row, the programme's split changed
@@ -327,18 +333,18 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                         step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
                                                programme=prog)
                     else:
-                        step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
+                        step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog, keys=keys)
                 except NumericalError as exc:
                     if _log.isEnabledFor(logging.DEBUG):
                         _log.debug(f"qp step {steps}: {exc}")
                     if kept is not None:  # the programme with the rows added failed: the last one's step
-                        step, cand, A, rhs_A, gA = kept
+                        step, cand, A, rhs_A, gA, keys = kept
                     else:
                         failed = True
                     break
                 if rounds == EXPAND_ROUNDS:
                     break
-                kept = step, cand, A, rhs_A, gA
+                kept = step, cand, A, rhs_A, gA, keys
                 beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask)
                 if beyond is None:
                     break
@@ -403,7 +409,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                    programme=prog)
+                                                                    programme=prog, keys=keys)
             if corrected is not None:
                 trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
             else:
@@ -438,6 +444,15 @@ def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple
     ph = at(T + delta, rescale(C, T, T + delta), lam, active)
     scale = pt.problem.layout.pack(rescale(np.ones_like(C), T, T + delta))
     return (scale * ph.g - pt.g) / delta, (ph.F - pt.F) / delta
+
+
+def row_keys(rows: ActiveRows) -> np.ndarray:
+    """One non-negative integer per row (a,), the same for the same (kind, element, row, joint, side) in any set:
+    a keyed ``Programme``'s row keys (the T bounds' rows take −1 and −2).
+    """
+    key = rows.kind.astype(np.int64) << 16 | rows.elem
+    key = (key << 8 | rows.row) << 8 | rows.joint
+    return key << 1 | (rows.side > 0)
 
 
 def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int) -> np.ndarray:
@@ -475,7 +490,8 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
-                    cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None):
+                    cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None,
+                    keys: np.ndarray | None = None):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -485,7 +501,8 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     trial point: E d' = E d − c(x + d), A d' ≤ A d − g(x + d). Where the rows curve (the flange's pose along a long
     step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
     (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
-    ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused).
+    ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused), ``keys``
+    its row keys of A when it is keyed (``row_keys``).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -508,7 +525,7 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
         if quick:  # the step's active rows (and T's bounds) first: the same step, as in ``qp_steps``
             held_rows = step.mu > 0.0
             held_rows[k:] = True
-            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows, programme=programme)
+            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows, programme=programme, keys=keys)
         else:
             step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2, programme=programme)
     except NumericalError:
