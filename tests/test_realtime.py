@@ -226,13 +226,16 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
 
 def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_plan_is_the_same(catch, monkeypatch):
     """The point after an update's last allowed step (``max_steps``): no step starts there, so ℒ's derivatives are
-    not evaluated (``evaluate_point(..., derivatives=False)``); the plan, its J, goal rows and stationarity (evaluated
-    when read) are those of the same update with them.
+    not evaluated (``evaluate_point(..., derivatives=False)``), nor its cost (``value=False``: no dynamics); the plan,
+    its J, goal rows and stationarity (evaluated when read) are those of the same update with them.
     """
     import hoc_cli.goals.replan_qp as replan_qp
+    from hoc_cli.goals.plan import GoalProblem
 
     problem, plan = catch
     evaluate, calls = replan_qp.evaluate_point, []
+    values, costs = GoalProblem.evaluate, []
+    monkeypatch.setattr(GoalProblem, "evaluate", lambda self, x, grad=True: costs.append(grad) or values(self, x, grad))
 
     def spy(*a, derivatives=True, **k):
         calls.append(derivatives)
@@ -245,7 +248,8 @@ def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_
     x, saved = (cur.state(t)[0], cur.state(t, 1)[0]), rp.state()
     monkeypatch.setattr(replan_qp, "evaluate_point", spy)
     up = rp.update(t, x, target, budget_s=10.0)
-    assert up.steps == 1 and calls[-1] is False and calls.count(False) == 1
+    assert up.steps == 1 and calls[0] is True and calls[1:] and not any(calls[1:])  # the trial (and its correction's)
+    assert False not in costs  # nor its cost: evaluated when read
     rp.restore(saved)
     monkeypatch.setattr(replan_qp, "evaluate_point", lambda *a, derivatives=True, **k: evaluate(*a, **k))
     ref = rp.update(t, x, target, budget_s=10.0)

@@ -168,6 +168,7 @@ class QPReplan:
     factor: np.ndarray | None = None
     check: object = None
     derive: Callable[[], object] | None = None  # when ``point`` has no derivatives (g None): the point with them
+    J_from: float = math.nan  # the cost at the point the last programme was made at (its decrement's point)
 
 
 class OutOfTime(Exception):
@@ -177,12 +178,14 @@ class OutOfTime(Exception):
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
-             late: Callable[[str], bool] | None = None, accuracy: float | None = None) -> QPReplan:
+             late: Callable[[str], bool] | None = None, accuracy: float | None = None,
+             relative_rho: bool = False) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
     active : the working set (the previous plan's kinematic rows with μ > 0); free : ``TimeRange`` or None;
-    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD;
+    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD (``relative_rho``:
+        ρ = rho_aug·max(|J|, 1) with the cost J at the steps' first point);
     floor : a step is damped while it raises the goal rows' violation above max(violation, floor) (``damped_trial``);
     merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum;
         then the Newton matrix's diagonal is raised by a relative Levenberg-Marquardt shift (``LM_START``, ×10 after
@@ -195,7 +198,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         positive semi-definite part is first added in growing multiples, up to 13 more factorisations); with ``stop``,
         the point after the ``max_steps``-th step (where ``stop`` ends the steps) is evaluated without ℒ's derivatives
         (``evaluate_point(..., derivatives=False)``: its g None; the result's ``derive()`` evaluates them there, and
-        should ``stop`` not end the steps they are evaluated before the next one): the real-time replanner's steps,
+        should ``stop`` not end the steps they are evaluated before the next one), and without merit its cost is not
+        evaluated either (``value=False``: its J NaN; ``derive()``'s point has it): the real-time replanner's steps,
         where time counts.
     late : asked with a checkpoint's name (``CHECKPOINTS``) at each checkpoint of a step (before the Newton
         matrix, before the T column's evaluation, before each programme, before the trial point); True stops the
@@ -216,9 +220,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     npts = len(lam) - 1
     cache: dict = {}
 
-    def at(T_, C_, lam_, active_, derivatives=True):
+    def at(T_, C_, lam_, active_, derivatives=True, value=True):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
-                              free is not None, cache, active_, fractions=fractions, derivatives=derivatives)
+                              free is not None, cache, active_, fractions=fractions, derivatives=derivatives, value=value)
 
     def at_rows(T_):  # the kinematic rows of the mesh at T_
         return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
@@ -231,9 +235,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             raise OutOfTime(name)
 
     pt = at(T, C, lam, active)
+    if relative_rho:
+        rho_aug = rho_aug * max(abs(pt.J), 1.0)
     full = (tol, EQ_ACCEPT, SLOPE_RTOL)  # the stopping test's decrement, goal rows and T slope
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
+    J_from = pt.J
     U_last = check = Hs_last = None
     previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
@@ -345,7 +352,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 if rounds == EXPAND_ROUNDS:
                     break
                 kept = step, cand, A, rhs_A, gA, keys
-                beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask)
+                beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask, quick)
                 if beyond is None:
                     break
                 lo_mask, hi_mask = beyond
@@ -353,7 +360,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 break
             previous = step, cand
             row_violation = float(np.max(gA, initial=0.0))
-            decrement = step.decrease
+            decrement, J_from = step.decrease, pt.J
             if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
                 status = Status.MAX_ITER if math.isfinite(decrement) and np.all(np.isfinite(step.d)) else Status.NOT_FINITE
                 if _log.isEnabledFor(logging.DEBUG):
@@ -391,11 +398,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
             # the point after the last step ``stop`` will allow (the real-time path): no derivatives of ℒ there
             last = quick and stop is not None and steps == max_steps
+            valued = not last or test is not None  # the merit test reads the trial points' J
 
             def trial_at(alpha: float):
                 T_a = T + alpha * dT
                 return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active,
-                               not last)
+                               not last, valued)
 
             def violation_at(alpha: float) -> float:
                 T_a = T + alpha * dT
@@ -405,7 +413,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = None
             if test is not None:
                 accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-            at_trial = functools.partial(at, derivatives=not last)
+            at_trial = functools.partial(at, derivatives=not last, value=valued)
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
@@ -430,7 +438,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
     derive = functools.partial(at, T, pt.C, lam, active) if pt.g is None else None
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement, factor=U_last, check=check, derive=derive)
+                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from)
 
 
 def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:
@@ -472,15 +480,20 @@ def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int)
     return out
 
 
-def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask):
+def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask,
+                 quick: bool = False):
     """The candidate masks (lo, hi) grown by the kinematic rows outside them that the full step ``d`` would break
-    (g > 0 at the trial point), or None when it breaks none.
+    (g > 0 at the trial point), or None when it breaks none. ``quick``: the rows at the trial point's T from those at
+    T (``row_values``' ratio) instead of the mesh's rows at that T (``rows_at``): the same numbers to rounding.
     """
     dT = float(d[P]) if free is not None else 0.0
     T1 = T + dT
-    C1 = rescale(problem.coefficients(pt.x + d[:P]), T, T1)
-    rows1 = pt.rows if dT == 0.0 else rows_at(T1)
-    at1 = row_values(limits, rows1, C1)
+    if quick:
+        at1 = row_values(limits, pt.rows, problem.coefficients(pt.x + d[:P]), T / T1)
+    else:
+        C1 = rescale(problem.coefficients(pt.x + d[:P]), T, T1)
+        rows1 = pt.rows if dT == 0.0 else rows_at(T1)
+        at1 = row_values(limits, rows1, C1)
     lo = tuple((g > 0.0) & ~m for g, m in zip(at1.g_lo, lo_mask))
     hi = tuple((g > 0.0) & ~m for g, m in zip(at1.g_hi, hi_mask))
     if not any(x.any() for x in lo + hi):
