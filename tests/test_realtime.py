@@ -177,6 +177,46 @@ def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch
     kept = limit_rows(mesh2, p2.layout.free, 7)  # another cycle's mesh: the h = 1 rows kept, its own scales
     for name in ("rows", "part", "data", "scale"):
         assert all(np.array_equal(a, b) for a, b in zip(getattr(kept, name), getattr(r2, name)))
+    # the rows of the same s-domain trajectory at T' = 1.07 T from those at T (``row_values``' ratio)
+    from hoc_cli.free_time import rescale
+    from hoc_cli.goals.replan_point import row_values
+
+    T1, T2 = r1.mesh.T, mesh2.T
+    C1 = p1.coefficients(p1.layout.pack(C))
+    ref, got = row_values(problem.limits, r2, rescale(C1, T1, T2)), row_values(problem.limits, r1, C1, T1 / T2)
+    for a, b in zip(ref.g_lo + ref.g_hi, got.g_lo + got.g_hi):
+        fin = np.isfinite(a)
+        assert np.array_equal(fin, np.isfinite(b))
+        assert np.abs(a[fin] - b[fin]).max(initial=0.0) <= 1e-12 * np.abs(a[fin]).max(initial=0.0)
+    assert max(float(np.max(np.abs(a[np.isfinite(a)] - b[np.isfinite(a)]), initial=0.0)) for a, b in zip(
+        ref.g_hi, row_values(problem.limits, r1, C1).g_hi)) > 1e-3  # (the rows at T differ)
+
+
+def test_the_updates_torque_check_is_check_limits_at_its_tolerance(catch):
+    """``torques_hold`` (the update's torque check) decides as ``check_limits`` with the effort limits alone: limits at
+    the plan's own largest torques, moved by 0.5e-9 (within the check's 1e-9 tolerance: held) or 3e-9 (broken) on one
+    joint, on the cold plan and a shifted one.
+    """
+    import dataclasses
+
+    from hoc_cli.constraints.points import PointSet
+    from hoc_cli.realtime.limits_guard import effort_only, torques_hold
+
+    problem, plan = catch
+    system, limits = problem.system, problem.limits
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    for mesh, C in ((plan.mesh, plan.coeffs), (s.mesh, s.coeffs)):
+        N = mesh.N
+        pts = PointSet.build(mesh, np.repeat(np.arange(N), 33), np.tile(np.linspace(0.0, 1.0, 33), N), np.ones(N * 33))
+        X = pts.apply(C)
+        top = np.abs(system.inverse_dynamics(X[0], X[1], X[2])).max(axis=0)
+        for j, factor, ok in ((0, 1.0 - 0.5e-9, True), (3, 1.0 - 3e-9, False), (6, 1.0 - 3e-9, False), (6, 1.2, True)):
+            effort = np.array(top)
+            effort[j] *= factor
+            effort[np.arange(7) != j] *= 1.01
+            lim = effort_only(dataclasses.replace(limits, effort=effort))
+            assert check_limits(system, lim, mesh, C).feasible is ok
+            assert torques_hold(system, lim, mesh, C) is ok
 
 
 def test_a_damped_step_evaluates_only_the_point_it_keeps_when_the_goal_rows_alone_say_no():
