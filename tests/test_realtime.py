@@ -143,6 +143,8 @@ def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_chec
     for lim, C, ok in ((limits, plan.coeffs, True), (limits, fast, False), (limits, start, False), (weak, plan.coeffs, False)):
         assert check_limits(system, lim, mesh, C).feasible is ok
         assert within_limits(system, lim, rows, C, effort_only(lim)) is ok
+        if C is not fast:  # the rows not fixed by the start hold (as after ``guard``): those fixed by it decide
+            assert within_limits(system, lim, rows, C, effort_only(lim), rows_hold=True) is ok
 
 
 def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch):

@@ -91,10 +91,13 @@ def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarra
     return out
 
 
-def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None) -> bool:
+def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None,
+                  rows_hold: bool = False) -> bool:
     """Whether the plan C (N+1, m, n) on ``rows.mesh`` passes ``check_limits`` (module docstring): every kinematic
     Bernstein row of every element g ≤ ``ROW_TOL`` (else ``check_limits`` on the kinematic kinds decides), and
-    ``check_limits`` with ``effort`` (the effort limits alone, or None when there are none).
+    ``check_limits`` with ``effort`` (the effort limits alone, or None when there are none). ``rows_hold``: every row
+    not fixed by the start state is known to be ≤ ``ROW_TOL`` (C is ``guard``'s), so only the elements holding rows
+    fixed by it are evaluated (the same decision).
     """
     mesh = rows.mesh
     loc = mesh.local_coefficients(np.asarray(C, float))
@@ -103,7 +106,14 @@ def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: Join
     for k in range(KINEMATIC):
         if not limits.has(KINDS[k]).any():
             continue
-        V = rows.apply(k, loc)  # (N, R_k, n)
+        if rows_hold:  # the rows fixed by the start state (q, q̇ rows of x0 alone: row_values leaves them out)
+            el = np.flatnonzero(rows.data[k].any(axis=1)) if k < 2 else np.zeros(0, int)
+            if not el.size:
+                continue
+            part = loc[el] if rows.scale is None else loc[el] * rows.scale[k][el][:, :, None]
+            V = np.einsum("ra,ean->ern", rows.rows[k], part)
+        else:
+            V = rows.apply(k, loc)  # (N, R_k, n)
         with np.errstate(invalid="ignore"):
             worst = max(worst, float(np.max((V - hi[k]) / sig[k])), float(np.max((lo[k] - V) / sig[k])))
     if not worst <= ROW_TOL and not check_limits(system, limits, mesh, C).feasible:

@@ -306,7 +306,7 @@ class Replanner:
             near: list = []  # the rows the first projection needed: the second one starts from them
             for keep in (pt.D[:r], None):
                 C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep, near=near)
-                if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort):
+                if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort, rows_hold=True):
                     safe = C_try
                     break
                 if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
