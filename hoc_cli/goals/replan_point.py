@@ -104,7 +104,8 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     mesh's nodes as fractions of T (None: N equal elements). ``derivatives`` False (no limit terms): J, the rows
     c and their Jacobian D only, the cost by inverse dynamics alone (``GoalProblem.value``'s numbers); g, ``samples``
     and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last); ``value``
-    False too: no dynamics at all, J NaN and ``ev`` None (the rows alone: a point whose cost is read later, if ever).
+    False too: no dynamics at all, J NaN and ``ev`` None, c and D the goal rows' alone (a point whose cost is read
+    later, if ever).
     """
     if not derivatives:
         return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions,
@@ -168,7 +169,9 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
 
 def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache: dict, active, fractions,
                   value: bool = True):
-    """``evaluate_point`` without derivatives (its ``derivatives`` False): J (NaN unless ``value``), c, D at (T, C)."""
+    """``evaluate_point`` without derivatives (its ``derivatives`` False): J, c, D at (T, C) (``value`` False: J NaN, the
+    goal rows alone).
+    """
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
@@ -181,7 +184,7 @@ def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, 
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
     A_full = None
-    if active is not None:
+    if active is not None and value:  # (without the value: the goal rows alone)
         A, A_full = active.jacobian(rows, limits, problem.layout.free)
         c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
         D = np.vstack([D, A])
