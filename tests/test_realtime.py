@@ -548,3 +548,20 @@ def test_a_wrong_scipy_nnls_answer_is_repaired_from_its_passive_set(monkeypatch)
         w = qp_step._cold_nnls(M, repair=repair)
         assert np.abs(M @ w - M @ ref.w).max() <= 1e-12
     assert starts[0] is None and sorted(starts[1]) == sorted(ref.passive[1:])
+
+
+def test_the_dense_factor_is_the_banded_factor_on_the_free_coefficients():
+    """``dense_factor``: U[j − d, j] = ab[u − d, j] of the banded factor, its free rows and columns, entry for entry."""
+    from types import SimpleNamespace
+
+    from hoc_cli.goals.replan_point import dense_factor
+
+    rng = np.random.default_rng(2)
+    n, u = 40, 7
+    free = rng.random(n) > 0.3
+    W = SimpleNamespace(factor=rng.normal(size=(u + 1, n)), free=free)
+    full = np.zeros((n, n))
+    for j in range(n):
+        for d in range(min(u, j) + 1):
+            full[j - d, j] = W.factor[u - d, j]
+    np.testing.assert_array_equal(dense_factor(W), full[np.ix_(free, free)])

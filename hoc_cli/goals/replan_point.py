@@ -378,12 +378,25 @@ def solve_many(W, B: np.ndarray) -> np.ndarray:
 def dense_factor(W) -> np.ndarray:
     """The upper Cholesky factor U (P_free, P_free) of a ``BandedSPD`` W = UᵀU on its free coefficients."""
     ab = W.factor
-    u = ab.shape[0] - 1
-    n = ab.shape[1]
+    free = np.asarray(W.free, bool)
+    dst, src = _free_band_indices(ab.shape[0] - 1, ab.shape[1], free.tobytes())
+    P = int(np.count_nonzero(free))
+    U = np.zeros((P, P))
+    U.ravel()[dst] = ab.ravel()[src]  # ab[u - d, j] = U[j - d, j], the free rows and columns alone
+    return U
+
+
+@lru_cache(maxsize=32)
+def _free_band_indices(u: int, n: int, free: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(flat positions in U (P, P), flat positions in ab (u + 1, n)) of the entries U[j − d, j] = ab[u − d, j] whose row
+    and column are both free (``free`` (n,) bool as bytes; P of them).
+    """
     rows, cols, band = _band_indices(u, n)
-    U = np.zeros((n, n))
-    U[rows, cols] = ab[band, cols]  # ab[u - d, j] = U[j - d, j]
-    return U[np.ix_(W.free, W.free)]
+    mask = np.frombuffer(free, bool)
+    keep = mask[rows] & mask[cols]
+    pos = np.cumsum(mask) - 1
+    P = int(np.count_nonzero(mask))
+    return pos[rows[keep]] * P + pos[cols[keep]], band[keep] * n + cols[keep]
 
 
 @lru_cache(maxsize=32)
