@@ -89,7 +89,7 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     if not A.shape[0]:
         return el.step(A, np.zeros(0), np.zeros(0), np.ones(0), 1.0, y_p)
     M, scale, size = el.rows(A, b, y_p, keys=keys)
-    w = _cold_nnls(M, repair=el.keyed)
+    w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
     return el.step(A, w, M @ w - _unit(M), scale, size, y_p)
 
 
@@ -294,7 +294,7 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         M = None
     else:
         M, scale, size = el.rows(A, b, y_p, idx=idx, keys=keys)
-        w = _cold_nnls(M, repair=el.keyed)
+        w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
         step = el.step(A[idx], w, M @ w - _unit(M), scale, size, y_p)
     used = np.zeros(b.size, bool)
     used[idx] = True
@@ -311,7 +311,7 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         used[new] = True
         if M is None:  # no row yet: the programme of the rows added, from no active row
             M, scale, size = el.rows(A, b, y_p, idx=new, keys=keys)
-            w = _cold_nnls(M, repair=el.keyed)
+            w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
             r = M @ w - _unit(M)
         else:
             M_new, scale_new, _ = el.rows(A, b, y_p, size, idx=new, keys=keys)
