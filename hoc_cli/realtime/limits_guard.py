@@ -101,7 +101,7 @@ def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: Join
     """
     mesh = rows.mesh
     loc = mesh.local_coefficients(np.asarray(C, float))
-    lo, hi, sig = effective_bounds(limits, MARGIN)
+    lo, hi, sig = _kinematic_bounds(limits)
     worst = -np.inf
     for k in range(KINEMATIC):
         if not limits.has(KINDS[k]).any():
@@ -134,6 +134,12 @@ def torques_hold(system, effort: JointLimits, mesh, C: np.ndarray) -> bool:
     lo, hi, tol_lo, tol_hi = _effort_bounds(effort)
     with np.errstate(invalid="ignore"):  # a bound ±inf: excess −inf; the largest excess is that of the extreme torque
         return not (np.any(np.max(u, axis=0) - hi > tol_hi) or np.any(lo - np.min(u, axis=0) > tol_lo))
+
+
+@lru_cache(maxsize=16)
+def _kinematic_bounds(limits: JointLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``effective_bounds(limits, MARGIN)`` of a ``JointLimits`` (immutable), kept: ``within_limits`` asks every update."""
+    return effective_bounds(limits, MARGIN)
 
 
 @lru_cache(maxsize=16)
