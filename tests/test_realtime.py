@@ -278,6 +278,8 @@ def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_
     evaluate, calls = replan_qp.evaluate_point, []
     values, costs = GoalProblem.evaluate, []
     monkeypatch.setattr(GoalProblem, "evaluate", lambda self, x, grad=True: costs.append(grad) or values(self, x, grad))
+    rows_alone, violations = replan_qp.goal_violation, []
+    monkeypatch.setattr(replan_qp, "goal_violation", lambda *a, **k: violations.append(1) or rows_alone(*a, **k))
 
     def spy(*a, derivatives=True, **k):
         calls.append(derivatives)
@@ -292,6 +294,7 @@ def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_
     up = rp.update(t, x, target, budget_s=10.0)
     assert up.steps == 1 and calls[0] is True and calls[1:] and not any(calls[1:])  # the trial (and its correction's)
     assert False not in costs  # nor its cost: evaluated when read
+    assert len(calls) == 3 and not violations  # the corrected point evaluated once, its goal rows read from it
     rp.restore(saved)
     monkeypatch.setattr(replan_qp, "evaluate_point", lambda *a, derivatives=True, **k: evaluate(*a, **k))
     ref = rp.update(t, x, target, budget_s=10.0)

@@ -417,7 +417,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                    programme=prog, keys=keys)
+                                                                    programme=prog, keys=keys, rows_only=not valued)
             if corrected is not None:
                 trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
             else:
@@ -504,7 +504,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
                     cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None,
-                    keys: np.ndarray | None = None):
+                    keys: np.ndarray | None = None, rows_only: bool = False):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -515,7 +515,9 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
     (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
     ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused), ``keys``
-    its row keys of A when it is keyed (``row_keys``).
+    its row keys of A when it is keyed (``row_keys``). ``rows_only``: ``at`` evaluates the goal rows alone (no
+    dynamics: ``evaluate_point(..., value=False)``), so the corrected point is evaluated once and its violation read
+    from it (``goal_rows_at``'s numbers).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -552,8 +554,13 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     parts = list(np.split(nu, np.cumsum([v.size for v in lam_goal])[:-1])) if lam_goal else []
     lam2 = parts + [mu[held]]
     C2 = rescale(problem.coefficients(pt.x + dx2), T, T2)
+    trial2 = None
     try:
-        v2 = goal_rows_at(T2, C2)
+        if rows_only:  # the point's evaluation is its goal rows alone: their violation read from it
+            trial2 = at(T2, C2, lam2, active2)
+            v2 = float(np.max(np.abs(trial2.c[:r]), initial=0.0))
+        else:
+            v2 = goal_rows_at(T2, C2)
     except NumericalError:
         return None
     if _log.isEnabledFor(logging.DEBUG):
@@ -561,7 +568,7 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     if not v2 <= max(violation, floor):
         return None
     try:
-        trial2 = at(T2, C2, lam2, active2)
+        trial2 = at(T2, C2, lam2, active2) if trial2 is None else trial2
     except NumericalError:
         return None
     if accept is not None and not accept(1.0, T2, trial2):
