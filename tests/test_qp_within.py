@@ -79,8 +79,8 @@ def test_a_real_time_updates_reduced_programmes_take_the_full_programmes_steps(m
     problem = lbr7_catch_problem()
     seen = []
 
-    def spy(U, g, E, e, A, b, rows, programme=None):
-        step = solve_qp_within(U, g, E, e, A, b, rows, programme=programme)
+    def spy(U, g, E, e, A, b, rows, programme=None, keys=None):
+        step = solve_qp_within(U, g, E, e, A, b, rows, programme=programme, keys=keys)
         full = solve_qp(U, g, E, e, A, b)  # from scratch, nothing shared
         caller = inspect.currentframe().f_back.f_code.co_name
         seen.append((caller, int(rows.sum()) < rows.size, float(np.max(np.abs(step.d - full.d)) / np.max(np.abs(full.d)))))

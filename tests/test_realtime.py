@@ -143,6 +143,8 @@ def test_the_rows_of_the_steps_are_those_of_the_limits_terms_and_the_update_chec
     for lim, C, ok in ((limits, plan.coeffs, True), (limits, fast, False), (limits, start, False), (weak, plan.coeffs, False)):
         assert check_limits(system, lim, mesh, C).feasible is ok
         assert within_limits(system, lim, rows, C, effort_only(lim)) is ok
+        if C is not fast:  # the rows not fixed by the start hold (as after ``guard``): those fixed by it decide
+            assert within_limits(system, lim, rows, C, effort_only(lim), rows_hold=True) is ok
 
 
 def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch):
@@ -177,6 +179,46 @@ def test_the_problem_and_rows_at_another_catch_time_are_those_built_afresh(catch
     kept = limit_rows(mesh2, p2.layout.free, 7)  # another cycle's mesh: the h = 1 rows kept, its own scales
     for name in ("rows", "part", "data", "scale"):
         assert all(np.array_equal(a, b) for a, b in zip(getattr(kept, name), getattr(r2, name)))
+    # the rows of the same s-domain trajectory at T' = 1.07 T from those at T (``row_values``' ratio)
+    from hoc_cli.free_time import rescale
+    from hoc_cli.goals.replan_point import row_values
+
+    T1, T2 = r1.mesh.T, mesh2.T
+    C1 = p1.coefficients(p1.layout.pack(C))
+    ref, got = row_values(problem.limits, r2, rescale(C1, T1, T2)), row_values(problem.limits, r1, C1, T1 / T2)
+    for a, b in zip(ref.g_lo + ref.g_hi, got.g_lo + got.g_hi):
+        fin = np.isfinite(a)
+        assert np.array_equal(fin, np.isfinite(b))
+        assert np.abs(a[fin] - b[fin]).max(initial=0.0) <= 1e-12 * np.abs(a[fin]).max(initial=0.0)
+    assert max(float(np.max(np.abs(a[np.isfinite(a)] - b[np.isfinite(a)]), initial=0.0)) for a, b in zip(
+        ref.g_hi, row_values(problem.limits, r1, C1).g_hi)) > 1e-3  # (the rows at T differ)
+
+
+def test_the_updates_torque_check_is_check_limits_at_its_tolerance(catch):
+    """``torques_hold`` (the update's torque check) decides as ``check_limits`` with the effort limits alone: limits at
+    the plan's own largest torques, moved by 0.5e-9 (within the check's 1e-9 tolerance: held) or 3e-9 (broken) on one
+    joint, on the cold plan and a shifted one.
+    """
+    import dataclasses
+
+    from hoc_cli.constraints.points import PointSet
+    from hoc_cli.realtime.limits_guard import effort_only, torques_hold
+
+    problem, plan = catch
+    system, limits = problem.system, problem.limits
+    s = shift_plan(plan.mesh, plan.coeffs, 0.0, 0.31 * plan.mesh.T)
+    for mesh, C in ((plan.mesh, plan.coeffs), (s.mesh, s.coeffs)):
+        N = mesh.N
+        pts = PointSet.build(mesh, np.repeat(np.arange(N), 33), np.tile(np.linspace(0.0, 1.0, 33), N), np.ones(N * 33))
+        X = pts.apply(C)
+        top = np.abs(system.inverse_dynamics(X[0], X[1], X[2])).max(axis=0)
+        for j, factor, ok in ((0, 1.0 - 0.5e-9, True), (3, 1.0 - 3e-9, False), (6, 1.0 - 3e-9, False), (6, 1.2, True)):
+            effort = np.array(top)
+            effort[j] *= factor
+            effort[np.arange(7) != j] *= 1.01
+            lim = effort_only(dataclasses.replace(limits, effort=effort))
+            assert check_limits(system, lim, mesh, C).feasible is ok
+            assert torques_hold(system, lim, mesh, C) is ok
 
 
 def test_a_damped_step_evaluates_only_the_point_it_keeps_when_the_goal_rows_alone_say_no():
@@ -226,13 +268,18 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
 
 def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_plan_is_the_same(catch, monkeypatch):
     """The point after an update's last allowed step (``max_steps``): no step starts there, so ℒ's derivatives are
-    not evaluated (``evaluate_point(..., derivatives=False)``); the plan, its J, goal rows and stationarity (evaluated
-    when read) are those of the same update with them.
+    not evaluated (``evaluate_point(..., derivatives=False)``), nor its cost (``value=False``: no dynamics); the plan,
+    its J, goal rows and stationarity (evaluated when read) are those of the same update with them.
     """
     import hoc_cli.goals.replan_qp as replan_qp
+    from hoc_cli.goals.plan import GoalProblem
 
     problem, plan = catch
     evaluate, calls = replan_qp.evaluate_point, []
+    values, costs = GoalProblem.evaluate, []
+    monkeypatch.setattr(GoalProblem, "evaluate", lambda self, x, grad=True: costs.append(grad) or values(self, x, grad))
+    rows_alone, violations = replan_qp.goal_violation, []
+    monkeypatch.setattr(replan_qp, "goal_violation", lambda *a, **k: violations.append(1) or rows_alone(*a, **k))
 
     def spy(*a, derivatives=True, **k):
         calls.append(derivatives)
@@ -245,7 +292,9 @@ def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_
     x, saved = (cur.state(t)[0], cur.state(t, 1)[0]), rp.state()
     monkeypatch.setattr(replan_qp, "evaluate_point", spy)
     up = rp.update(t, x, target, budget_s=10.0)
-    assert up.steps == 1 and calls[-1] is False and calls.count(False) == 1
+    assert up.steps == 1 and calls[0] is True and calls[1:] and not any(calls[1:])  # the trial (and its correction's)
+    assert False not in costs  # nor its cost: evaluated when read
+    assert len(calls) == 3 and not violations  # the corrected point evaluated once, its goal rows read from it
     rp.restore(saved)
     monkeypatch.setattr(replan_qp, "evaluate_point", lambda *a, derivatives=True, **k: evaluate(*a, **k))
     ref = rp.update(t, x, target, budget_s=10.0)
@@ -475,3 +524,47 @@ print(json.dumps([before, sorted(set(map(tuple, seen))), thread_counts(), up.ste
     before, seen, after, steps = json.loads(out.stdout)
     assert before and all(n == 2 for n in before) and steps == 1
     assert seen == [[1] * len(before)] and after == before
+
+
+def test_a_wrong_scipy_nnls_answer_is_repaired_from_its_passive_set(monkeypatch):
+    """``_cold_nnls(M, repair=True)`` (the real-time steps): when SciPy's answer fails the KKT test, hoc's NNLS starts
+    from SciPy's passive set and ends at the minimiser (the residual of the answer from no active row), in fewer
+    iterations than from none. SciPy is replaced by an answer with one passive column dropped.
+    """
+    import scipy.optimize
+
+    from hoc_cli.goals import qp_step
+    from hoc_cli.optimize import nnls as hoc_nnls
+
+    rng = np.random.default_rng(5)
+    M = np.vstack([rng.normal(size=(30, 60)), rng.uniform(-1.0, 0.2, size=(1, 60))])
+    f = qp_step._unit(M)
+    ref = hoc_nnls.nnls(M, f)
+    assert ref.passive.size >= 3
+    wrong = np.array(ref.w)
+    wrong[ref.passive[0]] = 0.0
+    monkeypatch.setattr(scipy.optimize, "nnls", lambda A, b, maxiter=None: (wrong, 0.0))
+    starts = []
+    warm = qp_step.warm_nnls
+    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, **k: starts.append(k.get("passive")) or warm(*a, **k))
+    for repair in (False, True):
+        w = qp_step._cold_nnls(M, repair=repair)
+        assert np.abs(M @ w - M @ ref.w).max() <= 1e-12
+    assert starts[0] is None and sorted(starts[1]) == sorted(ref.passive[1:])
+
+
+def test_the_dense_factor_is_the_banded_factor_on_the_free_coefficients():
+    """``dense_factor``: U[j − d, j] = ab[u − d, j] of the banded factor, its free rows and columns, entry for entry."""
+    from types import SimpleNamespace
+
+    from hoc_cli.goals.replan_point import dense_factor
+
+    rng = np.random.default_rng(2)
+    n, u = 40, 7
+    free = rng.random(n) > 0.3
+    W = SimpleNamespace(factor=rng.normal(size=(u + 1, n)), free=free)
+    full = np.zeros((n, n))
+    for j in range(n):
+        for d in range(min(u, j) + 1):
+            full[j - d, j] = W.factor[u - d, j]
+    np.testing.assert_array_equal(dense_factor(W), full[np.ix_(free, free)])

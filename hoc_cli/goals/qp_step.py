@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
+from scipy.linalg.lapack import dormqr
 
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.nnls import nnls as warm_nnls
@@ -64,7 +65,7 @@ def bordered_factor(U: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
 
 
 def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
-             programme: "Programme | None" = None) -> QPStep:
+             programme: "Programme | None" = None, keys: np.ndarray | None = None) -> QPStep:
     """Min gᵀd + ½dᵀHd subject to E d = e and A d ≤ b (see the module docstring).
 
     Parameters
@@ -75,6 +76,7 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     A, b : (k, P), (k,) inequality rows (k may be 0).
     programme : ``Programme(U, g, E)`` when the caller keeps one (its work is shared with the caller's other
         programmes of the same U, g, E: the same result).
+    keys : (k,) int, one key per row of A, with a keyed ``programme`` (``Programme(..., keyed=True)``).
 
     Raises
     ------
@@ -86,8 +88,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
     y_p = el.particular(e)
     if not A.shape[0]:
         return el.step(A, np.zeros(0), np.zeros(0), np.ones(0), 1.0, y_p)
-    M, scale, size = el.rows(A, b, y_p)
-    w = _cold_nnls(M)
+    M, scale, size = el.rows(A, b, y_p, keys=keys)
+    w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
     return el.step(A, w, M @ w - _unit(M), scale, size, y_p)
 
 
@@ -98,13 +100,15 @@ def _unit(M: np.ndarray) -> np.ndarray:
     return f
 
 
-def _cold_nnls(M: np.ndarray) -> np.ndarray:
+def _cold_nnls(M: np.ndarray, repair: bool = False) -> np.ndarray:
     """The w ≥ 0 minimising ‖M w − f‖ from no active row, its cap ``NNLS_ITER`` per column: scipy's Lawson-Hanson
     (compiled), its answer kept when it meets the KKT conditions (``_minimises``), else ``hoc_cli.optimize.nnls``'s.
     SciPy's reimplementation (1.15 on) can end at a point that is not the minimiser, without a warning
     (scipy/scipy#25389): on the lbr7 catch's programme at its own optimum (``hoc plan --init`` from its plan) SciPy
     1.17.1's returned a step that broke its rows by 0.018 and raised the model by 3.9, where the minimiser is the
-    zero step; hoc's own NNLS finds it.
+    zero step; hoc's own NNLS finds it. ``repair``: hoc's starts from SciPy's passive set (its columns with w > 0,
+    a guess: those whose least-squares entries are not positive leave first) instead of none (the real-time steps:
+    on the lbr7 catch's updates 14 iterations instead of 33, the same minimiser).
     """
     from scipy.optimize import nnls  # imported on first use (0.25 s)
 
@@ -117,7 +121,7 @@ def _cold_nnls(M: np.ndarray) -> np.ndarray:
     if w is not None and _minimises(M, f, w):
         return w
     try:
-        return warm_nnls(M, f, max_iter=cap).w
+        return warm_nnls(M, f, passive=np.flatnonzero(w > 0.0) if repair and w is not None else None, max_iter=cap).w
     except NumericalError:  # the callers' failed step, not a crash
         raise NumericalError(f"the replan's quadratic programme did not converge in {cap} iterations") from None
 
@@ -140,25 +144,51 @@ class Programme:
     not to be changed while the object is in use.
     """
 
-    def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray) -> None:
+    def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray, keyed: bool = False) -> None:
         P = g.size
         self.U, self.g, self.E = U, g, E
+        self.keyed = keyed
         y0 = -solve_triangular(U, g, trans="T", check_finite=False)
+        self._raw = None  # keyed: the Householder reflectors of Q (Eh.T = Q R Πᵀ), the rank, R and Π
         if E.shape[0]:
             self.Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
-            Q, R, _ = qr(self.Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
-            rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
-            self.Z = Q[:, rank:]
+            if keyed:
+                (Qr, tau), R, perm = qr(self.Eh.T, pivoting=True, mode="raw", check_finite=False)
+                rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
+                self._raw = (Qr, tau, rank, R, perm)
+                self.Z = None
+                self.z0 = self._apply_q(y0[:, None], "T")[rank:, 0]
+            else:
+                Q, R, _ = qr(self.Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
+                rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
+                self.Z = Q[:, rank:]
         else:
             self.Eh, self.Z = None, np.eye(P)
-        self.z0 = self.Z.T @ y0
+        if self.Z is not None:
+            self.z0 = self.Z.T @ y0
         self._A: np.ndarray | None = None
         self._rows: tuple = ()
+        self._slot: dict = {}  # keyed: the buffer column of each row key transformed so far
+        self._buf: tuple = ()  # keyed: (Ahᵀ (P, c), Gᵀ normalised (P − rank, c), norms (c,), A U⁻¹ Z z0 (c,))
+
+    def _apply_q(self, X: np.ndarray, trans: str) -> np.ndarray:
+        """Q X (``trans`` "N") or Qᵀ X ("T") for X (P, k), by the keyed programme's Householder reflectors."""
+        Qr, tau = self._raw[:2]
+        X = np.asfortranarray(X)
+        lwork = max(1, 64 * X.shape[1])
+        out, _, info = dormqr("L", trans, Qr, tau, X, lwork)
+        if info != 0:
+            raise NumericalError("the replan's equality rows could not be eliminated")
+        return out
 
     def particular(self, e: np.ndarray) -> np.ndarray:
         """y_p (P,): the minimum-norm solution of E U⁻¹ y = e (orthogonal to Z)."""
         if self.Eh is None:
             return np.zeros(self.g.size)
+        if self._raw is not None and self._raw[2] == self.Eh.shape[0]:  # full row rank: y_p = Q₁ R⁻ᵀ Πᵀ e
+            Qr, tau, rank, R, perm = self._raw
+            c = solve_triangular(R[:rank, :rank], np.asarray(e, float)[perm], trans="T", check_finite=False)
+            return self._apply_q(np.concatenate([c, np.zeros(self.g.size - rank)])[:, None], "N")[:, 0]
         return lstsq(self.Eh, e, cond=1e-12, check_finite=False)[0]
 
     def _transformed(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -170,23 +200,52 @@ class Programme:
             self._A, self._rows = A, (Ah, Ah @ (self.Z @ self.z0), G / scale[:, None], scale)
         return self._rows
 
+    def _keyed_rows(self, A: np.ndarray, idx: np.ndarray, keys: np.ndarray) -> tuple:
+        """``_transformed``'s arrays of the rows A[idx] whose keys are ``keys`` (idx.size,): each key's row transformed
+        once per programme (the rows of a key must be the same in every A passed), Gᵀ and Ahᵀ as columns.
+        """
+        slot = self._slot
+        missing = [i for i, key in enumerate(keys.tolist()) if key not in slot]
+        if missing:
+            rows = idx[missing]
+            AhT = solve_triangular(self.U, A[rows].T, trans="T", check_finite=False)  # (A U⁻¹)ᵀ (P, k')
+            rank = self._raw[2] if self._raw is not None else 0
+            QA = self._apply_q(AhT, "T")[rank:] if self._raw is not None else AhT  # (A U⁻¹ Z)ᵀ
+            scale = np.maximum(np.sqrt(np.einsum("ij,ij->j", QA, QA)), 1e-300)
+            part = self.z0 @ QA
+            new = (AhT, -QA / scale, scale, part)
+            c0 = len(slot)
+            self._buf = new if not slot else tuple(np.concatenate([o, n], axis=-1) for o, n in zip(self._buf, new))
+            for i, key in enumerate(keys[missing].tolist()):
+                slot[key] = c0 + i
+        pos = np.fromiter((slot[key] for key in keys.tolist()), int, keys.size)
+        AhT, GsT, scale, part = self._buf
+        return AhT[:, pos], GsT[:, pos], scale[pos], part[pos]
+
     def rows(self, A: np.ndarray, b: np.ndarray, y_p: np.ndarray, size: float | None = None,
-             idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+             idx: np.ndarray | None = None, keys: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """The least-distance rows G u ≥ h of A d ≤ b (k rows; ``idx``: of the rows A[idx] ≤ b[idx] only) as the
         NNLS matrix M = [Gᵀ; hᵀ] (P − rank + 1, k), each row divided by its scale ‖G_j‖ (k,) and h by ``size``
-        (None: h's largest entry): (M, scale, size).
+        (None: h's largest entry): (M, scale, size). ``keys`` (k,) int: a keyed programme's row keys of A (required
+        there, ignored otherwise).
         """
-        Ah, AhZz0, Gs, scale = self._transformed(A)
-        if idx is not None:
-            Ah, AhZz0, Gs, scale, b = Ah[idx], AhZz0[idx], Gs[idx], scale[idx], b[idx]
-        h = -(b - Ah @ y_p - AhZz0)
+        if self.keyed:
+            idx = np.arange(A.shape[0]) if idx is None else np.asarray(idx)
+            AhT, GsT, scale, AhZz0 = self._keyed_rows(A, idx, np.asarray(keys)[idx])
+            h = -(b[idx] - y_p @ AhT - AhZz0)
+        else:
+            Ah, AhZz0, Gs, scale = self._transformed(A)
+            if idx is not None:
+                Ah, AhZz0, Gs, scale, b = Ah[idx], AhZz0[idx], Gs[idx], scale[idx], b[idx]
+            GsT = Gs.T
+            h = -(b - Ah @ y_p - AhZz0)
         hs = h / scale
         # and h to a unit largest entry: the test of r[-1] = −1/(1 + ‖u‖²) below then reads ‖u‖ relative to
         # the rows' own size, not to the model's units (a step of 1e11 in y is as feasible as one of 1)
         if size is None:
             size = max(float(np.max(np.abs(hs))), 1e-300)
         hs = hs / size
-        return np.vstack([Gs.T, hs[None, :]]), scale, size
+        return np.vstack([GsT, hs[None, :]]), scale, size
 
     def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float, y_p: np.ndarray) -> QPStep:
         """The step from the NNLS solution w (k,) ≥ 0 of the rows A (k, P) (``rows``' scale and size) and its
@@ -198,9 +257,12 @@ class Programme:
             u = -r[:-1] / r[-1] * size
             mu = (w / (-r[-1])) / scale * size
         else:
-            u, mu = np.zeros(self.Z.shape[1]), np.zeros(0)
+            u, mu = np.zeros(self.z0.size), np.zeros(0)
         U, g, E = self.U, self.g, self.E
-        y = y_p + self.Z @ (self.z0 + u)
+        if self.Z is not None:
+            y = y_p + self.Z @ (self.z0 + u)
+        else:  # keyed: Z (z0 + u) = Q [0; z0 + u]
+            y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0 + u])[:, None], "N")[:, 0]
         d = solve_triangular(U, y, check_finite=False)
         stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
         nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
@@ -209,7 +271,7 @@ class Programme:
 
 
 def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.ndarray, b: np.ndarray,
-                    rows: np.ndarray, programme: "Programme | None" = None) -> QPStep:
+                    rows: np.ndarray, programme: "Programme | None" = None, keys: np.ndarray | None = None) -> QPStep:
     """``solve_qp`` over the inequality rows ``rows`` (a boolean (k,) mask) first, then with every left-out row its
     step breaks (A d > b) added, until the step breaks none: the step of ``solve_qp`` over all k rows (H is
     positive definite, so the programme's minimiser is unique; a left-out row the minimiser over the others keeps
@@ -231,8 +293,8 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         step = el.step(A[idx], np.zeros(0), np.zeros(0), np.ones(0), 1.0, y_p)
         M = None
     else:
-        M, scale, size = el.rows(A, b, y_p, idx=idx)
-        w = _cold_nnls(M)
+        M, scale, size = el.rows(A, b, y_p, idx=idx, keys=keys)
+        w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
         step = el.step(A[idx], w, M @ w - _unit(M), scale, size, y_p)
     used = np.zeros(b.size, bool)
     used[idx] = True
@@ -248,11 +310,11 @@ def solve_qp_within(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, 
         idx = np.concatenate([idx, new])
         used[new] = True
         if M is None:  # no row yet: the programme of the rows added, from no active row
-            M, scale, size = el.rows(A, b, y_p, idx=new)
-            w = _cold_nnls(M)
+            M, scale, size = el.rows(A, b, y_p, idx=new, keys=keys)
+            w = (_cold_nnls(M, repair=True) if el.keyed else _cold_nnls(M))
             r = M @ w - _unit(M)
         else:
-            M_new, scale_new, _ = el.rows(A, b, y_p, size, idx=new)
+            M_new, scale_new, _ = el.rows(A, b, y_p, size, idx=new, keys=keys)
             M, scale = np.hstack([M, M_new]), np.concatenate([scale, scale_new])
             top = float(np.max(np.abs(M_new[-1])))
             if top > 1.0:  # h to a unit largest entry over the grown rows (the start repairs its passive set)

@@ -96,16 +96,20 @@ def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cach
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
-                   cache: dict, active: ActiveRows | None = None, fractions=None, derivatives: bool = True) -> LagrangianPoint:
+                   cache: dict, active: ActiveRows | None = None, fractions=None, derivatives: bool = True,
+                   value: bool = True) -> LagrangianPoint:
     """Evaluate the Lagrangian ℒ = I + Φ_limits + λ·c and its derivatives at coefficients C on [0, T]: one
     dynamics sweep for I, ∇I and ∂I/∂T, one forward kinematics of the goal rows, one limits evaluation.
     ``cache`` keeps the problem and limit rows of each T (they depend on the mesh only); ``fractions``: the
     mesh's nodes as fractions of T (None: N equal elements). ``derivatives`` False (no limit terms): J, the rows
     c and their Jacobian D only, the cost by inverse dynamics alone (``GoalProblem.value``'s numbers); g, ``samples``
-    and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last).
+    and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last); ``value``
+    False too: no dynamics at all, J NaN and ``ev`` None, c and D the goal rows' alone (a point whose cost is read
+    later, if ever).
     """
     if not derivatives:
-        return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions)
+        return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions,
+                             value)
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     mesh = problem.mesh
     lt = pv = None
@@ -163,12 +167,15 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where, s, A_full)
 
 
-def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache: dict, active, fractions):
-    """``evaluate_point`` without derivatives (its ``derivatives`` False): J, c, D at (T, C)."""
+def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache: dict, active, fractions,
+                  value: bool = True):
+    """``evaluate_point`` without derivatives (its ``derivatives`` False): J, c, D at (T, C) (``value`` False: J NaN, the
+    goal rows alone).
+    """
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
-    ev = problem.evaluate(x, grad=False)
+    ev = problem.evaluate(x, grad=False) if value else None
     c, D, res = np.zeros(0), np.zeros((0, x.size)), None
     npts = len(problem.points)
     if problem.points:
@@ -177,12 +184,12 @@ def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, 
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
     A_full = None
-    if active is not None:
+    if active is not None and value:  # (without the value: the goal rows alone)
         A, A_full = active.jacobian(rows, limits, problem.layout.free)
         c = np.concatenate([c, A_full @ C.ravel() + active.offsets(limits)])
         D = np.vstack([D, A])
-    return LagrangianPoint(problem, x, C, ev.J, ev, None, c, D, math.nan, None, None, rows, res, math.nan, where, None,
-                           A_full)
+    return LagrangianPoint(problem, x, C, ev.J if ev is not None else math.nan, ev, None, c, D, math.nan, None, None, rows,
+                           res, math.nan, where, None, A_full)
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,9 +256,11 @@ class KinematicRows:
         return max(float(np.max(g, initial=-np.inf)) for g in self.g_lo + self.g_hi)
 
 
-def row_values(limits, rows: LimitRows, C: np.ndarray) -> KinematicRows:
+def row_values(limits, rows: LimitRows, C: np.ndarray, ratio: float = 1.0) -> KinematicRows:
     """The kinematic rows' values at coefficients C (N+1, m, n) on ``rows.mesh`` (``KinematicRows``): the numbers of
-    ``active_limits.all_rows`` without the effort rows and the penalty terms.
+    ``active_limits.all_rows`` without the effort rows and the penalty terms. ``ratio`` T/T' ≠ 1: those of the same
+    s-domain trajectory on [0, T'] (``free_time.rescale(C, T, T')`` on the mesh's rows at T', to rounding): a row of
+    d^k q/dt^k, k = 0, 1, 2, scales as ratio^k, and the rows at T serve.
     """
     lo, hi, sig = _bounds(limits)
     loc = rows.mesh.local_coefficients(np.asarray(C, float))
@@ -263,6 +272,8 @@ def row_values(limits, rows: LimitRows, C: np.ndarray) -> KinematicRows:
             g_hi.append(g_lo[-1])
             continue
         V = rows.apply(k, loc)
+        if ratio != 1.0 and k:
+            V = V * ratio**k
         off = rows.data[k][:, :, None] if k < 2 else np.zeros((1, 1, 1), bool)  # q, q̇ rows of x0 alone: data
         g_hi.append(np.where(off | ~np.isfinite(hi[k]), -np.inf, (V - hi[k]) / sig[k]))
         g_lo.append(np.where(off | ~np.isfinite(lo[k]), -np.inf, (lo[k] - V) / sig[k]))
@@ -367,12 +378,25 @@ def solve_many(W, B: np.ndarray) -> np.ndarray:
 def dense_factor(W) -> np.ndarray:
     """The upper Cholesky factor U (P_free, P_free) of a ``BandedSPD`` W = UᵀU on its free coefficients."""
     ab = W.factor
-    u = ab.shape[0] - 1
-    n = ab.shape[1]
+    free = np.asarray(W.free, bool)
+    dst, src = _free_band_indices(ab.shape[0] - 1, ab.shape[1], free.tobytes())
+    P = int(np.count_nonzero(free))
+    U = np.zeros((P, P))
+    U.ravel()[dst] = ab.ravel()[src]  # ab[u - d, j] = U[j - d, j], the free rows and columns alone
+    return U
+
+
+@lru_cache(maxsize=32)
+def _free_band_indices(u: int, n: int, free: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(flat positions in U (P, P), flat positions in ab (u + 1, n)) of the entries U[j − d, j] = ab[u − d, j] whose row
+    and column are both free (``free`` (n,) bool as bytes; P of them).
+    """
     rows, cols, band = _band_indices(u, n)
-    U = np.zeros((n, n))
-    U[rows, cols] = ab[band, cols]  # ab[u - d, j] = U[j - d, j]
-    return U[np.ix_(W.free, W.free)]
+    mask = np.frombuffer(free, bool)
+    keep = mask[rows] & mask[cols]
+    pos = np.cumsum(mask) - 1
+    P = int(np.count_nonzero(mask))
+    return pos[rows[keep]] * P + pos[cols[keep]], band[keep] * n + cols[keep]
 
 
 @lru_cache(maxsize=32)

@@ -180,6 +180,7 @@ class QPReplan:
     factor: np.ndarray | None = None
     check: object = None
     derive: Callable[[], object] | None = None  # when ``point`` has no derivatives (g None): the point with them
+    J_from: float = math.nan  # the cost at the point the last programme was made at (its decrement's point)
 
 
 class OutOfTime(Exception):
@@ -189,12 +190,14 @@ class OutOfTime(Exception):
 def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limits, tol: float, max_steps: int,
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
-             late: Callable[[str], bool] | None = None, accuracy: float | None = None) -> QPReplan:
+             late: Callable[[str], bool] | None = None, accuracy: float | None = None,
+             relative_rho: bool = False) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
     active : the working set (the previous plan's kinematic rows with μ > 0); free : ``TimeRange`` or None;
-    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD;
+    limits : ``JointLimits`` (kinematic limits only are imposed here); rho_aug : ρ of H + ρDᵀD (``relative_rho``:
+        ρ = rho_aug·max(|J|, 1) with the cost J at the steps' first point);
     floor : a step is damped while it raises the goal rows' violation above max(violation, floor) (``damped_trial``);
     merit : also while it does not decrease the ℓ1 merit function (``MeritTest``): for steps far from the optimum;
         then the Newton matrix's diagonal is raised by a relative Levenberg-Marquardt shift (``LM_START``, ×10 after
@@ -207,7 +210,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         positive semi-definite part is first added in growing multiples, up to 13 more factorisations); with ``stop``,
         the point after the ``max_steps``-th step (where ``stop`` ends the steps) is evaluated without ℒ's derivatives
         (``evaluate_point(..., derivatives=False)``: its g None; the result's ``derive()`` evaluates them there, and
-        should ``stop`` not end the steps they are evaluated before the next one): the real-time replanner's steps,
+        should ``stop`` not end the steps they are evaluated before the next one), and without merit its cost is not
+        evaluated either (``value=False``: its J NaN; ``derive()``'s point has it): the real-time replanner's steps,
         where time counts.
     late : asked with a checkpoint's name (``CHECKPOINTS``) at each checkpoint of a step (before the Newton
         matrix, before the T column's evaluation, before each programme, before the trial point); True stops the
@@ -228,9 +232,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     npts = len(lam) - 1
     cache: dict = {}
 
-    def at(T_, C_, lam_, active_, derivatives=True):
+    def at(T_, C_, lam_, active_, derivatives=True, value=True):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
-                              free is not None, cache, active_, fractions=fractions, derivatives=derivatives)
+                              free is not None, cache, active_, fractions=fractions, derivatives=derivatives, value=value)
 
     def at_rows(T_):  # the kinematic rows of the mesh at T_
         return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
@@ -243,9 +247,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             raise OutOfTime(name)
 
     pt = at(T, C, lam, active)
+    if relative_rho:
+        rho_aug = rho_aug * max(abs(pt.J), 1.0)
     full = (tol, EQ_ACCEPT, SLOPE_RTOL)  # the stopping test's decrement, goal rows and T slope
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
+    J_from = pt.J
     U_last = check = Hs_last = None
     previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
@@ -315,24 +322,30 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 grad = np.concatenate([g_I, [F_I]])
                 E = np.hstack([E, cT[:, None]])
             failed, kept = False, None
-            prog = Programme(U, grad, E)  # the elimination of E shared by the rounds and the correction
+            # the elimination of E shared by the rounds and the correction; quick: each row transformed once (``keys``)
+            prog = Programme(U, grad, E, keyed=quick)
+            keys = None
             for rounds in range(EXPAND_ROUNDS + 1):
                 cand = ActiveRows.where(lo_mask, hi_mask)
                 A, A_full = cand.jacobian(pt.rows, limits, layout.free)
                 values = A_full @ C.ravel()
                 gA = values + cand.offsets(limits)
                 rhs_A = -gA
+                if quick:
+                    keys = row_keys(cand)
                 if free is not None:  # rows of d^k q/dt^k: T^−k along the family (``row_time_derivatives``)
                     aT = row_time_derivatives(values, cand.kind, T, A_full @ V1.ravel())[0]
                     bounds = np.zeros((2, P + 1))
                     bounds[0, -1], bounds[1, -1] = 1.0, -1.0
                     A = np.vstack([np.hstack([A, aT[:, None]]), bounds])
                     rhs_A = np.concatenate([rhs_A, [free.max - T, T - free.min]])
+                    if quick:
+                        keys = np.concatenate([keys, [-1, -2]])
                 due("programme")
                 try:
                     if quick and kept is not None:  # the last programme's active rows and the rows added first
                         step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *kept[:2], A.shape[0]),
-                                               programme=prog)
+                                               programme=prog, keys=keys)
                     elif not quick and previous is not None and kept is None:
                         # over the last step's active rows and the new rows first: the same step, and the multipliers of
                         # dependent rows shared as the last step shared them (from every row, the programme's split changed
@@ -340,19 +353,19 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                         step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
                                                programme=prog)
                     else:
-                        step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog)
+                        step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog, keys=keys)
                 except NumericalError as exc:
                     if _log.isEnabledFor(logging.DEBUG):
                         _log.debug(f"qp step {steps}: {exc}")
                     if kept is not None:  # the programme with the rows added failed: the last one's step
-                        step, cand, A, rhs_A, gA = kept
+                        step, cand, A, rhs_A, gA, keys = kept
                     else:
                         failed = True
                     break
                 if rounds == EXPAND_ROUNDS:
                     break
-                kept = step, cand, A, rhs_A, gA
-                beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask)
+                kept = step, cand, A, rhs_A, gA, keys
+                beyond = _rows_beyond(step.d, P, free, T, pt, problem, limits, at_rows, lo_mask, hi_mask, quick)
                 if beyond is None:
                     break
                 lo_mask, hi_mask = beyond
@@ -360,7 +373,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 break
             previous = step, cand
             row_violation = float(np.max(gA, initial=0.0))
-            decrement = step.decrease
+            decrement, J_from = step.decrease, pt.J
             if _runs_away(step, decrement, pt.J):  # no plan near this T: the multipliers grow with each step's matrix
                 status = Status.MAX_ITER if math.isfinite(decrement) and np.all(np.isfinite(step.d)) else Status.NOT_FINITE
                 if _log.isEnabledFor(logging.DEBUG):
@@ -398,11 +411,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
             # the point after the last step ``stop`` will allow (the real-time path): no derivatives of ℒ there
             last = quick and stop is not None and steps == max_steps
+            valued = not last or test is not None  # the merit test reads the trial points' J
 
             def trial_at(alpha: float):
                 T_a = T + alpha * dT
                 return T_a, at(T_a, rescale(problem.coefficients(pt.x + alpha * dx), T, T_a), lam_new, new_active,
-                               not last)
+                               not last, valued)
 
             def violation_at(alpha: float) -> float:
                 T_a = T + alpha * dT
@@ -412,11 +426,11 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             accept = None
             if test is not None:
                 accept = test.prepare(pt, T, grad @ step.d, np.concatenate([nu, mu]), everything)
-            at_trial = functools.partial(at, derivatives=not last)
+            at_trial = functools.partial(at, derivatives=not last, value=valued)
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                    programme=prog)
+                                                                    programme=prog, keys=keys, rows_only=not valued)
             if corrected is not None:
                 trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
             else:
@@ -437,7 +451,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
     derive = functools.partial(at, T, pt.C, lam, active) if pt.g is None else None
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement, factor=U_last, check=check, derive=derive)
+                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from)
 
 
 def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:
@@ -451,6 +465,15 @@ def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple
     ph = at(T + delta, rescale(C, T, T + delta), lam, active)
     scale = pt.problem.layout.pack(rescale(np.ones_like(C), T, T + delta))
     return (scale * ph.g - pt.g) / delta, (ph.F - pt.F) / delta
+
+
+def row_keys(rows: ActiveRows) -> np.ndarray:
+    """One non-negative integer per row (a,), the same for the same (kind, element, row, joint, side) in any set:
+    a keyed ``Programme``'s row keys (the T bounds' rows take −1 and −2).
+    """
+    key = rows.kind.astype(np.int64) << 16 | rows.elem
+    key = (key << 8 | rows.row) << 8 | rows.joint
+    return key << 1 | (rows.side > 0)
 
 
 def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int) -> np.ndarray:
@@ -470,15 +493,20 @@ def _reduced_rows(cand: ActiveRows, last: QPStep, last_cand: ActiveRows, k: int)
     return out
 
 
-def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask):
+def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, rows_at, lo_mask, hi_mask,
+                 quick: bool = False):
     """The candidate masks (lo, hi) grown by the kinematic rows outside them that the full step ``d`` would break
-    (g > 0 at the trial point), or None when it breaks none.
+    (g > 0 at the trial point), or None when it breaks none. ``quick``: the rows at the trial point's T from those at
+    T (``row_values``' ratio) instead of the mesh's rows at that T (``rows_at``): the same numbers to rounding.
     """
     dT = float(d[P]) if free is not None else 0.0
     T1 = T + dT
-    C1 = rescale(problem.coefficients(pt.x + d[:P]), T, T1)
-    rows1 = pt.rows if dT == 0.0 else rows_at(T1)
-    at1 = row_values(limits, rows1, C1)
+    if quick:
+        at1 = row_values(limits, pt.rows, problem.coefficients(pt.x + d[:P]), T / T1)
+    else:
+        C1 = rescale(problem.coefficients(pt.x + d[:P]), T, T1)
+        rows1 = pt.rows if dT == 0.0 else rows_at(T1)
+        at1 = row_values(limits, rows1, C1)
     lo = tuple((g > 0.0) & ~m for g, m in zip(at1.g_lo, lo_mask))
     hi = tuple((g > 0.0) & ~m for g, m in zip(at1.g_hi, hi_mask))
     if not any(x.any() for x in lo + hi):
@@ -488,7 +516,8 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
-                    cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None):
+                    cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None,
+                    keys: np.ndarray | None = None, rows_only: bool = False):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -498,7 +527,10 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     trial point: E d' = E d − c(x + d), A d' ≤ A d − g(x + d). Where the rows curve (the flange's pose along a long
     step) it brings the step back onto them at the cost of one more programme and one more evaluation. ``quick``
     (the real-time path): that programme is solved over the step's active rows first (``solve_qp_within``).
-    ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused).
+    ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused), ``keys``
+    its row keys of A when it is keyed (``row_keys``). ``rows_only``: ``at`` evaluates the goal rows alone (no
+    dynamics: ``evaluate_point(..., value=False)``), so the corrected point is evaluated once and its violation read
+    from it (``goal_rows_at``'s numbers).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
@@ -521,7 +553,7 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
         if quick:  # the step's active rows (and T's bounds) first: the same step, as in ``qp_steps``
             held_rows = step.mu > 0.0
             held_rows[k:] = True
-            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows, programme=programme)
+            step2 = solve_qp_within(U, grad, E, rhs_E, A, rhs_A2, held_rows, programme=programme, keys=keys)
         else:
             step2 = solve_qp(U, grad, E, rhs_E, A, rhs_A2, programme=programme)
     except NumericalError:
@@ -538,8 +570,13 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     parts = list(np.split(nu, np.cumsum([v.size for v in lam_goal])[:-1])) if lam_goal else []
     lam2 = parts + [mu[held]]
     C2 = rescale(problem.coefficients(pt.x + dx2), T, T2)
+    trial2 = None
     try:
-        v2 = goal_rows_at(T2, C2)
+        if rows_only:  # the point's evaluation is its goal rows alone: their violation read from it
+            trial2 = at(T2, C2, lam2, active2)
+            v2 = float(np.max(np.abs(trial2.c[:r]), initial=0.0))
+        else:
+            v2 = goal_rows_at(T2, C2)
     except NumericalError:
         return None
     if _log.isEnabledFor(logging.DEBUG):
@@ -547,7 +584,7 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     if not v2 <= max(violation, floor):
         return None
     try:
-        trial2 = at(T2, C2, lam2, active2)
+        trial2 = at(T2, C2, lam2, active2) if trial2 is None else trial2
     except NumericalError:
         return None
     if accept is not None and not accept(1.0, T2, trial2):

@@ -16,16 +16,19 @@ times; None when no such projection is found (the caller keeps its previous plan
 bound, the rows fixed by the start state included (they are not rows of the guard's programme), implies q, q̇, q̈
 and the jerk within their limits on the whole plan (the Bernstein hull), so ``check_limits``' exact extrema are
 needed only when such a row is above its bound; the torques are checked as ``check_limits`` does (32 points per
-element and the nodes). Pure maths: no I/O.
+element and the nodes: ``torques_hold``, its numbers without its other kinds). Pure maths: no I/O.
 """
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 
 from hoc_cli.constraints.augmented_lagrangian import MARGIN
 from hoc_cli.constraints.bounds import KINDS, KINEMATIC, JointLimits
-from hoc_cli.constraints.check import check_limits
+from hoc_cli.constraints.check import CHECK_POINTS_PER_ELEMENT, RELATIVE_TOLERANCE, check_limits
 from hoc_cli.constraints.penalty import effective_bounds
+from hoc_cli.constraints.points import PointSet
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.qp_step import solve_qp
@@ -88,24 +91,63 @@ def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarra
     return out
 
 
-def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None) -> bool:
+def within_limits(system, limits: JointLimits, rows, C: np.ndarray, effort: JointLimits | None,
+                  rows_hold: bool = False) -> bool:
     """Whether the plan C (N+1, m, n) on ``rows.mesh`` passes ``check_limits`` (module docstring): every kinematic
     Bernstein row of every element g ≤ ``ROW_TOL`` (else ``check_limits`` on the kinematic kinds decides), and
-    ``check_limits`` with ``effort`` (the effort limits alone, or None when there are none).
+    ``check_limits`` with ``effort`` (the effort limits alone, or None when there are none). ``rows_hold``: every row
+    not fixed by the start state is known to be ≤ ``ROW_TOL`` (C is ``guard``'s), so only the elements holding rows
+    fixed by it are evaluated (the same decision).
     """
     mesh = rows.mesh
     loc = mesh.local_coefficients(np.asarray(C, float))
-    lo, hi, sig = effective_bounds(limits, MARGIN)
+    lo, hi, sig = _kinematic_bounds(limits)
     worst = -np.inf
     for k in range(KINEMATIC):
         if not limits.has(KINDS[k]).any():
             continue
-        V = rows.apply(k, loc)  # (N, R_k, n)
+        if rows_hold:  # the rows fixed by the start state (q, q̇ rows of x0 alone: row_values leaves them out)
+            el = np.flatnonzero(rows.data[k].any(axis=1)) if k < 2 else np.zeros(0, int)
+            if not el.size:
+                continue
+            part = loc[el] if rows.scale is None else loc[el] * rows.scale[k][el][:, :, None]
+            V = np.einsum("ra,ean->ern", rows.rows[k], part)
+        else:
+            V = rows.apply(k, loc)  # (N, R_k, n)
         with np.errstate(invalid="ignore"):
             worst = max(worst, float(np.max((V - hi[k]) / sig[k])), float(np.max((lo[k] - V) / sig[k])))
     if not worst <= ROW_TOL and not check_limits(system, limits, mesh, C).feasible:
         return False
-    return effort is None or check_limits(system, effort, mesh, C).feasible
+    return effort is None or torques_hold(system, effort, mesh, C)
+
+
+def torques_hold(system, effort: JointLimits, mesh, C: np.ndarray) -> bool:
+    """``check_limits(system, effort, mesh, C).feasible`` for limits ``effort`` with effort bounds alone (``effort_only``):
+    the same torques (inverse dynamics at ``CHECK_POINTS_PER_ELEMENT`` + 1 points of every element, the nodes
+    included) against the same bounds and tolerances, without the check's other kinds and its report.
+    """
+    N, per = mesh.N, CHECK_POINTS_PER_ELEMENT
+    pts = PointSet.build(mesh, np.repeat(np.arange(N), per + 1), np.tile(np.linspace(0.0, 1.0, per + 1), N),
+                         np.ones(N * (per + 1)))
+    X = pts.apply(C)
+    u = system.inverse_dynamics(X[0], X[1], X[2])  # (K, n)
+    lo, hi, tol_lo, tol_hi = _effort_bounds(effort)
+    with np.errstate(invalid="ignore"):  # a bound ±inf: excess −inf; the largest excess is that of the extreme torque
+        return not (np.any(np.max(u, axis=0) - hi > tol_hi) or np.any(lo - np.min(u, axis=0) > tol_lo))
+
+
+@lru_cache(maxsize=16)
+def _kinematic_bounds(limits: JointLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``effective_bounds(limits, MARGIN)`` of a ``JointLimits`` (immutable), kept: ``within_limits`` asks every update."""
+    return effective_bounds(limits, MARGIN)
+
+
+@lru_cache(maxsize=16)
+def _effort_bounds(effort: JointLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, their tolerances) (n,) each of the effort limits, as ``LimitCheck.tolerance``: 1e-9·max(|b|, 1e-3 σ)."""
+    lo, hi = effort.bounds("effort")
+    floor = 1e-3 * effort.scale_of("effort")
+    return lo, hi, *(RELATIVE_TOLERANCE * np.maximum(np.where(np.isfinite(b), np.abs(b), 0.0), floor) for b in (lo, hi))
 
 
 def effort_only(limits: JointLimits) -> JointLimits | None:

@@ -95,8 +95,8 @@ class CyclePlan:
     """A plan in force from the absolute time ``t0`` [s]: ``mesh`` on [0, T], ``coeffs`` (N+1, m, n), ``J`` its cost
     (``cost``: the number, or a ``Deferred`` that evaluates it on the first read of ``J``: the controller does not
     need it, so an update whose limits' guard projected its plan leaves the projected plan's cost to whoever reads it);
-    ``J_steps`` the cost at the steps' last point (before the guard's projection; that of a cold plan, its J), which
-    sets the next update's augmentation ρ.
+    ``J_steps`` the cost at the steps' last point (before the guard's projection; that of a cold plan, its J;
+    ``steps_cost``: the number, or a ``Deferred``: the steps' last point is evaluated without its cost).
 
     Per update: ``steps`` SQP steps taken; ``status`` "converged" | "budget" (stopped by the time budget or the
     replanner's ``max_steps``) |
@@ -125,7 +125,12 @@ class CyclePlan:
     guarded: bool = False
     wall_time_s: float = 0.0
     worked: bool = False
-    J_steps: float = math.nan
+    steps_cost: float | Deferred = math.nan
+
+    @property
+    def J_steps(self) -> float:
+        """The cost at the steps' last point (``steps_cost``; a ``Deferred`` is evaluated now, once)."""
+        return float(self.steps_cost)
 
     @property
     def J(self) -> float:
@@ -178,7 +183,7 @@ class Replanner:
         self.active = active if active is not None else ActiveRows.empty()
         self.mu = self.active.gather(pen.mu_lo, pen.mu_hi) if pen is not None and active is not None else np.zeros(0)
         self.current = CyclePlan(t0=t0, mesh=result.mesh, coeffs=np.array(result.coeffs), cost=float(result.J),
-                                 J_steps=float(result.J))
+                                 steps_cost=float(result.J))
         self.step_times: deque = deque(maxlen=HISTORY)  # between two steps of one update [s]
         self.first_times: deque = deque(maxlen=HISTORY)  # from the update's start to its first step's end [s]
         self.wrap_times: deque = deque(maxlen=HISTORY)  # from the last step to the return, of updates the budget or
@@ -285,7 +290,7 @@ class Replanner:
 
         try:
             out = qp_steps(self.system, plan0, goals, lam, active, free=span if free_time else None, limits=self.limits,
-                           tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG * max(abs(cur.J_steps), 1.0),
+                           tol=DECREMENT_TOL, max_steps=self.max_steps, rho_aug=RHO_AUG, relative_rho=True,
                            floor=VIOLATION_FLOOR, stop=stop, quick=True, late=late)
         except OutOfTime:
             return self._hold(start, "abandoned", worked=True)
@@ -301,7 +306,7 @@ class Replanner:
             near: list = []  # the rows the first projection needed: the second one starts from them
             for keep in (pt.D[:r], None):
                 C_try = guard(self.system, self.limits, pt.rows, C_new, pt.problem.layout.free, keep=keep, near=near)
-                if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort):
+                if C_try is not None and within_limits(self.system, self.limits, pt.rows, C_try, self.effort, rows_hold=True):
                     safe = C_try
                     break
                 if C_try is C_new:  # the plan's own rows hold: only the effort limits fail, whatever the projection
@@ -310,7 +315,11 @@ class Replanner:
             return self._hold(start, worked=True)
         guarded = safe is not C_new
         violation = float(np.max(np.abs(pt.c[:r]), initial=0.0))
-        cost: float | Deferred = pt.J
+        # the steps' last point's cost: when read if it was not evaluated there (``qp_steps``' last point: J NaN)
+        steps_cost: float | Deferred = pt.J
+        if not math.isfinite(pt.J):
+            steps_cost = Deferred(functools.partial(pt.problem.value, pt.problem.layout.pack(C_new)))
+        cost = steps_cost
         if guarded:  # the projected plan's own goal rows; its cost when it is read (``Deferred``)
             cost = Deferred(functools.partial(pt.problem.value, pt.problem.layout.pack(safe)))
             violation = GoalTerms(mesh_new, pt.problem.points, [np.zeros(p.residual.size) for p in pt.problem.points], 0.0,
@@ -323,12 +332,12 @@ class Replanner:
         if pt.g is not None:
             kkt = float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
         elif out.derive is not None:  # the steps' last point was evaluated without ℒ's derivatives: when read
-            kkt = Deferred(functools.partial(_stationarity, out.derive, pt.J))
+            kkt = Deferred(functools.partial(_stationarity, out.derive))
         now = time.perf_counter()
         if ended:
             self.wrap_times.append(now - marks[-1])
-        self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, cost=cost, J_steps=pt.J, steps=out.steps, status=status,
-                                 decrement=out.decrement / max(abs(pt.J), 1.0), violation=violation,
+        self.current = CyclePlan(t0=t, mesh=mesh_new, coeffs=safe, cost=cost, steps_cost=steps_cost, steps=out.steps,
+                                 status=status, decrement=out.decrement / max(abs(out.J_from), 1.0), violation=violation,
                                  kkt=kkt, guarded=guarded, wall_time_s=now - start, worked=True)
         return self.current
 
@@ -370,9 +379,10 @@ class Replanner:
         return self.current
 
 
-def _stationarity(derive: Callable, J: float) -> float:
-    """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the point ``derive()`` evaluates with its derivatives."""
-    return float(np.max(np.abs(derive().g), initial=0.0)) / max(abs(J), 1.0)
+def _stationarity(derive: Callable) -> float:
+    """The KKT residual max |∇ₓℒ| / max(|J|, 1) at the point ``derive()`` evaluates with its derivatives (and J)."""
+    pt = derive()
+    return float(np.max(np.abs(pt.g), initial=0.0)) / max(abs(pt.J), 1.0)
 
 
 def goals_with_target(goals: Goals, target: Target) -> Goals:
