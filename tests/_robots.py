@@ -38,6 +38,17 @@ def lbr7_catch_problem(N: int = 8):
                                  time=Free(0.3, 0.5, guess=0.35), N=N, limits=JointLimits.from_model(lbr))
 
 
+def lbr7_catch_start(N: int = 4, T: float = 0.35):
+    """(system, limits, goals, the initial trajectory at T [s] on N elements) of the lbr7 catch (``lbr7_catch_problem``)."""
+    from hoc_cli.goals.time_solver import goal_solver
+
+    problem = lbr7_catch_problem(N=N)
+    arm, limits = problem.system, problem.limits
+    goals = problem.goals()
+    start = goal_solver(arm, "quintic", N, problem.q0, problem.dq0, goals, limits=limits).initial(T)
+    return arm, limits, goals, start
+
+
 SHIPPED = ["pendulum.urdf", "two_link.urdf", "lbr7.urdf", "dual_arm.urdf"]
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
 

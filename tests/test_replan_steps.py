@@ -14,17 +14,13 @@ from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
 from hoc_cli.goals.qp_step import QPStep
 from hoc_cli.goals.replan import replan
 from hoc_cli.goals.time_solver import goal_solver
-from tests._robots import lbr7_catch_problem
+from tests._robots import lbr7_catch_problem, lbr7_catch_start
 
 
 @pytest.fixture(scope="module")
 def catch():
     """(system, limits, goals, the initial trajectory at T = 0.35 s on 4 elements) of configs/catch_ball.yaml."""
-    problem = lbr7_catch_problem(N=4)
-    arm, limits = problem.system, problem.limits
-    goals = problem.goals()
-    start = goal_solver(arm, "quintic", 4, problem.q0, problem.dq0, goals, limits=limits).initial(0.35)
-    return arm, limits, goals, start
+    return lbr7_catch_start(N=4, T=0.35)
 
 
 def _cold(catch, **kw):
@@ -100,39 +96,47 @@ def test_the_weights_search_starts_where_asked():
     assert mu == pytest.approx(100.0) and len(tried) == 2
 
 
+def _catch_per_value(monkeypatch, name: str, values) -> tuple[list, list, tuple]:
+    """The lbr7 catch at N = 8 planned by ``minimize_time_sqp`` once per value of ``free_time_sqp.<name>``: (the results,
+    per run the (mesh's N, violation floor, steps) of each ``replan`` it made, (arm, limits, goals, problem))."""
+    import hoc_cli.goals.free_time_sqp as fts
+
+    problem = lbr7_catch_problem(N=8)
+    arm, limits, goals = problem.system, problem.limits, problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    calls: list = []
+    run = fts.replan
+
+    def spied(*args, **kwargs):
+        r = run(*args, **kwargs)
+        calls[-1].append((args[1].mesh.N, kwargs.get("violation_floor"), r.steps))
+        return r
+
+    monkeypatch.setattr(fts, "replan", spied)
+    out = []
+    for value in values:
+        monkeypatch.setattr(fts, name, value)
+        calls.append([])
+        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    return out, calls, (arm, limits, goals, problem)
+
+
 def test_the_coarse_steps_at_the_guess_stop_early_for_a_free_time(monkeypatch):
     """With a free T the coarse steps at the guess (``free_time_sqp._coarse_replan``'s first stage) stop at
     ``COARSE_START_ACCURACY``: the lbr7 catch's take 7 steps there (9 to ``COARSE_ACCURACY``) and fewer steps in all,
     to the same optimum on the 8 elements (J to 1e-12, T to 1e-11 measured)."""
     import hoc_cli.goals.free_time_sqp as fts
 
-    problem = lbr7_catch_problem(N=8)
-    arm, limits, goals = problem.system, problem.limits, problem.goals()
-    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
-    steps: list = []
-    run = fts.replan
-
-    def counted(*args, **kwargs):
-        r = run(*args, **kwargs)
-        steps[-1].append(r.steps)
-        return r
-
-    monkeypatch.setattr(fts, "replan", counted)
-    out = []
-    for accuracy in (fts.COARSE_START_ACCURACY, fts.COARSE_ACCURACY):
-        monkeypatch.setattr(fts, "COARSE_START_ACCURACY", accuracy)
-        steps.append([])
-        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
-    early, full = out
+    # the third value: a start that passes the loose test itself (its first programme's decrease is no distance to the
+    # optimum; the torque catch's) gets the steps at the full accuracy from it: the same steps as with it throughout
+    out, calls, _ = _catch_per_value(monkeypatch, "COARSE_START_ACCURACY",
+                                     (fts.COARSE_START_ACCURACY, fts.COARSE_ACCURACY, 1e9))
+    steps = [[s for *_, s in run] for run in calls]
+    early, full, loose = out
     assert early.converged and full.converged
     assert steps[0][0] <= 8 < steps[1][0]  # 7 and 9 measured
     assert sum(steps[0]) < sum(steps[1])  # 18 and 20
     assert early.J == pytest.approx(full.J, rel=1e-12) and early.T == pytest.approx(full.T, rel=1e-9)
-    # a start that passes the loose test itself (its first programme's decrease is no distance to the optimum; the torque
-    # catch's) gets the steps at the full accuracy from it: the same steps as with the full accuracy throughout
-    monkeypatch.setattr(fts, "COARSE_START_ACCURACY", 1e9)
-    steps.append([])
-    loose = fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits)
     assert steps[2][:2] == [0, steps[1][0]] and steps[2][2:] == steps[1][1:]
     assert loose.J == full.J and loose.T == full.T
 
@@ -231,23 +235,8 @@ def test_the_coarse_steps_in_x_and_t_stop_near_the_coarse_optimum_s_distance_to_
     on the mesh, to the same optimum (J to 1e-12, T to 1e-9)."""
     import hoc_cli.goals.free_time_sqp as fts
 
-    problem = lbr7_catch_problem(N=8)
-    arm, limits, goals = problem.system, problem.limits, problem.goals()
-    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
-    steps: list = []
-    run = fts.replan
-
-    def counted(*args, **kwargs):
-        r = run(*args, **kwargs)
-        steps[-1].append(r.steps)
-        return r
-
-    monkeypatch.setattr(fts, "replan", counted)
-    out = []
-    for accuracy in (fts.COARSE_FREE_ACCURACY, fts.COARSE_ACCURACY):
-        monkeypatch.setattr(fts, "COARSE_FREE_ACCURACY", accuracy)
-        steps.append([])
-        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    out, calls, _ = _catch_per_value(monkeypatch, "COARSE_FREE_ACCURACY", (fts.COARSE_FREE_ACCURACY, fts.COARSE_ACCURACY))
+    steps = [[s for *_, s in run] for run in calls]
     loose, full = out
     assert loose.converged and full.converged
     assert steps[0][0] == steps[1][0] and steps[0][1] < steps[1][1]  # the steps at the guess, then those in x and T
@@ -261,23 +250,8 @@ def test_a_free_t_coarse_stage_takes_its_own_violation_floor(monkeypatch):
     measured), to the same optimum (J to 1e-12, T to 1e-9)."""
     import hoc_cli.goals.free_time_sqp as fts
 
-    problem = lbr7_catch_problem(N=8)
-    arm, limits, goals = problem.system, problem.limits, problem.goals()
-    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
-    floors: list = []
-    run = fts.replan
-
-    def spied(*args, **kwargs):
-        r = run(*args, **kwargs)
-        floors[-1].append((args[1].mesh.N, kwargs.get("violation_floor"), r.steps))
-        return r
-
-    monkeypatch.setattr(fts, "replan", spied)
-    out, free_floor = [], fts.FREE_COLD_FLOOR
-    for floor in (free_floor, fts.COLD_FLOOR):
-        monkeypatch.setattr(fts, "FREE_COLD_FLOOR", floor)
-        floors.append([])
-        out.append(fts.minimize_time_sqp(solver, arm, goals, 0.3, 0.5, guess=0.35, limits=limits))
+    free_floor = fts.FREE_COLD_FLOOR
+    out, floors, (arm, limits, goals, problem) = _catch_per_value(monkeypatch, "FREE_COLD_FLOOR", (free_floor, fts.COLD_FLOOR))
     own, cold = out
     assert own.converged and cold.converged
     assert [f for n, f, _ in floors[0] if n == 4] == [free_floor] * 2 and free_floor > fts.COLD_FLOOR

@@ -23,19 +23,14 @@ from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.free_time_sqp import COLD_FLOOR, COLD_STEPS
 from hoc_cli.goals.replan import replan
 from hoc_cli.goals.replan_point import evaluate_point
-from hoc_cli.goals.time_solver import goal_solver
 from hoc_cli.goals.warm import previous_plan
-from tests._robots import lbr7_catch_problem
+from tests._robots import lbr7_catch_start
 
 
 @pytest.fixture(scope="module")
 def catch():
     """(system, limits, goals, the initial trajectory at T = 0.35 s on 4 elements) of configs/catch_ball.yaml."""
-    problem = lbr7_catch_problem(N=4)
-    arm, limits = problem.system, problem.limits
-    goals = problem.goals()
-    start = goal_solver(arm, "quintic", 4, problem.q0, problem.dq0, goals, limits=limits).initial(0.35)
-    return arm, limits, goals, start
+    return lbr7_catch_start(N=4, T=0.35)
 
 
 def _dense(blocks: np.ndarray, stride: int, free: np.ndarray) -> np.ndarray:
