@@ -285,8 +285,9 @@ def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_
         calls.append(derivatives)
         return evaluate(*a, derivatives=derivatives, **k)
 
-    t = 0.05
-    target = Target(P0 + [0.01, -0.005, 0.0] + V0 * t + 0.5 * G * t**2, V0 + G * t, G)
+    t = 0.03
+    v = V0 + [0.06, 0.02, 0.03]  # an estimate off by centimetres: the step's full length is cut, its correction taken
+    target = Target(P0 + [0.037, 0.024, -0.001] + v * t + 0.5 * G * t**2, v + G * t, G)
     rp = Replanner(problem, plan, max_steps=1)
     cur = rp.current
     x, saved = (cur.state(t)[0], cur.state(t, 1)[0]), rp.state()

@@ -1,4 +1,5 @@
-"""The goal rows' part of the dense SQP's model (``hoc_cli.goals.replan_qp``, offline steps) away from the rows.
+"""The goal rows' part of the dense SQP's model (``hoc_cli.goals.replan_qp``) away from the rows, on the offline
+steps and on the real-time ones (``quick``).
 
 Each step's programme is the quadratic model of ℒ = I + λ·c (+ the limit rows') plus ρEᵀE over the goal rows E (which
 changes the step's multipliers, not the step). Two things hold where the point is off the rows (c ≠ 0, as after a long
@@ -16,6 +17,7 @@ import inspect
 import numpy as np
 import pytest
 
+import hoc_cli.goals.replan as replan_module
 import hoc_cli.goals.replan_qp as replan_qp
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.free_time import rescale
@@ -42,11 +44,12 @@ def _dense(blocks: np.ndarray, stride: int, free: np.ndarray) -> np.ndarray:
     return out[np.ix_(free, free)]
 
 
-def test_the_goal_rows_curvature_is_weighed_by_their_multipliers_off_the_rows(catch, monkeypatch):
+@pytest.mark.parametrize("quick", [False, True])
+def test_the_goal_rows_curvature_is_weighed_by_their_multipliers_off_the_rows(catch, monkeypatch, quick):
     """The initial trajectory rescaled from 0.35 s to 0.37 s (the ball has moved on: the rows are off by centimetres),
     multipliers λ = 1: the goal part of the first Newton matrix times a few directions v equals the central difference
     of D(x)ᵀλ along v plus ρDᵀDv, to 1e-5 of the curvature's part (the augmented Lagrangian's weights λ + ρc, which
-    the step's model had, are off by ρc ≈ 5 here)."""
+    the step's model had, are off by ρc ≈ 5 here); on both paths."""
     arm, limits, goals, start = catch
     q0, dq0 = start.problem.boundary[:2]
     T = 0.37
@@ -64,7 +67,7 @@ def test_the_goal_rows_curvature_is_weighed_by_their_multipliers_off_the_rows(ca
 
     monkeypatch.setattr(replan_qp, "_newton", spy)
     replan_qp.qp_steps(arm, plan, goals, lam + [np.zeros(0)], ActiveRows.empty(), free=None, limits=limits, tol=1e-12,
-                       max_steps=0, rho_aug=rho)
+                       max_steps=0, rho_aug=rho, quick=quick)
     problem, blocks = seen[0]
     layout = problem.layout
     H = _dense(blocks, problem.mesh.m * problem.n, layout.free)
@@ -88,16 +91,23 @@ def test_the_goal_rows_curvature_is_weighed_by_their_multipliers_off_the_rows(ca
         assert np.max(np.abs(model - curvature)) <= 1e-5 * np.max(np.abs(curvature))
 
 
-def test_a_corrected_step_reports_its_programme_s_multipliers(catch, monkeypatch):
-    """The lbr7 catch's steps from scratch (4 elements, the merit test: corrected steps among them): for every step the
-    second-order correction made, its goal multipliers λ and limit multipliers μ meet the correction programme's
-    stationarity without ρEᵀE, g + (UᵀU − ρEᵀE)d + Eᵀλ + Aᵀμ = 0, to 1e-9 of |g|."""
+@pytest.mark.parametrize("quick", [False, True])
+def test_a_corrected_step_reports_its_programme_s_multipliers(catch, monkeypatch, quick):
+    """The lbr7 catch's steps from scratch (4 elements, the merit test: corrected steps among them), offline and
+    real-time (``quick``: the programmes solved over the last active rows first): for every step the second-order
+    correction made, its goal multipliers λ and limit multipliers μ meet the correction programme's stationarity
+    without ρEᵀE, g + (UᵀU − ρEᵀE)d + Eᵀλ + Aᵀμ = 0, to 1e-9 of |g|."""
     arm, limits, goals, start = catch
     calls: list = []
-    solve, correct = replan_qp.solve_qp, replan_qp._corrected_step
+    solve, within, correct = replan_qp.solve_qp, replan_qp.solve_qp_within, replan_qp._corrected_step
 
     def solving(U, g, E, e, A, b, **kwargs):
         s = solve(U, g, E, e, A, b, **kwargs)
+        calls.append((U, g, E, e, A, s))
+        return s
+
+    def solving_within(U, g, E, e, A, b, rows, **kwargs):
+        s = within(U, g, E, e, A, b, rows, **kwargs)
         calls.append((U, g, E, e, A, s))
         return s
 
@@ -120,7 +130,11 @@ def test_a_corrected_step_reports_its_programme_s_multipliers(catch, monkeypatch
         return out
 
     monkeypatch.setattr(replan_qp, "solve_qp", solving)
+    monkeypatch.setattr(replan_qp, "solve_qp_within", solving_within)
     monkeypatch.setattr(replan_qp, "_corrected_step", correcting)
+    if quick:
+        steps = replan_qp.qp_steps
+        monkeypatch.setattr(replan_module, "qp_steps", lambda *a, **k: steps(*a, **k, quick=True))
     r = replan(arm, start, goals, limits=limits, fallback=False, max_steps=COLD_STEPS, violation_floor=COLD_FLOOR,
                merit=True)
     assert r.converged and checked

@@ -9,7 +9,7 @@ Each step solves, densely and exactly (``qp_step.solve_qp``), the quadratic prog
          T_min ≤ T + dT ≤ T_max              (a free T)
 
 H: the banded Newton matrix of ℒ (the cost's exact Hessian on its own quadrature, the goal rows' curvature
-Σλ∇²c, weighed by λ + ρc on the real-time path, ``quick``; the limit rows are linear in x) plus ρDᵀD, which makes it positive definite where the final q is
+Σλ∇²c weighed by the multipliers λ; the limit rows are linear in x) plus ρDᵀD, which makes it positive definite where the final q is
 held by the goal rows alone without changing the step (the multipliers absorb −ρc), and ρAᵀA over the
 working set's rows (the limits hold the motion there; zero along steps that keep them); its T row and
 column b = ∂∇ℒ/∂T, h = ∂²ℒ/∂T² along the rescaled family are exact (``replan_point.time_column``: from the
@@ -139,23 +139,25 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None,
-            parts: list | None = None, exact: bool = False):
+            parts: list | None = None):
     """Element blocks added to the cost's Newton matrix: the goal rows' Σλ∇²c + ρDᵀD (its negative part
     dropped unless ``indefinite``) and ρAᵀA of the working set's rows (``held``; zero at a step that keeps
     them, so the programme's solution keeps its meaning while the matrix is positive definite where the
     limits hold the motion). ``parts``: ``GoalTerms.newton_blocks``' store, shared by the calls at one point.
-    ``exact``: the curvature's weights are the multipliers λ themselves, as in the T column (``time_column``), where
-    ``GoalTerms`` weighs by the augmented Lagrangian's λ + ρc (``quick``, the real-time path, keeps those): away
-    from the rows (c ≠ 0, after a long step in T) ρc outweighs λ, the x block turned indefinite and lost its negative
-    part while the T column kept λ's, and the programme's curvature in T with x following (h − bᵀH⁻¹b) came out 100
-    to 1000 times the reduced objective's, so the next step left T where it was (the lbr7 catch's coarse steps in x
-    and T: every second step, 17 steps where these weights take 10).
+    The curvature's weights are the multipliers λ themselves, as in the T column (``time_column``), where
+    ``GoalTerms`` weighs by the augmented Lagrangian's λ + ρc: away from the rows (c ≠ 0, after a long step in T or
+    a jump of the real-time target) ρc outweighs λ and the x block with λ + ρc turns indefinite. Offline, that block
+    lost its negative part while the T column kept λ's, and the programme's curvature in T with x following
+    (h − bᵀH⁻¹b) came out 100 to 1000 times the reduced objective's, so the next step left T where it was (the lbr7
+    catch's coarse steps in x and T: every second step, 17 steps where these weights take 10); on the real-time
+    path (``quick``) 2 of the 7 updates of ``benchmarks/replay_realtime.py`` needed the second factorisation without
+    the negative part, none with λ.
     """
     out = held
     if problem.points:
-        if exact:  # λ − ρc with GoalTerms' ρ: weights λ on the curvature, ρDᵀD unchanged
-            rows = res if res is not None else GoalTerms(problem.mesh, problem.points, lam, rho, where).residuals(C)
-            lam = [np.asarray(v, float) - rho * r[0] for v, r in zip(lam, rows)]
+        # λ − ρc with GoalTerms' ρ: weights λ on the curvature, ρDᵀD unchanged
+        rows = res if res is not None else GoalTerms(problem.mesh, problem.points, lam, rho, where).residuals(C)
+        lam = [np.asarray(v, float) - rho * r[0] for v, r in zip(lam, rows)]
         goal = GoalTerms(problem.mesh, problem.points, lam, rho, where).newton_blocks(C, indefinite=indefinite, res=res,
                                                                                       parts=parts)
         out = goal if out is None else out + goal
@@ -285,8 +287,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 parts: list = []  # the goal rows' curvature at this point, for both calls
 
                 def extra_of(indefinite: bool, held=held, C=C, parts=parts):  # far from the optimum: without the negative part
-                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts,
-                                   exact=not quick)
+                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts)
 
                 try:
                     W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples)
@@ -561,9 +562,9 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     dx2, dT2 = step2.d[:P], (float(step2.d[P]) if free is not None else 0.0)
     T2 = T + dT2
     # the goal rows' multipliers of the programme without ρEᵀE: ν + ρe for rows E d = e (the step's own: e = −c); the
-    # correction's e is E d − c(x + d), and ν − ρc there was off by ρc(x + d) (the lbr7 catch: λ 20 times the optimum's
-    # after a corrected step in T, whose next Newton matrix then lost its negative part and held T); ``quick`` keeps that
-    nu = step2.nu - rho_aug * cg if quick else step2.nu + rho_aug * rhs_E
+    # correction's e is E d − c(x + d), and ν − ρc there would be off by ρc(x + d) (the lbr7 catch: λ 20 times the
+    # optimum's after a corrected step in T, whose next Newton matrix then lost its negative part and held T)
+    nu = step2.nu + rho_aug * rhs_E
     mu = step2.mu[:k]
     held = mu > MU_RTOL * float(np.max(mu, initial=0.0))
     active2 = cand.keep(held)
