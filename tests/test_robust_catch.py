@@ -127,6 +127,36 @@ def test_the_restoration_on_the_coarse_elements_reaches_the_optimum_of_the_steps
     assert coarse.J == pytest.approx(fine.J, rel=1e-10)
 
 
+def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeypatch):
+    """The restoration has moved T from the guess to where the catch meets its goal within the limits: the coarse stage
+    takes its steps in x and T from the restored trajectory, none at the restored T first (those took 11 steps from the
+    restored J = 609 to 129 at T = 0.553 s, then 10 in x and T; in x and T at once: 15), and the plan is the optimum
+    reached by way of the steps at the guess on the 8 elements alone (``coarse=0``): T to 1e-9, J to 1e-10 relative."""
+    import hoc_cli.goals.free_time_sqp as fts
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model, arm, limits, problem = ur5_catch()
+    goals = problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    fine = minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=0)
+    runs: list = []
+    run = fts._run
+
+    def spy(record, *args, **options):
+        r = run(record, *args, **options)
+        runs.append((r.plan.mesh.N, options.get("free") is not None, r.steps))
+        return r
+
+    monkeypatch.setattr(fts, "_run", spy)
+    coarse = minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=4)
+    assert coarse.converged and coarse.bound is None
+    assert [free for N, free, _ in runs if N == 4] == [True]
+    assert sum(steps for _, _, steps in runs) <= 20 < fine.result.optimizer.iterations
+    assert coarse.T == pytest.approx(fine.T, rel=1e-9)
+    assert coarse.J == pytest.approx(fine.J, rel=1e-10)
+
+
 def test_from_the_guess_0_7_s_the_catch_reaches_the_optimum_from_0_5_s():
     """From the guess 0.7 s the minimum-norm final velocity of the inverse-kinematics guess needs 9 rad/s of a 3.15 rad/s
     joint. Restored on the coarse stage's 4 elements (43 steps, to T ≈ 0.598 s; on the 8 elements alone it takes

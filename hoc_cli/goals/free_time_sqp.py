@@ -21,7 +21,9 @@ same first-order conditions as the search's end.
    guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
    at the guess is made there, from the restored trajectory. Where the coarse stage below applies, the restoration
    runs on its elements (``_restored``: the UR5's fast catch 21 restoration steps there against 44 on its 8
-   elements, then 25 + 19 steps on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
+   elements, then 15 steps in x and T on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
+   The coarse stage starts its steps in x and T from the restored trajectory at once, without steps at the restored
+   T (T has left the guess already; on the UR5's fast catch those took 11 steps, then 10 in x and T).
    When the restoration stalls with T at a bound of its range (no T there where the goal meets the limits) and the
    steps at the guess do not converge, the plan ends there, not converged (``_unfinished``), without the search.
 2. The steps in x and T from that plan (the same quadrature test at their end).
@@ -208,7 +210,8 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
     it with the merit test, as from scratch, and then those in x and T), the quadrature test at their end. None when the mesh is not uniform, has fewer
     than 2·``coarse`` elements, the goals have vias, the resampled start breaks a limit (the UR5's fast catch after its
     restoration on the mesh), or a stage does not converge (the steps on the mesh itself then run). ``level``: the start on
-    the ``coarse`` elements when it is given there (``_restored``), else ``start`` resampled. ``span`` None: T fixed
+    the ``coarse`` elements when it is given there (``_restored``: then with a free T the steps in x and T start from it,
+    without the steps at its T), else ``start`` resampled. ``span`` None: T fixed
     (no steps in T). Returns the converged ``ReplanResult`` on the mesh, or None.
     """
     from hoc_cli.goals.warm import previous_plan
@@ -218,7 +221,7 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
         return None
     q0, dq0 = start.problem.boundary[:2]
     cost, G = start.problem.cost, start.G
-    plan = level
+    plan = restored = level
     if plan is None:
         level = HermiteMesh(mesh.order, mesh.T, coarse)
         plan = previous_plan(system, level, resample(mesh, start.coeffs, level), q0, dq0, goals, cost=cost, G=G,
@@ -227,14 +230,16 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
         return None
     start_accuracy = COARSE_ACCURACY if span is None else COARSE_START_ACCURACY  # T fixed: this is the coarse optimum
     floor = COLD_FLOOR if span is None else FREE_COLD_FLOOR
-    r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=floor,
-             merit=True, accuracy=start_accuracy)
-    if r.steps == 0 and start_accuracy != COARSE_ACCURACY:  # the start itself passed: its model says little there
-        r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                 violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
-    if _met(r) and span is not None:
-        r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
-                 violation_floor=floor, accuracy=COARSE_FREE_ACCURACY)
+    r = None
+    if restored is None or span is None:
+        r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=floor,
+                 merit=True, accuracy=start_accuracy)
+        if r.steps == 0 and start_accuracy != COARSE_ACCURACY:  # the start itself passed: its model says little there
+            r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
+                     violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
+    if span is not None and (r is None or _met(r)):  # restored: T already left the guess, the steps in x and T at once
+        r = _run(record, system, plan if r is None else r.plan, goals, free=span, limits=limits, fallback=False,
+                 max_steps=max_steps, violation_floor=floor, accuracy=COARSE_FREE_ACCURACY)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)

@@ -83,12 +83,17 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     r = sum(v.size for v in lam)
     cache: dict = {}
 
-    def at(T_: float, C_: np.ndarray) -> _Point:
+    def at(T_: float, C_: np.ndarray, rows_only: bool = False) -> _Point:
+        """The restoration at (C_, T_); ``rows_only``: the goal rows and the mesh's limit rows alone (g empty, m and
+        the largest g + κ NaN), for the T column's forward difference.
+        """
         problem, rows, where = point_problem(system, order, N, T_, q0, dq0, goals, cost, G, None, cache, fractions)
         pt = _goal_rows(problem, where, C_, lam)
         if rows is None:  # without limits ``point_problem`` caches no limit rows
             rows = LimitRows.build(problem.mesh, problem.layout.free, limits.n)
             cache[T_] = (problem, rows, where)
+        if rows_only:
+            return _Point(pt, T_, rows, [], math.nan, math.nan, math.nan)
         g = all_rows(system, limits, rows, pt.C)
         g = [v + margin for v in g.g_lo[:KINEMATIC] + g.g_hi[:KINEMATIC]]
         over = sum(float(np.sum(np.maximum(v, 0.0) ** 2)) for v in g)
@@ -113,7 +118,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
         b = -gA + (1.0 - tau) * np.maximum(gA, 0.0)  # the broken rows cut by the fraction τ this step
         if span is not None:  # the T column by a forward difference, the coefficients rescaled
             delta = 1e-6 * T
-            ph = at(T + delta, rescale(pt.C, T, T + delta))
+            ph = at(T + delta, rescale(pt.C, T, T + delta), rows_only=True)
             E = np.hstack([E, ((ph.pt.c[:r] - c) / delta)[:, None]])
             A = np.hstack([A, ((limit_rows(ph, select)[0] - gA) / delta)[:, None]])
             bounds = np.zeros((2, P + 1))
