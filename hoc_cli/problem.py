@@ -248,8 +248,11 @@ class ControlProblem:
         q, dq, ddq = self.op.apply(C)
         wt = self.op.w
         if not grad:
-            u = self.system.inverse_dynamics(q, dq, ddq)
-            w = _spd_solve(self.system.mass_matrix(q), u) if self.cost == "covariant" else u
+            if self.cost == "covariant":
+                u, M = self.system.id_and_mass(q, dq, ddq)
+                w = _spd_solve(M, u)
+            else:
+                u = w = self.system.inverse_dynamics(q, dq, ddq)
             J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
@@ -330,11 +333,7 @@ class ControlProblem:
         samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here.
         """
         K, n = q.shape
-        if known is not None:
-            M, u = known
-        else:
-            M = self.system.mass_matrix(q)
-            u = self.system.inverse_dynamics(q, dq, ddq)
+        u, M = (known[1], known[0]) if known is not None else self.system.id_and_mass(q, dq, ddq)
         covariant = self.cost == "covariant"
         if covariant:
             Li = _inverse_cholesky(M)  # S = M⁻¹ = Liᵀ Li
