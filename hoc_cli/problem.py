@@ -198,6 +198,7 @@ class ControlProblem:
         self.terms: tuple = ()  # extra objective terms (module docstring, "Hooks"); set by an outer loop
         self.last: Evaluation | None = None
         self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
+        self._bare_last: tuple | None = None  # (x, op, I(q_h)) of the last evaluation without gradient (``bare_cost``)
         self._carried: np.ndarray | None = None  # x where the kept Hessian serves the next Newton matrix (``carry_hessian``)
 
     # -- design vector ---------------------------------------------------------------------------------
@@ -256,6 +257,7 @@ class ControlProblem:
             J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+            self._bare_last = (np.array(x), self.op, J)
             if self.terms:
                 J += sum(term.evaluate(C, grad=False)[0] for term in self.terms)
             return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
@@ -289,7 +291,12 @@ class ControlProblem:
         return self.evaluate(x, grad=False).J
 
     def bare_cost(self, x: np.ndarray) -> float:
-        """I(q_h) without ``terms``."""
+        """I(q_h) without ``terms`` (kept from the last evaluation without gradient when that was at x: a limits'
+        measure after a polish step prices the point the polish has just evaluated).
+        """
+        last = self._bare_last
+        if last is not None and last[1] is self.op and np.array_equal(x, last[0]):
+            return last[2]
         terms, self.terms = self.terms, ()
         try:
             return self.evaluate(x, grad=False).J
