@@ -337,7 +337,8 @@ class ControlProblem:
         at its 2n forward-perturbed copies (q_j, then q̇_j, relative step ``rel_step``). Its four
         outputs, differenced, give Φ_xx (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇
         and ∂ID(q, q̇, a)/∂q = ∂u/∂q − ½B (covariant) or ∂u/∂q (torque), from the torques. ``known``: (M, u) at these
-        samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here.
+        samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here
+        in one Newton-Euler pass (``System.id_and_mass``).
         """
         K, n = q.shape
         u, M = (known[1], known[0]) if known is not None else self.system.id_and_mass(q, dq, ddq)
