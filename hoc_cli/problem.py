@@ -198,6 +198,7 @@ class ControlProblem:
         self.terms: tuple = ()  # extra objective terms (module docstring, "Hooks"); set by an outer loop
         self.last: Evaluation | None = None
         self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
+        self._bare_last: tuple | None = None  # (x, op, I(q_h)) of the last evaluation without gradient (``bare_cost``)
         self._carried: np.ndarray | None = None  # x where the kept Hessian serves the next Newton matrix (``carry_hessian``)
 
     # -- design vector ---------------------------------------------------------------------------------
@@ -248,11 +249,15 @@ class ControlProblem:
         q, dq, ddq = self.op.apply(C)
         wt = self.op.w
         if not grad:
-            u = self.system.inverse_dynamics(q, dq, ddq)
-            w = _spd_solve(self.system.mass_matrix(q), u) if self.cost == "covariant" else u
+            if self.cost == "covariant":
+                u, M = self.system.id_and_mass(q, dq, ddq)
+                w = _spd_solve(M, u)
+            else:
+                u = w = self.system.inverse_dynamics(q, dq, ddq)
             J = 0.5 * float(np.dot(wt, np.einsum("ki,ki->k", u, w)))
             if not np.isfinite(J):
                 raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+            self._bare_last = (np.array(x), self.op, J)
             if self.terms:
                 J += sum(term.evaluate(C, grad=False)[0] for term in self.terms)
             return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
@@ -286,7 +291,12 @@ class ControlProblem:
         return self.evaluate(x, grad=False).J
 
     def bare_cost(self, x: np.ndarray) -> float:
-        """I(q_h) without ``terms``."""
+        """I(q_h) without ``terms`` (kept from the last evaluation without gradient when that was at x: a limits'
+        measure after a polish step prices the point the polish has just evaluated).
+        """
+        last = self._bare_last
+        if last is not None and last[1] is self.op and np.array_equal(x, last[0]):
+            return last[2]
         terms, self.terms = self.terms, ()
         try:
             return self.evaluate(x, grad=False).J
@@ -327,14 +337,11 @@ class ControlProblem:
         at its 2n forward-perturbed copies (q_j, then q̇_j, relative step ``rel_step``). Its four
         outputs, differenced, give Φ_xx (from λᵀ∂u/∂q, λᵀ∂u/∂q̇), B (from λᵀ∂u/∂q̈ = M w), ∂u/∂q̇
         and ∂ID(q, q̇, a)/∂q = ∂u/∂q − ½B (covariant) or ∂u/∂q (torque), from the torques. ``known``: (M, u) at these
-        samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here.
+        samples when already computed (an evaluation's ``SampleGradients``: the same numbers), else computed here
+        in one Newton-Euler pass (``System.id_and_mass``).
         """
         K, n = q.shape
-        if known is not None:
-            M, u = known
-        else:
-            M = self.system.mass_matrix(q)
-            u = self.system.inverse_dynamics(q, dq, ddq)
+        u, M = (known[1], known[0]) if known is not None else self.system.id_and_mass(q, dq, ddq)
         covariant = self.cost == "covariant"
         if covariant:
             Li = _inverse_cholesky(M)  # S = M⁻¹ = Liᵀ Li

@@ -29,6 +29,9 @@ class System(Protocol):
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """M(q), (K, n, n), symmetric positive definite."""
 
+    def id_and_mass(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(U, M(q)): ``inverse_dynamics`` and ``mass_matrix`` at once, (K, n) and (K, n, n)."""
+
     def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, u: np.ndarray) -> np.ndarray:
         """q̈ = M⁻¹ (u − h(q, q̇)), (K, n)."""
 
@@ -66,6 +69,9 @@ class LinearOscillator:
     def mass_matrix(self, q):
         K = np.shape(q)[0]
         return np.broadcast_to(np.eye(self.n), (K, self.n, self.n)).copy()
+
+    def id_and_mass(self, q, dq, ddq):
+        return self.inverse_dynamics(q, dq, ddq), self.mass_matrix(q)
 
     def forward_dynamics(self, q, dq, u):
         return np.asarray(u, float) - self.omega2 * np.asarray(q, float)
@@ -107,6 +113,11 @@ class RobotSystem:
         from hoc_cli import dynamics
 
         return dynamics.mass_matrix(self.model, q)
+
+    def id_and_mass(self, q, dq, ddq):
+        from hoc_cli import dynamics
+
+        return dynamics.id_and_mass(self.model, q, dq, ddq)
 
     def forward_dynamics(self, q, dq, u):
         from hoc_cli import dynamics

@@ -255,3 +255,19 @@ def test_random_trees_with_every_joint_type_and_arbitrary_axes_agree_with_pinocc
         assert rel_err(gddq[k], oracle.crba(q[k]) @ lam[k]) < 1e-10
         for link in model.link_names:
             np.testing.assert_allclose(poses[link][k], oracle.link_pose(q[k], link), atol=1e-12)
+
+
+@pytest.mark.parametrize("case", ["two_link.urdf", "lbr7.urdf", "dual_arm.urdf", "panda with a prismatic finger, reordered",
+                                  "alex upper body (19 joints, branching)"])
+def test_id_and_mass_gives_the_same_numbers_as_inverse_dynamics_and_mass_matrix(case):
+    """One pass for u and M (the unit-acceleration columns riding along) is bit for bit the two separate passes on a
+    batch (more samples than a chunk too); for one sample to rounding (BLAS may sum a 1-column product otherwise)."""
+    model = model_of(case)
+    q, dq, ddq = random_state(np.random.default_rng(5), 700, model.n)
+    u, M = D.id_and_mass(model, q, dq, ddq)
+    assert np.array_equal(u, D.inverse_dynamics(model, q, dq, ddq))
+    assert np.array_equal(M, D.mass_matrix(model, q))
+    u1, M1 = D.id_and_mass(model, q[3], dq[3], ddq[3])
+    assert u1.shape == (model.n,) and M1.shape == (model.n, model.n)
+    np.testing.assert_allclose(u1, D.inverse_dynamics(model, q[3], dq[3], ddq[3]), rtol=0, atol=1e-13 * np.abs(u1).max())
+    np.testing.assert_allclose(M1, D.mass_matrix(model, q[3]), rtol=0, atol=1e-13 * np.abs(M1).max())

@@ -265,3 +265,35 @@ def test_the_default_tolerance_gives_J_within_1e_10_of_a_much_tighter_solve(conf
     tight = plan(S, mesh, s.q0, s.dq0, s.q1, s.dq1, tol=1e-15, G=default.G)
     assert default.converged and tight.converged
     assert abs(default.J - tight.J) <= 1e-10 * tight.J
+
+
+class _Offset:
+    """A stand-in objective term: a constant added to J (gradient and Newton blocks zero)."""
+
+    def evaluate(self, C, grad=True):
+        return 7.0, np.zeros_like(C)
+
+
+@pytest.mark.parametrize("cost", ["covariant", "torque"])
+def test_bare_cost_after_an_evaluation_without_gradient_reuses_its_value(cost):
+    """The limits' measure after a polish prices the point the polish has just evaluated: ``bare_cost`` takes I(q_h)
+    from that evaluation (no second dynamics pass), the same number as a fresh problem's; at another x, or on a
+    copy with another quadrature at the same x, it is computed afresh."""
+    import copy
+
+    rng = np.random.default_rng(4)
+    model = load_robot(ROBOTS / "lbr7.urdf")
+    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 3), *_random_boundary(model, rng), cost=cost)
+    x = P.initial_guess() + 0.05 * rng.normal(size=P.layout.size)
+    fresh = ControlProblem(RobotSystem(model), P.mesh, *P.boundary, cost=cost).bare_cost(x)
+    P.terms = (_Offset(),)
+    assert P.evaluate(x, grad=False).J == fresh + 7.0
+    evals = P.n_evals
+    assert P.bare_cost(x.copy()) == fresh and P.n_evals == evals  # reused
+    y = x + 1e-3
+    assert P.bare_cost(y) == ControlProblem(RobotSystem(model), P.mesh, *P.boundary, cost=cost).bare_cost(y)
+    assert P.n_evals == evals + 1
+    P.evaluate(x, grad=False)
+    other = copy.copy(P)
+    other.op = other.mesh.quadrature(6)  # another quadrature (as a real-time copy on a rescaled mesh has)
+    assert other.bare_cost(x) != fresh and other.n_evals == evals + 3

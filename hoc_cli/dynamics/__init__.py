@@ -41,6 +41,7 @@ operation. The only Python loops are the recursions over bodies.
   sweep of the recursion, O(n) per sample; ``id_derivatives``: the same sweep seeded with the n
   unit vectors, giving ∂u/∂q, ∂u/∂q̇ and ∂u/∂q̈ = M row by row (from 32 samples on, the root-to-leaves half and the local adjoints
   carry at each body only the seeds of its ancestors, the only nonzero ones).
+* ``id_and_mass``: u and M from one pass (the unit-acceleration columns ride along).
 * ``mass_cholesky``: batched Cholesky factors of M that also reject a mass matrix singular to
   working precision (a pivot ≤ 1e-14 of its largest diagonal entry), which a plain factorisation
   can let through by rounding.
@@ -91,7 +92,7 @@ from .kinematics import (
 
 __all__ = [
     "SINGULAR_PIVOT", "bias_forces", "covariant_gradient_terms", "forward_dynamics",
-    "frame_jacobian", "gravity_forces", "id_derivatives", "id_vjp", "inverse_dynamics",
+    "frame_jacobian", "gravity_forces", "id_and_mass", "id_derivatives", "id_vjp", "inverse_dynamics",
     "link_motion", "link_poses", "link_velocity", "link_velocity_derivatives", "mass_cholesky", "mass_matrix",
     "mass_quadratic_grad",
 ]
@@ -163,6 +164,25 @@ def mass_matrix(model: RobotModel, q) -> np.ndarray:
         for sl in _chunks(K, MASS_CHUNK):
             _mass_from(C, _newton_euler(C, qT[:, sl], None, None, False, cols=True), out[sl])
     return _shape_out(out, one_d)
+
+
+def id_and_mass(model: RobotModel, q, dq, ddq) -> tuple[np.ndarray, np.ndarray]:
+    """Torques u (K, n) = ID(q, q̇, q̈) (gravity included) and mass matrices M (K, n, n) in one pass.
+
+    The unit-acceleration columns of M ride along with the Newton-Euler pass of u: the same
+    operations on each value as ``inverse_dynamics`` and ``mass_matrix``, so the same numbers (bit
+    for bit, measured, except in a chunk of a single sample, whose one-column products BLAS may
+    sum in another order), at about the price of one pass instead of two.
+    """
+    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    C = _consts(model)
+    n = model.n
+    u = np.empty((K, n))
+    M = np.empty((K, n, n))
+    if n:
+        for sl in _chunks(K, MASS_CHUNK):
+            _h_and_mass(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], u[sl], M[sl])
+    return _shape_out(u, one_d), _shape_out(M, one_d)
 
 
 def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:

@@ -17,7 +17,7 @@ ID_CHUNK = 512      # inverse_dynamics, bias_forces, gravity_forces
 DERIV_CHUNK = 512   # id_derivatives at n ≤ 7 (scratch ∝ n² K): DERIV_CHUNK · 49 / n² samples above
 JAC_MIN_K = 32      # id_derivatives: below, the plain n-seed reverse sweep (fewer numpy calls)
 MASS_CHUNK = 512    # mass_matrix, forward_dynamics, covariant_gradient_terms: n columns per body
-VJP_CHUNK = 512     # id_vjp, mass_quadratic_grad: one seed
+VJP_CHUNK = 1024    # id_vjp, mass_quadratic_grad: one seed (the cost Hessian sweep's 15 copies of 48 samples: one chunk)
 
 
 # --------------------------------------------------------------------------- input checking
