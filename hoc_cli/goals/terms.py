@@ -214,7 +214,8 @@ class GoalTerms:
         c' = ∂c/∂(q, q̇)·δ + ∂c/∂T (exact). With Γ = (∂c/∂qᵀλ, ∂c/∂q̇ᵀλ, λ·∂c/∂T), the column is Pᵀ(Γ'_q, Γ'_q̇ − Γ_q̇/T)
         and Λ'' = Γ'·δ + Γ·(the second derivative), where Γ' = ∇Γ·δ, the residual's second derivatives along δ, is a
         central difference of the residual's exact first derivatives at (q, q̇, T) ± ε·δ, ε = ``rel_step``·T (the
-        goal rows alone, no dynamics: two residual evaluations per point; ~1e-10 relative).
+        goal rows alone, no dynamics: two residual evaluations per point, one pass of the kinematics where the residual has
+        ``batch``; ~1e-10 relative).
         """
         res = self.residuals(C) if res is None else res
         where = self._where()
