@@ -142,3 +142,68 @@ def test_the_free_time_steps_evaluate_the_lagrangian_once_per_step(monkeypatch):
     assert sum(s for s, _ in free_steps) >= 10  # steps in x and T were taken (else nothing is checked)
     for s, e in free_steps:
         assert e <= s + 2  # s + 1 points, at most one difference (the first step's); with the difference: 2(s + 1)
+
+
+def test_a_frame_residual_at_several_durations_is_its_residual_at_each_and_the_goal_column_takes_one_pass(monkeypatch):
+    """``FrameResidual.batch`` with T (K,) gives each sample's residual at its own T, the very numbers of K calls; the
+    goal rows' T column (``GoalTerms.time_column``: the residual at T ± ε along the family) then runs the kinematics once
+    per point instead of twice (an orientation row and a velocity row included).
+    """
+    import hoc_cli.goals.residuals as residuals
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals.residuals import FrameResidual
+    from hoc_cli.goals.terms import GoalPoint, GoalTerms
+
+    lbr = load_robot(str(ROBOTS / "lbr7.urdf"))
+    rng = np.random.default_rng(5)
+    R0, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    res = FrameResidual(lbr, "lbr_flange", rng.normal(size=3), orientation=R0 * np.sign(np.linalg.det(R0)),
+                        velocity=rng.normal(size=3), acceleration=np.array([0.0, 0.0, -9.81]), match_velocity=True)
+    q, dq, T = rng.normal(size=(3, 7)), rng.normal(size=(3, 7)), np.array([0.31, 0.3, 0.29])
+    out = res.batch(q, dq, T)
+    assert out[3].shape == (3, res.size)
+    for i in range(3):
+        for got, ref in zip(out, res(q[i], dq[i], float(T[i]))):
+            assert np.array_equal(got[i], ref)
+    calls = []
+    motion = residuals.link_motion
+    monkeypatch.setattr(residuals, "link_motion", lambda *a: calls.append(1) or motion(*a))
+    mesh = HermiteMesh("quintic", 0.4, 4)
+    C = rng.normal(size=(5, 3, 7))
+    terms = GoalTerms(mesh, [GoalPoint(1.0, res)], [rng.normal(size=res.size)], 0.0)
+    V1, V2 = rng.normal(size=C.shape), rng.normal(size=C.shape)
+    resid = terms.residuals(C)
+    calls.clear()
+    terms.time_column(C, 0.4, V1, V2, resid)
+    assert len(calls) == 1
+
+
+def test_the_goal_rows_and_their_curvature_samples_take_one_kinematics_pass_and_give_the_same_blocks(monkeypatch):
+    """``GoalTerms.residuals_with_samples``: the residuals and the derivatives at the points ``newton_parts`` perturbs in
+    one pass of the kinematics, the very numbers of ``residuals`` and ``newton_parts``' own pass (two passes)."""
+    import hoc_cli.goals.residuals as residuals
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.goals.residuals import FrameResidual, JointResidual
+    from hoc_cli.goals.terms import GoalPoint, GoalTerms
+
+    lbr = load_robot(str(ROBOTS / "lbr7.urdf"))
+    rng = np.random.default_rng(6)
+    frame = FrameResidual(lbr, "lbr_flange", rng.normal(size=3), velocity=rng.normal(size=3),
+                          acceleration=np.array([0.0, 0.0, -9.81]), match_velocity=True)
+    points = [GoalPoint(0.5, JointResidual(rng.normal(size=7))), GoalPoint(1.0, frame)]
+    mesh = HermiteMesh("quintic", 0.4, 4)
+    C = rng.normal(size=(5, 3, 7))
+    terms = GoalTerms(mesh, points, [rng.normal(size=p.residual.size) for p in points], 0.3)
+    calls = []
+    motion = residuals.link_motion
+    monkeypatch.setattr(residuals, "link_motion", lambda *a: calls.append(1) or motion(*a))
+    res, samples = terms.residuals_with_samples(C)
+    blocks = terms.newton_blocks(C, indefinite=True, res=res, samples=samples)
+    assert len(calls) == 1 and samples[0] is None
+    calls.clear()
+    ref_res = terms.residuals(C)
+    ref = terms.newton_blocks(C, indefinite=True, res=ref_res)
+    assert len(calls) == 2
+    for a, b in zip(res, ref_res):
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert np.array_equal(blocks, ref)

@@ -45,14 +45,12 @@ class ActiveRows:
 
     @classmethod
     def where(cls, lo: tuple[np.ndarray, ...], hi: tuple[np.ndarray, ...]) -> "ActiveRows":
-        """The rows where the boolean arrays ``lo``/``hi`` (per kind 0..2, shape (N, R_k, n)) are True."""
-        parts = []
-        for k in range(KINEMATIC):
-            for side, mask in ((-1, lo[k]), (1, hi[k])):
-                e, r, j = np.nonzero(mask)
-                parts.append(np.stack([np.full(e.size, k), e, r, j, np.full(e.size, side)]))
-        a = np.concatenate(parts, axis=1).astype(int)
-        return cls(*a)
+        """The rows where the boolean arrays ``lo``/``hi`` (per kind 0..2, shape (N, R_k, n)) are True, kind by kind,
+        the lower rows before the upper ones, each in (element, row, joint) order.
+        """
+        masks = [mask for k in range(KINEMATIC) for mask in (lo[k], hi[k])]
+        table = _row_table(tuple(np.shape(mask) for mask in masks))
+        return cls(*table[:, np.flatnonzero(np.concatenate([np.ravel(mask) for mask in masks]))])
 
     def keep(self, mask: np.ndarray) -> "ActiveRows":
         return ActiveRows(*(a[mask] for a in self._fields()))
@@ -84,15 +82,14 @@ class ActiveRows:
         mesh = rows.mesh
         m, n = mesh.m, limits.n
         a = self.size
-        A = np.zeros((a, (mesh.N + 1) * m * n))
+        size = (mesh.N + 1) * m * n
+        A = np.zeros((a, size))
         if a == 0:
             return A[:, free], A
-        local = np.arange(2 * m)
-        node = self.elem[:, None] + local[None, :] // m  # (a, 2m)
-        slot = np.broadcast_to(local % m, (a, 2 * m))
-        coef = self._coefficients(rows, limits)
-        cols = (node * m + slot) * n + self.joint[:, None]
-        A[np.arange(a)[:, None], cols] = coef  # one entry per (row, column): the 2m columns of a row differ
+        # the element's local coefficient l (node e + l // m, derivative l % m) of the row's joint: C.ravel()[(e m + l) n + j]
+        first = np.arange(0, a * size, size) + self.elem * (m * n) + self.joint  # (a,)
+        # one entry per (row, column): the 2m columns of a row differ
+        A.ravel()[first[:, None] + np.arange(0, 2 * m * n, n)[None, :]] = self._coefficients(rows, limits)
         return A[:, free], A
 
     def gram_blocks(self, rows: LimitRows, limits: JointLimits, rho: float) -> np.ndarray:
@@ -127,6 +124,20 @@ class ActiveRows:
         lo, hi, sig = _bounds(limits)
         b = np.where(self.side > 0, hi[self.kind, self.joint], lo[self.kind, self.joint])
         return -self.side * b / sig[self.kind, self.joint]
+
+
+@lru_cache(maxsize=16)
+def _row_table(shapes: tuple[tuple[int, ...], ...]) -> np.ndarray:
+    """(kind, element, row, joint, side) (5, R) of every row of masks of these shapes (per kind, lower then upper),
+    raveled and concatenated in that order: ``ActiveRows.where``'s rows are its columns where the masks hold. Read-only.
+    """
+    parts = []
+    for i, shape in enumerate(shapes):
+        e, r, j = np.indices(shape).reshape(3, -1)
+        parts.append(np.stack([np.full(e.size, i // 2), e, r, j, np.full(e.size, 1 if i % 2 else -1)]))
+    table = np.concatenate(parts, axis=1).astype(int)
+    table.flags.writeable = False
+    return table
 
 
 @lru_cache(maxsize=16)

@@ -62,6 +62,8 @@ class LagrangianPoint:
     where: object = None
     samples: object = None  # the cost's ``SampleGradients`` at ev's samples
     held: np.ndarray | None = None  # A_full (a, P) of the working set's rows (``ActiveRows.jacobian``), when given
+    curvature_samples: list | None = None  # the goal rows' derivatives at the Newton blocks' perturbed points
+    # (``GoalTerms.residuals_with_samples``), when evaluated with the derivatives
 
 
 def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
@@ -140,10 +142,10 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
             dl, Gl = limits_time_derivative(Duals(rows, pv.mu_lo, pv.mu_hi), system, limits, C)
             dT, Gc = dT + dl, Gc + Gl
     c, D = np.zeros(0), np.zeros((0, x.size))
-    res = None
+    res = samples = None
     if problem.points:
         terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0, where)
-        res = terms.residuals(C)
+        res, samples = terms.residuals_with_samples(C)  # and those of the goal rows' curvature, in the same pass
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
         if slope:
@@ -164,7 +166,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
         g = g + D.T @ np.concatenate(lam)
     F = dT + fixed_coefficient_correction(problem.layout.free, C, Gc, T) + weight if slope else 0.0
     ev = Evaluation(x=x, J=value, grad=g, q=q, dq=dq, ddq=ddq, u=s.u)
-    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where, s, A_full)
+    return LagrangianPoint(problem, x, C, J, ev, g, c, D, F, lt, pv, rows, res, F_I, where, s, A_full, samples)
 
 
 def _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache: dict, active, fractions,

@@ -139,11 +139,12 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None,
-            parts: list | None = None):
+            parts: list | None = None, samples: list | None = None):
     """Element blocks added to the cost's Newton matrix: the goal rows' Σλ∇²c + ρDᵀD (its negative part
     dropped unless ``indefinite``) and ρAᵀA of the working set's rows (``held``; zero at a step that keeps
     them, so the programme's solution keeps its meaning while the matrix is positive definite where the
-    limits hold the motion). ``parts``: ``GoalTerms.newton_blocks``' store, shared by the calls at one point.
+    limits hold the motion). ``parts``: ``GoalTerms.newton_blocks``' store, shared by the calls at one point;
+    ``samples``: the point's ``curvature_samples``.
     The curvature's weights are the multipliers λ themselves, as in the T column (``time_column``), where
     ``GoalTerms`` weighs by the augmented Lagrangian's λ + ρc: away from the rows (c ≠ 0, after a long step in T or
     a jump of the real-time target) ρc outweighs λ and the x block with λ + ρc turns indefinite. Offline, that block
@@ -159,7 +160,7 @@ def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray
         rows = res if res is not None else GoalTerms(problem.mesh, problem.points, lam, rho, where).residuals(C)
         lam = [np.asarray(v, float) - rho * r[0] for v, r in zip(lam, rows)]
         goal = GoalTerms(problem.mesh, problem.points, lam, rho, where).newton_blocks(C, indefinite=indefinite, res=res,
-                                                                                      parts=parts)
+                                                                                      parts=parts, samples=samples)
         out = goal if out is None else out + goal
     return out
 
@@ -287,7 +288,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                 parts: list = []  # the goal rows' curvature at this point, for both calls
 
                 def extra_of(indefinite: bool, held=held, C=C, parts=parts):  # far from the optimum: without the negative part
-                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts)
+                    return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts,
+                                   pt.curvature_samples)
 
                 try:
                     W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples)

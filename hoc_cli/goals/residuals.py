@@ -123,13 +123,18 @@ class FrameResidual:
         c, cq, cv, cT = self.batch(np.asarray(q, float)[None], np.asarray(dq, float)[None], T)
         return c[0], cq[0], cv[0], cT
 
-    def batch(self, q: np.ndarray, dq: np.ndarray, T: float):
+    def batch(self, q: np.ndarray, dq: np.ndarray, T: float | np.ndarray):
         """The residual at K instants together: q, dq (K, n) → (c (K, r), ∂c/∂q (K, r, n), ∂c/∂q̇ (K, r, n),
-        ∂c/∂T (r,)) (the forward kinematics batched over the K samples).
+        ∂c/∂T (r,)) (the forward kinematics batched over the K samples). T (K,) instead of a float: each sample's own
+        duration, and ∂c/∂T (K, r) (the same numbers as K calls with a float T).
         """
         K, n = q.shape
         v0, a = self._motion()
-        p_goal, v_goal = self.target(T)
+        if np.ndim(T):  # the target's terms per sample, as ``target`` computes them for one T
+            T = np.asarray(T, float)[:, None]
+            p_goal, v_goal = self.position + v0 * T + 0.5 * a * T**2, v0 + a * T
+        else:
+            p_goal, v_goal = self.target(T)
         zero = np.zeros((K, 3, n))
         P, V, dV_dq, J = link_motion(self.model, q, dq, self.link)  # one pass along the link's chain
         c, cq, cv, cT = [P[:, :3, 3] - p_goal], [J[:, :3]], [zero], [-(v0 + a * T)]
@@ -138,14 +143,14 @@ class FrameResidual:
             c.append(np.array(e))
             cq.append(np.matmul(np.array(de), J[:, 3:]))
             cv.append(zero)
-            cT.append(np.zeros(3))
+            cT.append(np.zeros(np.shape(cT[0])))
         if self.match_velocity:
             c.append(V[:, :3] - v_goal)
             cq.append(dV_dq[:, :3])
             cv.append(J[:, :3])
-            cT.append(-a)
+            cT.append(np.broadcast_to(-a, np.shape(cT[0])))
         return (np.concatenate(c, axis=1), np.concatenate(cq, axis=1), np.concatenate(cv, axis=1),
-                np.concatenate(cT))
+                np.concatenate(cT, axis=-1))
 
 
 def reach(model, link: str) -> tuple[np.ndarray, float] | None:

@@ -44,6 +44,15 @@ def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
     return PointSet.build(mesh, e, x - e, np.ones(len(points)))
 
 
+def _perturbed(q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(X (2n, 2n), steps (2n,)): x = (q, q̇) moved by steps 1e-7·(1 + |x|) along each coordinate, one per row (the
+    forward differences of ``GoalTerms.newton_parts``).
+    """
+    x = np.concatenate([q, dq])
+    steps = 1e-7 * (1.0 + np.abs(x))
+    return x[None, :] + np.diag(steps), steps
+
+
 @dataclass(frozen=True, eq=False)
 class GoalTerms:
     """The equality rows of ``points`` on ``mesh`` with multipliers ``lam`` (one array per point) and ρ."""
@@ -74,6 +83,27 @@ class GoalTerms:
         X = self._where().apply(C)
         T = self.mesh.T
         return [(*gp.residual(X[0, i], X[1, i], T), X[0, i], X[1, i]) for i, gp in enumerate(self.points)]
+
+    def residuals_with_samples(self, C: np.ndarray) -> tuple[list, list]:
+        """(``residuals(C)``, per point the residual's (∂c/∂q, ∂c/∂q̇) (2n, r, n) at the 2n points ``newton_parts``
+        perturbs (None for joint residuals)): each point and its perturbations in one pass of the kinematics (the
+        same numbers as ``residuals`` and ``newton_parts``' own pass), for a point where a Newton matrix is made.
+        """
+        X = self._where().apply(C)
+        T = self.mesh.T
+        res, samples = [], []
+        for i, gp in enumerate(self.points):
+            q, dq = X[0, i], X[1, i]
+            if isinstance(gp.residual, JointResidual):
+                res.append((*gp.residual(q, dq, T), q, dq))
+                samples.append(None)
+                continue
+            P = _perturbed(q, dq)[0]
+            n = q.size
+            c, cq, cv, cT = gp.residual.batch(np.vstack([q[None], P[:, :n]]), np.vstack([dq[None], P[:, n:]]), T)
+            res.append((c[0], cq[0], cv[0], cT, q, dq))
+            samples.append((cq[1:], cv[1:]))
+        return res, samples
 
     def violation(self, C: np.ndarray) -> float:
         """The largest |c| over every row (0 without rows); units of the rows (m, rad, m/s)."""
@@ -117,17 +147,17 @@ class GoalTerms:
         return c, np.array(rows).reshape((len(rows),) + C.shape)
 
     def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False,
-                      res: list | None = None, parts: list | None = None) -> np.ndarray:
+                      res: list | None = None, parts: list | None = None, samples: list | None = None) -> np.ndarray:
         """Element blocks (N, 2mn, 2mn) of ρ Dᵀ D, plus with ``curvature`` the positive part of Σ μ ∇²c.
 
         The second-order part in (q, q̇) is the forward difference (step 1e-7·(1 + |x|)) of the vector
         Dᵀ μ at fixed μ, symmetrised, its negative eigenvalues dropped unless ``indefinite`` (measured on the lbr7 catch:
         half the inner iterations of the blocks without it, and fewer than with the indefinite part). ``parts``: a list
         that keeps ``newton_parts`` (filled on the first call, read on the next: the blocks with and without the
-        negative part from one set of differences).
+        negative part from one set of differences). ``samples``: ``residuals_with_samples``' second output at C.
         """
         if parts is None or not parts:
-            found = self.newton_parts(C, curvature, res)
+            found = self.newton_parts(C, curvature, res, samples)
             if parts is not None:
                 parts.append(found)
         else:
@@ -142,8 +172,11 @@ class GoalTerms:
             Hs[i, :2 * n, :2 * n] += H
         return self._where().sample_blocks(Hs)
 
-    def newton_parts(self, C: np.ndarray, curvature: bool = True, res: list | None = None) -> tuple:
-        """(ρ DᵀD per point (points, 3n, 3n), [(point, Σ μ ∇²c in (q, q̇) (2n, 2n), symmetrised)]) of ``newton_blocks``."""
+    def newton_parts(self, C: np.ndarray, curvature: bool = True, res: list | None = None,
+                     samples: list | None = None) -> tuple:
+        """(ρ DᵀD per point (points, 3n, 3n), [(point, Σ μ ∇²c in (q, q̇) (2n, 2n), symmetrised)]) of ``newton_blocks``
+        (``samples``: the residuals' derivatives at the perturbed points when known, ``residuals_with_samples``).
+        """
         n = C.shape[-1]
         T = self.mesh.T
         Hs = np.zeros((len(self.points), 3 * n, 3 * n))
@@ -153,11 +186,12 @@ class GoalTerms:
             Hs[i] = self.rho * D.T @ D
             if curvature and not isinstance(self.points[i].residual, JointResidual):
                 mu = self.lam[i] + self.rho * r[0]
-                x = np.concatenate([r[4], r[5]])
                 base = D[:, :2 * n].T @ mu
-                steps = 1e-7 * (1.0 + np.abs(x))
-                X = x[None, :] + np.diag(steps)  # (2n, 2n): one perturbed (q, q̇) per row
-                _, cq, cv, _ = self.points[i].residual.batch(X[:, :n], X[:, n:], T)
+                X, steps = _perturbed(r[4], r[5])
+                if samples is not None and samples[i] is not None:
+                    cq, cv = samples[i]
+                else:
+                    _, cq, cv, _ = self.points[i].residual.batch(X[:, :n], X[:, n:], T)
                 H = ((np.concatenate([cq, cv], axis=2).transpose(0, 2, 1) @ mu) - base).T / steps
                 curvatures.append((i, 0.5 * (H + H.T)))
         return Hs, curvatures
@@ -180,7 +214,8 @@ class GoalTerms:
         c' = ∂c/∂(q, q̇)·δ + ∂c/∂T (exact). With Γ = (∂c/∂qᵀλ, ∂c/∂q̇ᵀλ, λ·∂c/∂T), the column is Pᵀ(Γ'_q, Γ'_q̇ − Γ_q̇/T)
         and Λ'' = Γ'·δ + Γ·(the second derivative), where Γ' = ∇Γ·δ, the residual's second derivatives along δ, is a
         central difference of the residual's exact first derivatives at (q, q̇, T) ± ε·δ, ε = ``rel_step``·T (the
-        goal rows alone, no dynamics: two residual evaluations per point; ~1e-10 relative).
+        goal rows alone, no dynamics: two residual evaluations per point, one pass of the kinematics where the residual has
+        ``batch``; ~1e-10 relative).
         """
         res = self.residuals(C) if res is None else res
         where = self._where()
@@ -193,8 +228,13 @@ class GoalTerms:
             q, dq = r[4], r[5]
             dz = (Y1[0, i], Y1[1, i] - dq / T)
             rows.append(r[1] @ dz[0] + r[2] @ dz[1] + r[3])
-            plus = gp.residual(q + eps * dz[0], dq + eps * dz[1], T + eps)
-            minus = gp.residual(q - eps * dz[0], dq - eps * dz[1], T - eps)
+            if hasattr(gp.residual, "batch"):  # both in one pass of the kinematics (the same numbers)
+                out = gp.residual.batch(np.stack([q + eps * dz[0], q - eps * dz[0]]),
+                                        np.stack([dq + eps * dz[1], dq - eps * dz[1]]), np.array([T + eps, T - eps]))
+                plus, minus = ([v[i] for v in out] for i in (0, 1))
+            else:
+                plus = gp.residual(q + eps * dz[0], dq + eps * dz[1], T + eps)
+                minus = gp.residual(q - eps * dz[0], dq - eps * dz[1], T - eps)
             d_q = (plus[1].T @ lam - minus[1].T @ lam) / (2.0 * eps)
             d_v = (plus[2].T @ lam - minus[2].T @ lam) / (2.0 * eps)
             d_T = float(lam @ (plus[3] - minus[3])) / (2.0 * eps)

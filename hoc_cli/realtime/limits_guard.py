@@ -29,6 +29,7 @@ from hoc_cli.constraints.bounds import KINDS, KINEMATIC, JointLimits
 from hoc_cli.constraints.check import CHECK_POINTS_PER_ELEMENT, RELATIVE_TOLERANCE, check_limits
 from hoc_cli.constraints.penalty import effective_bounds
 from hoc_cli.constraints.points import PointSet
+from hoc_cli.elements import local_basis
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows
 from hoc_cli.goals.qp_step import solve_qp
@@ -126,14 +127,30 @@ def torques_hold(system, effort: JointLimits, mesh, C: np.ndarray) -> bool:
     the same torques (inverse dynamics at ``CHECK_POINTS_PER_ELEMENT`` + 1 points of every element, the nodes
     included) against the same bounds and tolerances, without the check's other kinds and its report.
     """
-    N, per = mesh.N, CHECK_POINTS_PER_ELEMENT
-    pts = PointSet.build(mesh, np.repeat(np.arange(N), per + 1), np.tile(np.linspace(0.0, 1.0, per + 1), N),
-                         np.ones(N * (per + 1)))
-    X = pts.apply(C)
+    e, s, unit = _check_grid(mesh.order, mesh.N, CHECK_POINTS_PER_ELEMENT)
+    # ``PointSet.build``'s shape values (``HermiteMesh.shape_values``: the h = 1 values times h_e^(d_a − r)), the same
+    # numbers with the h = 1 values kept and the elements' factors taken once per element
+    B = np.stack([unit[r] * (mesh.scale(r) if mesh.uniform else mesh.scales(r)[e]) for r in range(3)])
+    X = PointSet(mesh=mesh, e=e, s=s, B=B, weight=np.ones(e.size)).apply(C)
     u = system.inverse_dynamics(X[0], X[1], X[2])  # (K, n)
     lo, hi, tol_lo, tol_hi = _effort_bounds(effort)
     with np.errstate(invalid="ignore"):  # a bound ±inf: excess −inf; the largest excess is that of the extreme torque
         return not (np.any(np.max(u, axis=0) - hi > tol_hi) or np.any(lo - np.min(u, axis=0) > tol_lo))
+
+
+@lru_cache(maxsize=16)
+def _check_grid(order: str, N: int, per: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``check_limits``' points of N elements, ``per`` + 1 per element, the nodes included: their elements e (K,), local
+    coordinates s (K,) and the shape functions' s-derivatives 0..2 there (3, K, 2m) (h = 1, ``HermiteMesh.shape_values``'
+    first factor). Read-only, kept: the same on every mesh of N elements.
+    """
+    e = np.repeat(np.arange(N), per + 1)
+    s = np.tile(np.linspace(0.0, 1.0, per + 1), N)
+    powers = s[:, None] ** np.arange(6)[None, :]
+    unit = np.stack([powers @ local_basis(order)[r].T for r in range(3)])
+    for a in (e, s, unit):
+        a.flags.writeable = False
+    return e, s, unit
 
 
 @lru_cache(maxsize=16)
