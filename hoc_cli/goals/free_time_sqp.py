@@ -70,10 +70,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hoc_cli.constraints.bounds import KINEMATIC
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.free_time import FreeTimeResult, TimePoint, minimize_time, plan_time_derivative
-from hoc_cli.goals.active_limits import all_rows
+from hoc_cli.goals.active_limits import kinematic_rows
 from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
 from hoc_cli.goals.replan import TimeRange, replan
 from hoc_cli.goals.restoration import restore
@@ -392,8 +391,8 @@ def _breaks_limits(system, plan, limits) -> bool:
     from hoc_cli.constraints.penalty import LimitRows
 
     rows = LimitRows.build(plan.mesh, plan.problem.layout.free, limits.n)
-    everything = all_rows(system, limits, rows, plan.coeffs)
-    worst = max(float(np.max(g, initial=-np.inf)) for g in everything.g_lo[:KINEMATIC] + everything.g_hi[:KINEMATIC])
+    g_lo, g_hi = kinematic_rows(limits, rows, plan.coeffs)
+    worst = max(float(np.max(g, initial=-np.inf)) for g in g_lo + g_hi)
     return worst > 0.0 or plan.violation > COLD_FLOOR
 
 

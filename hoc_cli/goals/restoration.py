@@ -13,11 +13,11 @@ limit's size; g ≤ 0 within the limit), κ a margin (the rows tightened by κ o
 found leaves the plan room inside the true limits). Each step's programme imposes the rows near their bound
 (within 5 %) as linear inequalities that cut the broken ones by a fraction τ (1, halved with each rejected
 trial, doubled after an accepted one: from far outside, a full correction of the limits in one step can throw
-the goal rows off). The residual's Jacobian is exact in x (the goal rows'
-exact Jacobian, the Bernstein rows are linear) and a forward difference in T (δ = 1e-6·T, the coefficients
-rescaled); each step solves (JᵀJ + σS) d = −JᵀR with S the diagonal of JᵀJ (Marquardt's scaling) plus a floor,
-and σ follows the ratio of the actual to the predicted decrease of m (×4 when below ¼, ÷3 above ¾; Nocedal &
-Wright, *Numerical Optimization*, §10.3). T is clipped to its range.
+the goal rows off). The residual's Jacobian is exact in x (the goal rows' exact Jacobian, the Bernstein rows are
+linear) and in T along the rescaled family (``_time_column``: the goal rows' ``GoalTerms.time_slopes``; a Bernstein
+row of d^k q/dt^k scales as T^−k); each step solves (JᵀJ + σS) d = −JᵀR with S the diagonal of JᵀJ (Marquardt's
+scaling) plus a floor, and σ follows the ratio of the actual to the predicted decrease of m (×4 when below ¼, ÷3
+above ¾; Nocedal & Wright, *Numerical Optimization*, §10.3). T is clipped to its range.
 
 It ends ``feasible`` when every goal row is met to ``tol`` and every tightened row to ``tol``, ``stalled``
 when the predicted decrease of a step falls below 1e-12 of m or σ passes ``SIGMA_MAX`` (a local minimum of the
@@ -32,11 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hoc_cli.constraints.bounds import KINEMATIC
-from hoc_cli.constraints.penalty import LimitRows
 from hoc_cli.errors import NumericalError
-from hoc_cli.free_time import rescale
-from hoc_cli.goals.active_limits import ActiveRows, all_rows
+from hoc_cli.free_time import fixed_coefficient_motion, rescale, row_time_derivatives
+from hoc_cli.goals.active_limits import ActiveRows, kinematic_rows
 from hoc_cli.goals.mesh import mesh_fractions
 from hoc_cli.goals.qp_step import solve_qp, upper_factor
 from hoc_cli.goals.replan_point import point_problem
@@ -83,44 +81,36 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     r = sum(v.size for v in lam)
     cache: dict = {}
 
-    def at(T_: float, C_: np.ndarray, rows_only: bool = False) -> _Point:
-        """The restoration at (C_, T_); ``rows_only``: the goal rows and the mesh's limit rows alone (g empty, m and
-        the largest g + κ NaN), for the T column's forward difference.
-        """
-        problem, rows, where = point_problem(system, order, N, T_, q0, dq0, goals, cost, G, None, cache, fractions)
+    def at(T_: float, C_: np.ndarray) -> _Point:
+        """The restoration at (C_, T_)."""
+        problem, rows, where = point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)
         pt = _goal_rows(problem, where, C_, lam)
-        if rows is None:  # without limits ``point_problem`` caches no limit rows
-            rows = LimitRows.build(problem.mesh, problem.layout.free, limits.n)
-            cache[T_] = (problem, rows, where)
-        if rows_only:
-            return _Point(pt, T_, rows, [], math.nan, math.nan, math.nan)
-        g = all_rows(system, limits, rows, pt.C)
-        g = [v + margin for v in g.g_lo[:KINEMATIC] + g.g_hi[:KINEMATIC]]
+        g_lo, g_hi = kinematic_rows(limits, rows, pt.C)
+        g = [v + margin for v in g_lo + g_hi]
         over = sum(float(np.sum(np.maximum(v, 0.0) ** 2)) for v in g)
         c = pt.c[:r]
         return _Point(pt, T_, rows, g, 0.5 * float(c @ c) + 0.5 * over, float(np.max(np.abs(c), initial=0.0)),
                       max(float(np.max(v, initial=-math.inf)) for v in g))
 
-    def limit_rows(p: _Point, select: ActiveRows) -> tuple[np.ndarray, np.ndarray]:
-        """(g + κ (a,), ∂g/∂x (a, P)) of the selected rows at p."""
+    def limit_rows(p: _Point, select: ActiveRows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(g + κ (a,), ∂g/∂x (a, P), A_full (a, P_all): ∂g/∂C of every coefficient) of the selected rows at p."""
         A, A_full = select.jacobian(p.rows, limits, p.pt.problem.layout.free)
-        return A_full @ p.pt.C.ravel() + select.offsets(limits) + margin, A
+        return A_full @ p.pt.C.ravel() + select.offsets(limits) + margin, A, A_full
 
     p = at(mesh0.T, np.array(plan0.coeffs))
     sigma, tau, steps, why = 1e-3, 1.0, 0, ""
     while not (p.violation <= tol and p.row_violation <= tol) and steps < max_steps:
         half = len(p.g) // 2
         select = ActiveRows.where(tuple(v > -GAP for v in p.g[:half]), tuple(v > -GAP for v in p.g[half:]))
-        gA, A = limit_rows(p, select)
+        gA, A, A_full = limit_rows(p, select)
         T, pt = p.T, p.pt
         E, c = pt.D[:r], pt.c[:r]
         P = pt.x.size
         b = -gA + (1.0 - tau) * np.maximum(gA, 0.0)  # the broken rows cut by the fraction τ this step
-        if span is not None:  # the T column by a forward difference, the coefficients rescaled
-            delta = 1e-6 * T
-            ph = at(T + delta, rescale(pt.C, T, T + delta), rows_only=True)
-            E = np.hstack([E, ((ph.pt.c[:r] - c) / delta)[:, None]])
-            A = np.hstack([A, ((limit_rows(ph, select)[0] - gA) / delta)[:, None]])
+        if span is not None:  # the T column along the rescaled family, exact: the goal rows' c' and the rows' g'
+            c_T, g_T = _time_column(pt, A_full, select.kind, T)
+            E = np.hstack([E, c_T[:r, None]])
+            A = np.hstack([A, g_T[:, None]])
             bounds = np.zeros((2, P + 1))
             bounds[0, -1], bounds[1, -1] = 1.0, -1.0
             A = np.vstack([A, bounds])
@@ -175,6 +165,8 @@ class _GoalRows:
     C: np.ndarray
     c: np.ndarray
     D: np.ndarray
+    terms: object = None
+    res: list | None = None
 
 
 def _goal_rows(problem, where, C: np.ndarray, lam: list) -> _GoalRows:
@@ -189,7 +181,18 @@ def _goal_rows(problem, where, C: np.ndarray, lam: list) -> _GoalRows:
     terms = GoalTerms(problem.mesh, problem.points, lam, 0.0, where)
     res = terms.residuals(C)
     c, dc = terms.jacobian(C, res)
-    return _GoalRows(problem, x, C, c, dc.reshape(len(c), -1)[:, problem.layout.free])
+    return _GoalRows(problem, x, C, c, dc.reshape(len(c), -1)[:, problem.layout.free], terms, res)
+
+
+def _time_column(pt: _GoalRows, A_full: np.ndarray, kind: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """(c' (r,), g' (a,)): the T derivatives of the goal rows and of the limit rows A_full·C + offsets (A_full (a, P_all),
+    ``kind`` (a,) their derivative orders) at ``pt`` along the rescaled family (``free_time.rescale``: fixed s-domain free
+    coefficients, the fixed ones at their t-domain values), exact: ``GoalTerms.time_slopes`` and
+    ``free_time.row_time_derivatives`` (a row of d^k q/dt^k scales as T^−k).
+    """
+    V1, _ = fixed_coefficient_motion(pt.problem.layout.free, pt.C, T)
+    c_T = pt.terms.time_slopes(pt.C, T, V1, pt.res) if pt.terms is not None else np.zeros(0)
+    return c_T, row_time_derivatives(A_full @ pt.C.ravel(), kind, T, A_full @ V1.ravel())[0]
 
 
 @dataclass(frozen=True, eq=False)
