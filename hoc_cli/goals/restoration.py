@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -157,31 +158,36 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
 @dataclass(frozen=True, eq=False)
 class _GoalRows:
     """The goal rows at one (x, T): the problem (its mesh at T), the free coefficients x (P,), C (N+1, m, n), the rows
-    c (r,) and their Jacobian D (r, P) in x.
+    c (r,), their ``GoalTerms`` and residuals (``GoalTerms.residuals``), and (``D``) their Jacobian (r, P) in x.
     """
 
     problem: object
     x: np.ndarray
     C: np.ndarray
     c: np.ndarray
-    D: np.ndarray
     terms: object = None
     res: list | None = None
 
+    @cached_property
+    def D(self) -> np.ndarray:
+        """∂c/∂x (r, P), made on first use: a trial the restoration rejects never needs it."""
+        if self.terms is None:
+            return np.zeros((0, self.x.size))
+        dc = self.terms.jacobian(self.C, self.res)[1]
+        return dc.reshape(self.c.size, -1)[:, self.problem.layout.free]
+
 
 def _goal_rows(problem, where, C: np.ndarray, lam: list) -> _GoalRows:
-    """The goal rows and their Jacobian at coefficients C on the problem's mesh: the numbers of
-    ``replan_point.evaluate_point`` (the same ``GoalTerms`` calls) without its dynamics sweep, which the violation
-    m does not need.
+    """The goal rows at coefficients C on the problem's mesh: the numbers of ``replan_point.evaluate_point`` (the same
+    ``GoalTerms`` calls) without its dynamics sweep, which the violation m does not need.
     """
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
     if not problem.points:
-        return _GoalRows(problem, x, C, np.zeros(0), np.zeros((0, x.size)))
+        return _GoalRows(problem, x, C, np.zeros(0))
     terms = GoalTerms(problem.mesh, problem.points, lam, 0.0, where)
     res = terms.residuals(C)
-    c, dc = terms.jacobian(C, res)
-    return _GoalRows(problem, x, C, c, dc.reshape(len(c), -1)[:, problem.layout.free], terms, res)
+    return _GoalRows(problem, x, C, np.concatenate([r[0] for r in res]), terms, res)
 
 
 def _time_column(pt: _GoalRows, A_full: np.ndarray, kind: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:

@@ -16,11 +16,12 @@ q(sT) is unchanged and q̇ scales as 1/T, so ∂c/∂T = ∂c/∂T|explicit − 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from hoc_cli.constraints.points import PointSet
-from hoc_cli.elements import HermiteMesh
+from hoc_cli.elements import HermiteMesh, local_basis
 from hoc_cli.goals.residuals import JointResidual
 
 
@@ -41,7 +42,22 @@ def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
         return PointSet.build(mesh, e, local, np.ones(len(points)))
     x = s * mesh.N
     e = np.clip(np.floor(x).astype(int), 0, mesh.N - 1)
-    return PointSet.build(mesh, e, x - e, np.ones(len(points)))
+    local = x - e
+    unit = _unit_values(mesh.order, local.tobytes())  # the h = 1 values, kept: they do not depend on T
+    B = np.stack([unit[r] * mesh.scale(r) for r in range(3)])  # ``PointSet.build``'s numbers (``shape_values``)
+    return PointSet(mesh=mesh, e=e, s=local, B=B, weight=np.ones(len(points)))
+
+
+@lru_cache(maxsize=64)
+def _unit_values(order: str, local: bytes) -> np.ndarray:
+    """The shape functions' s-derivatives of orders 0, 1, 2 at the local coordinates ``local`` (float64 bytes, (P,)):
+    (3, P, 2m), before ``HermiteMesh.shape_values`` scales them by h^(d − r) (the same products, in the same order).
+    """
+    s = np.frombuffer(local, float)
+    powers = s[:, None] ** np.arange(6)[None, :]  # (P, 6)
+    out = np.stack([powers @ local_basis(order)[r].T for r in range(3)])
+    out.flags.writeable = False
+    return out
 
 
 @dataclass(frozen=True, eq=False)
