@@ -25,3 +25,35 @@ def test_point_set_is_point_set_build_bit_for_bit(order):
             assert got.mesh is mesh
             for a, b in ((got.B, ref.B), (got.e, ref.e), (got.s, ref.s), (got.weight, ref.weight)):
                 assert a.shape == b.shape and np.array_equal(a, b)
+
+
+def test_goal_row_jacobian_is_the_point_sets_adjoint_bit_for_bit():
+    """``GoalTerms.jacobian`` builds each row's gradient from its point's shape functions directly: the numbers of
+    ``PointSet.transpose`` applied to the row's (∂c/∂q, ∂c/∂q̇) at its point (zero elsewhere), bit for bit, for a link
+    goal with a velocity row at T and a second point inside an element (the lbr7 catch, N = 4 and 8)."""
+    from _robots import lbr7_catch_problem
+
+    from hoc_cli.goals.terms import GoalTerms
+    from hoc_cli.goals.time_solver import goal_solver
+
+    problem = lbr7_catch_problem(8)
+    goals = problem.goals()
+    rng = np.random.default_rng(3)
+    for N in (4, 8):
+        start = goal_solver(problem.system, "quintic", N, problem.q0, problem.dq0, goals).initial(0.4)
+        final = start.problem.points[0]
+        points = [final, GoalPoint(0.37, final.residual, "via")]
+        for _ in range(5):
+            C = start.coeffs + 0.3 * rng.standard_normal(start.coeffs.shape)
+            terms = GoalTerms(start.mesh, points, [np.zeros(p.residual.size) for p in points], 0.0)
+            res = terms.residuals(C)
+            c, D = terms.jacobian(C, res)
+            where = point_set(start.mesh, points)
+            k = 0
+            for i, r in enumerate(res):
+                for j in range(r[0].size):
+                    S = np.zeros((3, len(points), C.shape[-1]))
+                    S[0, i], S[1, i] = r[1][j], r[2][j]
+                    assert np.array_equal(D[k], where.transpose(S)) and c[k] == r[0][j]
+                    k += 1
+            assert k == D.shape[0] == 12  # position and velocity rows at both points

@@ -122,15 +122,17 @@ class GoalTerms:
         """
         res = self.residuals(C) if res is None else res
         where = self._where()
-        n = C.shape[-1]
-        rows = []
-        for i, r in enumerate(res):
-            for j in range(r[0].size):
-                S = np.zeros((3, len(self.points), n))
-                S[0, i], S[1, i] = r[1][j], r[2][j]
-                rows.append(where.transpose(S))
+        m = C.shape[1]
         c = np.concatenate([r[0] for r in res]) if res else np.zeros(0)
-        return c, np.array(rows).reshape((len(rows),) + C.shape)
+        out = np.zeros((c.size,) + C.shape)
+        k = 0
+        for i, r in enumerate(res):  # a row of point i: its element's shape functions times (∂c/∂q, ∂c/∂q̇)
+            rows = slice(k, k + r[0].size)
+            loc = where.B[0, i][None, :, None] * r[1][:, None, :] + where.B[1, i][None, :, None] * r[2][:, None, :]
+            out[rows, where.e[i]] += loc[:, :m]
+            out[rows, where.e[i] + 1] += loc[:, m:]
+            k += r[0].size
+        return c, out
 
     def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False,
                       res: list | None = None, parts: list | None = None) -> np.ndarray:
