@@ -74,3 +74,26 @@ def test_the_restorations_T_column_against_central_differences():
     assert np.abs(c_T - fd_c).max() <= 1e-6 * np.abs(fd_c).max()
     assert np.abs(g_T - fd_g).max() <= 1e-6 * np.abs(fd_g).max()
     assert np.abs(fd_g).max() > 1.0 and np.abs(fd_c).max() > 1.0
+
+
+def test_active_rows_where_lists_the_masked_rows_kind_by_kind_lower_then_upper():
+    """``ActiveRows.where``: every True entry of the masks once, as (kind, element, row, joint, side), per kind the lower
+    rows then the upper ones, each in C order (the order the rows' programmes and multipliers follow), against a loop
+    over every entry; ``gather`` reads them back."""
+    from hoc_cli.constraints.bounds import KINEMATIC
+    from hoc_cli.goals.active_limits import ActiveRows
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        N, n = int(rng.integers(1, 6)), int(rng.integers(1, 7))
+        shapes = [(N, R, n) for R in (6, 6, 4, 2)[:KINEMATIC]]
+        lo = tuple(rng.random(s) < 0.3 for s in shapes)
+        hi = tuple(rng.random(s) < 0.3 for s in shapes)
+        ref = [(k, e, r, j, side) for k in range(KINEMATIC) for side, mask in ((-1, lo[k]), (1, hi[k]))
+               for e in range(N) for r in range(shapes[k][1]) for j in range(n) if mask[e, r, j]]
+        got = ActiveRows.where(lo, hi)
+        assert list(zip(*(a.tolist() for a in got._fields()))) == ref
+        values_lo = tuple(rng.standard_normal(s) for s in shapes)
+        values_hi = tuple(rng.standard_normal(s) for s in shapes)
+        assert got.gather(values_lo, values_hi).tolist() == [(values_lo if s < 0 else values_hi)[k][e, r, j]
+                                                              for k, e, r, j, s in ref]

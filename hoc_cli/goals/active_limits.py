@@ -47,10 +47,9 @@ class ActiveRows:
     def where(cls, lo: tuple[np.ndarray, ...], hi: tuple[np.ndarray, ...]) -> "ActiveRows":
         """The rows where the boolean arrays ``lo``/``hi`` (per kind 0..2, shape (N, R_k, n)) are True."""
         parts = []
-        for k in range(KINEMATIC):
-            for side, mask in ((-1, lo[k]), (1, hi[k])):
-                e, r, j = np.nonzero(mask)
-                parts.append(np.stack([np.full(e.size, k), e, r, j, np.full(e.size, side)]))
+        for k in range(KINEMATIC):  # the lower rows, then the upper ones, each in C order
+            s, e, r, j = np.nonzero(np.stack([lo[k], hi[k]]))
+            parts.append(np.stack([np.full(e.size, k), e, r, j, 2 * s - 1]))
         a = np.concatenate(parts, axis=1).astype(int)
         return cls(*a)
 

@@ -43,21 +43,25 @@ def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
     x = s * mesh.N
     e = np.clip(np.floor(x).astype(int), 0, mesh.N - 1)
     local = x - e
-    unit = _unit_values(mesh.order, local.tobytes())  # the h = 1 values, kept: they do not depend on T
-    B = np.stack([unit[r] * mesh.scale(r) for r in range(3)])  # ``PointSet.build``'s numbers (``shape_values``)
+    unit, powers = _unit_values(mesh.order, local.tobytes())  # the h = 1 values, kept: they do not depend on T
+    h = mesh.h
+    B = np.stack([unit[r] * h ** powers[r] for r in range(3)])  # ``PointSet.build``'s numbers (``HermiteMesh.scale``)
     return PointSet(mesh=mesh, e=e, s=local, B=B, weight=np.ones(len(points)))
 
 
 @lru_cache(maxsize=64)
-def _unit_values(order: str, local: bytes) -> np.ndarray:
-    """The shape functions' s-derivatives of orders 0, 1, 2 at the local coordinates ``local`` (float64 bytes, (P,)):
-    (3, P, 2m), before ``HermiteMesh.shape_values`` scales them by h^(d − r) (the same products, in the same order).
+def _unit_values(order: str, local: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(the shape functions' s-derivatives of orders r = 0, 1, 2 at the local coordinates ``local`` (float64 bytes, (P,)),
+    (3, P, 2m); the powers d − r (3, 2m) of h that ``HermiteMesh.shape_values`` scales them by): the same products, in
+    the same order.
     """
     s = np.frombuffer(local, float)
     powers = s[:, None] ** np.arange(6)[None, :]  # (P, 6)
     out = np.stack([powers @ local_basis(order)[r].T for r in range(3)])
-    out.flags.writeable = False
-    return out
+    d = np.tile(np.arange(out.shape[-1] // 2), 2)
+    scale = np.stack([(d - r).astype(float) for r in range(3)])
+    out.flags.writeable = scale.flags.writeable = False
+    return out, scale
 
 
 @dataclass(frozen=True, eq=False)
