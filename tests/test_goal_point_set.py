@@ -57,3 +57,28 @@ def test_goal_row_jacobian_is_the_point_sets_adjoint_bit_for_bit():
                     assert np.array_equal(D[k], where.transpose(S)) and c[k] == r[0][j]
                     k += 1
             assert k == D.shape[0] == 12  # position and velocity rows at both points
+
+
+def test_the_time_columns_two_residuals_by_one_batch_are_two_calls_bit_for_bit():
+    """``GoalTerms.time_column`` evaluates a frame residual at (q, q̇, T) ± ε·(dz, 1) by one batch of its forward kinematics
+    and ∂c/∂T by ``time_partial`` at T ± ε (``terms._plus_minus``): the numbers of two calls of the residual, bit for bit,
+    for a moving target with ``match_velocity`` and a pose goal with an orientation."""
+    from _robots import lbr7_catch_problem
+
+    from hoc_cli.goals.residuals import FrameResidual
+    from hoc_cli.goals.terms import _plus_minus
+
+    catch = lbr7_catch_problem(8)
+    moving = catch.goals().final
+    pose = FrameResidual(moving.model, "lbr_flange", np.array([0.5, 0.1, 0.6]), orientation=np.eye(3))
+    rng = np.random.default_rng(5)
+    for residual in (moving, pose):
+        for _ in range(10):
+            q, dq, z0, z1 = rng.standard_normal((4, 7))
+            eps, T = 1e-5 * 0.4, 0.4
+            plus, minus = _plus_minus(residual, q, dq, (z0, z1), eps, T)
+            ref_plus = residual(q + eps * z0, dq + eps * z1, T + eps)
+            ref_minus = residual(q - eps * z0, dq - eps * z1, T - eps)
+            for i in (1, 2, 3):
+                assert np.array_equal(plus[i], ref_plus[i]) and np.array_equal(minus[i], ref_minus[i])
+            assert np.array_equal(plus[0], ref_plus[0])

@@ -128,24 +128,31 @@ class FrameResidual:
         ∂c/∂T (r,)) (the forward kinematics batched over the K samples).
         """
         K, n = q.shape
-        v0, a = self._motion()
         p_goal, v_goal = self.target(T)
         zero = np.zeros((K, 3, n))
         P, V, dV_dq, J = link_motion(self.model, q, dq, self.link)  # one pass along the link's chain
-        c, cq, cv, cT = [P[:, :3, 3] - p_goal], [J[:, :3]], [zero], [-(v0 + a * T)]
+        c, cq, cv = [P[:, :3, 3] - p_goal], [J[:, :3]], [zero]
         if self.orientation is not None:
             e, de = zip(*(orientation_residual(R, self.orientation) for R in P[:, :3, :3]))
             c.append(np.array(e))
             cq.append(np.matmul(np.array(de), J[:, 3:]))
             cv.append(zero)
-            cT.append(np.zeros(3))
         if self.match_velocity:
             c.append(V[:, :3] - v_goal)
             cq.append(dV_dq[:, :3])
             cv.append(J[:, :3])
-            cT.append(-a)
         return (np.concatenate(c, axis=1), np.concatenate(cq, axis=1), np.concatenate(cv, axis=1),
-                np.concatenate(cT))
+                self.time_partial(T))
+
+    def time_partial(self, T: float) -> np.ndarray:
+        """∂c/∂T (r,) at fixed (q, q̇): the target's motion (``batch``'s last output; it does not depend on q, q̇)."""
+        v0, a = self._motion()
+        cT = [-(v0 + a * T)]
+        if self.orientation is not None:
+            cT.append(np.zeros(3))
+        if self.match_velocity:
+            cT.append(-a)
+        return np.concatenate(cT)
 
 
 def reach(model, link: str) -> tuple[np.ndarray, float] | None:

@@ -49,6 +49,19 @@ def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
     return PointSet(mesh=mesh, e=e, s=local, B=B, weight=np.ones(len(points)))
 
 
+def _plus_minus(residual, q: np.ndarray, dq: np.ndarray, dz: tuple, eps: float, T: float) -> tuple:
+    """(the residual at (q, q̇, T) + ε·(dz, 1), the same at −ε): with a ``batch`` (``FrameResidual``) both by one pass
+    of its forward kinematics, whose Jacobians do not depend on T, and ∂c/∂T by its ``time_partial`` at T ± ε; the
+    same numbers as two calls (each sample of a batch is computed as alone).
+    """
+    zq, zv = (q + eps * dz[0], q - eps * dz[0]), (dq + eps * dz[1], dq - eps * dz[1])
+    if not hasattr(residual, "batch"):
+        return residual(zq[0], zv[0], T + eps), residual(zq[1], zv[1], T - eps)
+    c, cq, cv, _ = residual.batch(np.stack(zq), np.stack(zv), T + eps)
+    return ((c[0], cq[0], cv[0], residual.time_partial(T + eps)),
+            (None, cq[1], cv[1], residual.time_partial(T - eps)))
+
+
 @lru_cache(maxsize=64)
 def _unit_values(order: str, local: bytes) -> tuple[np.ndarray, np.ndarray]:
     """(the shape functions' s-derivatives of orders r = 0, 1, 2 at the local coordinates ``local`` (float64 bytes, (P,)),
@@ -215,8 +228,7 @@ class GoalTerms:
             q, dq = r[4], r[5]
             dz = (Y1[0, i], Y1[1, i] - dq / T)
             rows.append(r[1] @ dz[0] + r[2] @ dz[1] + r[3])
-            plus = gp.residual(q + eps * dz[0], dq + eps * dz[1], T + eps)
-            minus = gp.residual(q - eps * dz[0], dq - eps * dz[1], T - eps)
+            plus, minus = _plus_minus(gp.residual, q, dq, dz, eps, T)
             d_q = (plus[1].T @ lam - minus[1].T @ lam) / (2.0 * eps)
             d_v = (plus[2].T @ lam - minus[2].T @ lam) / (2.0 * eps)
             d_T = float(lam @ (plus[3] - minus[3])) / (2.0 * eps)
