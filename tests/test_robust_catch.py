@@ -159,8 +159,8 @@ def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeyp
 
 def test_from_the_guess_0_7_s_the_catch_reaches_the_optimum_from_0_5_s():
     """From the guess 0.7 s the minimum-norm final velocity of the inverse-kinematics guess needs 9 rad/s of a 3.15 rad/s
-    joint. Restored on the coarse stage's 4 elements (23 steps, to T ≈ 0.559 s; on the 8 elements alone it takes
-    34) the catch converges to the optimum reached from 0.5 s: T to 1e-9 and J to 1e-10 relative,
+    joint. Restored on the coarse stage's 4 elements (18 steps, to T ≈ 0.598 s; on the 8 elements alone it takes
+    19) the catch converges to the optimum reached from 0.5 s: T to 1e-9 and J to 1e-10 relative,
     within 1 % of IPOPT's, meeting the ball by Pinocchio's forward kinematics."""
     import dataclasses
 

@@ -20,7 +20,7 @@ same first-order conditions as the search's end.
    violation of the goal rows and the (tightened) limit rows over x and T (``hoc_cli.goals.restoration``): at a
    guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
    at the guess is made there, from the restored trajectory. Where the coarse stage below applies, the restoration
-   runs on its elements (``_restored``: the UR5's fast catch 21 restoration steps there against 44 on its 8
+   runs on its elements (``_restored``: the UR5's fast catch 13 restoration steps there against 15 on its 8
    elements, then 15 steps in x and T on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
    The coarse stage starts its steps in x and T from the restored trajectory at once, without steps at the restored
    T (T has left the guess already; on the UR5's fast catch those took 11 steps, then 10 in x and T).
@@ -159,7 +159,7 @@ def _restored(system, start, goals, limits, span: TimeRange, coarse: int, initia
 
     Where ``_coarse_first`` applies (``_coarsens``), the restoration runs on the ``coarse`` elements it starts from (each
     step's programme a fraction of the size; the initial trajectory, one quintic, is the same there): the UR5's fast
-    catch restores in 21 steps there against 44 on its 8 elements, and the coarse optimum is then 3 steps from the mesh's.
+    catch restores in 13 steps there against 15 on its 8 elements, and the coarse optimum is then 3 steps from the mesh's.
     Its trajectory resampled to the mesh of ``start`` (exact when the coarse nodes are nodes of the mesh) starts the
     steps on the mesh when the coarse stage does not converge; when the coarse restoration finds no T, the restoration
     runs on the mesh of ``start`` (as where the coarse stage does not apply).
@@ -196,7 +196,7 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
     (those more than ``RESTART_GAP`` from the start's T), and the first feasible one is returned: the violation over x and
     T has local minima away from the T where the goal meets the limits (the UR5's fast catch: from the guess 0.4 s it
     stalls at 0.31 s with the goal rows 7 cm off, from 0.8 s at 0.47 s and 53 cm, where the search over T then ran for
-    minutes; from the middle 0.49 s it restores in 21 to 68 steps).
+    minutes; from the middle 0.49 s it restores in 21 and 15 steps).
     """
     found = restore(system, on(start), goals, limits, span=span)
     at_bound = found.stalled and found.T in (span.min, span.max)
