@@ -159,8 +159,8 @@ def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeyp
 
 def test_from_the_guess_0_7_s_the_catch_reaches_the_optimum_from_0_5_s():
     """From the guess 0.7 s the minimum-norm final velocity of the inverse-kinematics guess needs 9 rad/s of a 3.15 rad/s
-    joint. Restored on the coarse stage's 4 elements (43 steps, to T ≈ 0.598 s; on the 8 elements alone it takes
-    70) the catch converges to the optimum reached from 0.5 s: T to 1e-9 and J to 1e-10 relative,
+    joint. Restored on the coarse stage's 4 elements (18 steps, to T ≈ 0.598 s; on the 8 elements alone it takes
+    19) the catch converges to the optimum reached from 0.5 s: T to 1e-9 and J to 1e-10 relative,
     within 1 % of IPOPT's, meeting the ball by Pinocchio's forward kinematics."""
     import dataclasses
 
@@ -192,3 +192,36 @@ def test_the_catch_on_finer_meshes_converges_by_way_of_the_coarse_elements(N):
     assert check_limits(arm, limits, plan.mesh, plan.coeffs).feasible
     reached = PinocchioOracle(model).link_pose(plan.coeffs[-1, 0], "tool0")[:3, 3]
     assert np.abs(reached - (P0 + V0 * plan.T + 0.5 * A0 * plan.T ** 2)).max() < 1e-9
+
+
+@pytest.mark.parametrize("guess", [0.4, 0.8])
+def test_from_a_guess_whose_restoration_stalls_a_restart_at_the_middle_of_the_range_finds_the_catch(guess):
+    """From the guesses 0.4 s and 0.8 s the restoration from the initial trajectory stalls at a local minimum of the
+    violation (at 0.31 s with the goal rows 7 cm off, at 0.47 s and 53 cm), and the search over T that followed ran for
+    minutes (428 s unconverged from 0.4 s). Restarted from the initial trajectory at the middle of T's range
+    (``free_time_sqp._restore_either_end``) it finds a T where the catch meets the limits, and the plan is the optimum
+    reached from 0.5 s: T to 1e-9 and J to 1e-10 relative, within 1 % of IPOPT's."""
+    import dataclasses
+
+    import hoc_cli
+    from hoc_cli import Free
+    from hoc_cli.goals.free_time_sqp import _restore_either_end
+    from hoc_cli.goals.replan import TimeRange
+    from hoc_cli.goals.restoration import restore
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model, arm, limits, problem = ur5_catch()
+    ref = hoc_cli.solve(problem)
+    problem = dataclasses.replace(problem, time=Free(0.3, 0.8, guess=guess))
+    goals = problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    span = TimeRange(0.3, 0.8)
+    start = solver.initial(guess)
+    first = restore(arm, start, goals, limits, span=span)
+    assert first.stalled and not first.feasible and first.violation > 0.05
+    found, _ = _restore_either_end(arm, start, goals, limits, span, lambda plan: plan, solver.initial)
+    assert found.feasible and 0.5 < found.T < 0.7
+    plan = hoc_cli.solve(problem)
+    assert plan.converged and plan.details["T_bound"] is None
+    assert plan.T == pytest.approx(ref.T, rel=1e-9) and plan.J == pytest.approx(ref.J, rel=1e-10)
+    assert abs(plan.T - T_IPOPT) <= 1e-2 * T_IPOPT and abs(plan.J - J_IPOPT) <= 1e-2 * J_IPOPT

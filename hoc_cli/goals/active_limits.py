@@ -168,6 +168,21 @@ def all_rows(system, limits: JointLimits, rows: LimitRows, C: np.ndarray) -> Pen
     return LimitTerms(system, limits, rows, working, zeros, zeros, 1.0, MARGIN).evaluate(C, grad=False)
 
 
+def kinematic_rows(limits: JointLimits, rows: LimitRows, C: np.ndarray) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """(g_lo, g_hi): every kinematic row's g at C, per kind (N, R_k, n), −inf where not imposed (an infinite bound, q and
+    q̇ rows set by x0 and x1 alone): ``all_rows``' kinematic kinds, the same numbers, without the effort points.
+    """
+    lo, hi, sig = _bounds(limits)
+    loc = rows.mesh.local_coefficients(C)
+    g_lo, g_hi = [], []
+    for k in range(KINEMATIC):
+        V = rows.apply(k, loc)
+        data = rows.data[k][:, :, None] if k < 2 else np.zeros((1, 1, 1), bool)
+        g_hi.append(np.where(data | ~np.isfinite(hi[k]), -np.inf, (V - hi[k]) / sig[k]))
+        g_lo.append(np.where(data | ~np.isfinite(lo[k]), -np.inf, (lo[k] - V) / sig[k]))
+    return tuple(g_lo), tuple(g_hi)
+
+
 def penalty_value(active: ActiveRows, mu: np.ndarray, everything: PenaltyValue, rows: LimitRows, n: int) -> PenaltyValue:
     """A ``PenaltyValue`` holding the active rows' multipliers μ (a,) ≥ 0 (rounded up from −0) and every
     row's g, as the augmented Lagrangian reports its outcome (for dJ*/dT, the summary, the next replan).

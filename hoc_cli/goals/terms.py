@@ -16,11 +16,12 @@ q(sT) is unchanged and q̇ scales as 1/T, so ∂c/∂T = ∂c/∂T|explicit − 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from hoc_cli.constraints.points import PointSet
-from hoc_cli.elements import HermiteMesh
+from hoc_cli.elements import HermiteMesh, local_basis
 from hoc_cli.goals.residuals import JointResidual
 
 
@@ -41,7 +42,38 @@ def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
         return PointSet.build(mesh, e, local, np.ones(len(points)))
     x = s * mesh.N
     e = np.clip(np.floor(x).astype(int), 0, mesh.N - 1)
-    return PointSet.build(mesh, e, x - e, np.ones(len(points)))
+    local = x - e
+    unit, powers = _unit_values(mesh.order, local.tobytes())  # the h = 1 values, kept: they do not depend on T
+    h = mesh.h
+    B = np.stack([unit[r] * h ** powers[r] for r in range(3)])  # ``PointSet.build``'s numbers (``HermiteMesh.scale``)
+    return PointSet(mesh=mesh, e=e, s=local, B=B, weight=np.ones(len(points)))
+
+
+def _plus_minus(residual, q: np.ndarray, dq: np.ndarray, dz: tuple, eps: float, T: float) -> tuple:
+    """(the residual at (q, q̇, T) + ε·(dz, 1), the same at −ε): with a ``batch`` (``FrameResidual``) both by one pass
+    of its forward kinematics, each sample with its own T; the same numbers as two calls (each sample of a batch is
+    computed as alone).
+    """
+    zq, zv = (q + eps * dz[0], q - eps * dz[0]), (dq + eps * dz[1], dq - eps * dz[1])
+    if not hasattr(residual, "batch"):
+        return residual(zq[0], zv[0], T + eps), residual(zq[1], zv[1], T - eps)
+    out = residual.batch(np.stack(zq), np.stack(zv), np.array([T + eps, T - eps]))
+    return tuple(tuple(v[i] for v in out) for i in (0, 1))
+
+
+@lru_cache(maxsize=64)
+def _unit_values(order: str, local: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(the shape functions' s-derivatives of orders r = 0, 1, 2 at the local coordinates ``local`` (float64 bytes, (P,)),
+    (3, P, 2m); the powers d − r (3, 2m) of h that ``HermiteMesh.shape_values`` scales them by): the same products, in
+    the same order.
+    """
+    s = np.frombuffer(local, float)
+    powers = s[:, None] ** np.arange(6)[None, :]  # (P, 6)
+    out = np.stack([powers @ local_basis(order)[r].T for r in range(3)])
+    d = np.tile(np.arange(out.shape[-1] // 2), 2)
+    scale = np.stack([(d - r).astype(float) for r in range(3)])
+    out.flags.writeable = scale.flags.writeable = False
+    return out, scale
 
 
 def _perturbed(q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -136,15 +168,17 @@ class GoalTerms:
         """
         res = self.residuals(C) if res is None else res
         where = self._where()
-        n = C.shape[-1]
-        rows = []
-        for i, r in enumerate(res):
-            for j in range(r[0].size):
-                S = np.zeros((3, len(self.points), n))
-                S[0, i], S[1, i] = r[1][j], r[2][j]
-                rows.append(where.transpose(S))
+        m = C.shape[1]
         c = np.concatenate([r[0] for r in res]) if res else np.zeros(0)
-        return c, np.array(rows).reshape((len(rows),) + C.shape)
+        out = np.zeros((c.size,) + C.shape)
+        k = 0
+        for i, r in enumerate(res):  # a row of point i: its element's shape functions times (∂c/∂q, ∂c/∂q̇)
+            rows = slice(k, k + r[0].size)
+            loc = where.B[0, i][None, :, None] * r[1][:, None, :] + where.B[1, i][None, :, None] * r[2][:, None, :]
+            out[rows, where.e[i]] += loc[:, :m]
+            out[rows, where.e[i] + 1] += loc[:, m:]
+            k += r[0].size
+        return c, out
 
     def newton_blocks(self, C: np.ndarray, curvature: bool = True, indefinite: bool = False,
                       res: list | None = None, parts: list | None = None, samples: list | None = None) -> np.ndarray:
@@ -228,13 +262,7 @@ class GoalTerms:
             q, dq = r[4], r[5]
             dz = (Y1[0, i], Y1[1, i] - dq / T)
             rows.append(r[1] @ dz[0] + r[2] @ dz[1] + r[3])
-            if hasattr(gp.residual, "batch"):  # both in one pass of the kinematics (the same numbers)
-                out = gp.residual.batch(np.stack([q + eps * dz[0], q - eps * dz[0]]),
-                                        np.stack([dq + eps * dz[1], dq - eps * dz[1]]), np.array([T + eps, T - eps]))
-                plus, minus = ([v[i] for v in out] for i in (0, 1))
-            else:
-                plus = gp.residual(q + eps * dz[0], dq + eps * dz[1], T + eps)
-                minus = gp.residual(q - eps * dz[0], dq - eps * dz[1], T - eps)
+            plus, minus = _plus_minus(gp.residual, q, dq, dz, eps, T)
             d_q = (plus[1].T @ lam - minus[1].T @ lam) / (2.0 * eps)
             d_v = (plus[2].T @ lam - minus[2].T @ lam) / (2.0 * eps)
             d_T = float(lam @ (plus[3] - minus[3])) / (2.0 * eps)
