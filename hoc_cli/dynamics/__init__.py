@@ -175,14 +175,23 @@ def id_and_mass(model: RobotModel, q, dq, ddq) -> tuple[np.ndarray, np.ndarray]:
     sum in another order), at about the price of one pass instead of two.
     """
     (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    u, M = _bias_and_mass(model, qT, dqT, ddqT, K)
+    return _shape_out(u, one_d), _shape_out(M, one_d)
+
+
+def _bias_and_mass(model: RobotModel, qT: np.ndarray, dqT: np.ndarray, ddqT: np.ndarray | None,
+                   K: int) -> tuple[np.ndarray, np.ndarray]:
+    """(ID(q, q̇, q̈) (K, n), with ``ddqT`` None the bias h(q, q̇); M(q) (K, n, n)) from joint-major inputs (n, K),
+    chunk by chunk (``MASS_CHUNK`` samples) in one Newton-Euler pass each.
+    """
     C = _consts(model)
     n = model.n
-    u = np.empty((K, n))
+    h = np.empty((K, n))
     M = np.empty((K, n, n))
     if n:
         for sl in _chunks(K, MASS_CHUNK):
-            _h_and_mass(C, qT[:, sl], dqT[:, sl], ddqT[:, sl], u[sl], M[sl])
-    return _shape_out(u, one_d), _shape_out(M, one_d)
+            _h_and_mass(C, qT[:, sl], dqT[:, sl], None if ddqT is None else ddqT[:, sl], h[sl], M[sl])
+    return h, M
 
 
 def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
@@ -198,13 +207,7 @@ def forward_dynamics(model: RobotModel, q, dq, u) -> np.ndarray:
         numpy.linalg.LinAlgError: if M is not positive definite at some sample.
     """
     (qT, dqT, uT), K, one_d = _inputs(model, q=q, dq=dq, u=u)
-    C = _consts(model)
-    n = model.n
-    h = np.empty((K, n))
-    M = np.empty((K, n, n))
-    if n:
-        for sl in _chunks(K, MASS_CHUNK):
-            _h_and_mass(C, qT[:, sl], dqT[:, sl], None, h[sl], M[sl])
+    h, M = _bias_and_mass(model, qT, dqT, None, K)
     L = np.linalg.cholesky(M)
     rhs = (uT.T - h)[:, :, None]
     y = np.linalg.solve(L, rhs)
