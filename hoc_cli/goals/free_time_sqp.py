@@ -87,6 +87,10 @@ COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory befo
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
 RESTART_GAP = 0.05  # a restoration restarts (``_restore_either_end``) only at a T this far (relative) from the start's
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
+RESTORED_FLOOR = 5e-2  # the same of the coarse steps in x and T from a restored trajectory: it meets the goal rows, but
+# its J is far above the optimum's (the UR5's fast catch: 619 against 99), and the first long steps curve off the rows
+# (the catch from 0.5 s: 13 steps there where 2 cm takes 15; from 0.6 s: 8 and 3 on the mesh where 2 cm ended the
+# coarse stage unconverged and the steps on the mesh took 135 Newton matrices)
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 FREE_COLD_FLOOR = 2e-2  # the same on the coarse stage of a free T, whose steps in x and T move the target (the lbr7
 # catch: 1 cm halved a corrected step at 1.2e-2 thrice, twice); the fixed-T goal plans keep COLD_FLOOR (the Panda reach:
@@ -268,7 +272,8 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
                      violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
     if span is not None and (r is None or _met(r)):  # restored: T already left the guess, the steps in x and T at once
         r = _run(record, system, plan if r is None else r.plan, goals, free=span, limits=limits, fallback=False,
-                 max_steps=max_steps, violation_floor=floor, accuracy=COARSE_FREE_ACCURACY)
+                 max_steps=max_steps, violation_floor=floor if restored is None else RESTORED_FLOOR,
+                 accuracy=COARSE_FREE_ACCURACY)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
