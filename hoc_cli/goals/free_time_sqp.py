@@ -89,8 +89,8 @@ RESTART_GAP = 0.05  # a restoration restarts (``_restore_either_end``) only at a
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 RESTORED_FLOOR = 5e-2  # the same of the coarse steps in x and T from a restored trajectory: it meets the goal rows, but
 # its J is far above the optimum's (the UR5's fast catch: 619 against 99), and the first long steps curve off the rows
-# (the catch from 0.5 s: 13 steps there where 2 cm takes 15; from 0.6 s: 8 and 3 on the mesh where 2 cm ended the
-# coarse stage unconverged and the steps on the mesh took 135 Newton matrices)
+# (the catch from 0.5 s: 13 steps there where 2 cm takes 15; from 0.6 s: 8, then 3 on the mesh, where with 2 cm the
+# coarse steps ran to their limit of 120 and the mesh's took 7 at the restored T and 5 in x and T)
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 FREE_COLD_FLOOR = 2e-2  # the same on the coarse stage of a free T, whose steps in x and T move the target (the lbr7
 # catch: 1 cm halved a corrected step at 1.2e-2 thrice, twice); the fixed-T goal plans keep COLD_FLOOR (the Panda reach:
