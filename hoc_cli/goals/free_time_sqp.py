@@ -85,6 +85,9 @@ MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the
 COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
 # catch under the torque cost takes 86, where ``plan_goals`` takes 50 s)
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
+RESTORE_TOL = 1e-4  # the restoration ends feasible with the goal rows met to this (m, rad, m/s) and the tightened
+# rows to this of their size (inside the limits by ``restoration.MARGIN``): the SQP steps meet the rows from there, where
+# its Gauss-Newton steps to 1e-9 cost the UR5's fast catch from 0.5 s 2 restoration steps and 3 coarse steps more
 RESTART_GAP = 0.05  # a restoration restarts (``_restore_either_end``) only at a T this far (relative) from the start's
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
 RESTORED_FLOOR = 5e-2  # the same of the coarse steps in x and T from a restored trajectory: it meets the goal rows, but
@@ -202,7 +205,7 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
     stalls at 0.31 s with the goal rows 7 cm off, from 0.8 s at 0.47 s and 53 cm, where the search over T then ran for
     minutes; from the middle 0.49 s it restores in 21 and 15 steps).
     """
-    found = restore(system, on(start), goals, limits, span=span)
+    found = restore(system, on(start), goals, limits, span=span, tol=RESTORE_TOL)
     at_bound = found.stalled and found.T in (span.min, span.max)
     if found.feasible or not found.stalled or initial is None:
         return found, at_bound
@@ -210,7 +213,7 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
     for T1 in (math.sqrt(span.min * span.max), span.max, span.min):
         if abs(T1 - T0) <= RESTART_GAP * T0:
             continue
-        again = restore(system, on(initial(T1)), goals, limits, span=span)
+        again = restore(system, on(initial(T1)), goals, limits, span=span, tol=RESTORE_TOL)
         if again.feasible:
             return again, False
         at_bound = at_bound or (again.stalled and again.T in (span.min, span.max))
