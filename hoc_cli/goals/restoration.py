@@ -16,7 +16,10 @@ trial, doubled after an accepted one: from far outside, a full correction of the
 the goal rows off). A trial that is rejected and breaks rows the programme left out is solved again with those rows
 in it (up to ``WIDEN`` times a step, σ and τ kept): a full step of the goal rows breaks rows well inside their bound
 (on the UR5's fast catch up to 44 % of the limit's size from 5 % inside), which steps that do not see them then cut
-slowly (21 restoration steps there on 4 elements instead of 13, 44 on 8 instead of 15, 97 on 16 instead of 18). The
+slowly (21 restoration steps there on 4 elements instead of 13, 44 on 8 instead of 15, 97 on 16 instead of 18). A trial
+whose limit rows alone leave the ratio below ¼ (½Σmax(0, g + κ)² ≥ m − ¼·predicted) is re-solved so without the goal
+rows' forward kinematics at it (the same decisions: on the catch's 8 elements 22 goal-row evaluations for 38
+programmes), and the re-solves of a step at the same σ share the factor of JᵀJ + σS. The
 residual's Jacobian is exact in x (the goal rows' exact Jacobian, the Bernstein rows are linear) and in T along the
 rescaled family (``_time_column``: the goal rows' ``GoalTerms.time_slopes``; a Bernstein row of d^k q/dt^k scales as
 T^−k); each step solves (JᵀJ + σS) d = −JᵀR with S the diagonal of JᵀJ (Marquardt's
