@@ -115,3 +115,31 @@ def test_a_rejected_trial_is_solved_again_with_the_rows_it_broke(N):
     found = restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
     assert found.feasible and found.violation <= 1e-9 and found.row_violation <= 1e-9
     assert 0.5 < found.T < 0.6 and found.steps <= 20
+
+
+def test_a_trial_its_limit_rows_alone_reject_evaluates_no_goal_rows(monkeypatch):
+    """A trial whose limit rows alone leave the ratio of actual to predicted decrease below ¼ (m ≥ ½Σmax(0, g + κ)²) is
+    rejected, and re-solved with the rows it broke, without the goal rows' forward kinematics there: on the catch's 8
+    elements from 0.5 s, 15 steps with 22 goal-row evaluations for 38 programmes (39 when every trial evaluates them:
+    one per programme and one at the start), to the same feasible T as
+    ``test_a_rejected_trial_is_solved_again_with_the_rows_it_broke``."""
+    import hoc_cli.goals.restoration as restoration
+    from hoc_cli.goals.replan import TimeRange
+
+    arm, limits, goals, start = _start()
+    calls = {"rows": 0, "programmes": 0}
+    goal_rows, solve_qp = restoration._goal_rows, restoration.solve_qp
+
+    def rows_spy(*args, **kwargs):
+        calls["rows"] += 1
+        return goal_rows(*args, **kwargs)
+
+    def qp_spy(*args, **kwargs):
+        calls["programmes"] += 1
+        return solve_qp(*args, **kwargs)
+
+    monkeypatch.setattr(restoration, "_goal_rows", rows_spy)
+    monkeypatch.setattr(restoration, "solve_qp", qp_spy)
+    found = restoration.restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
+    assert found.feasible and found.violation <= 1e-9 and found.row_violation <= 1e-9 and 0.5 < found.T < 0.6
+    assert calls["rows"] <= calls["programmes"] - 10

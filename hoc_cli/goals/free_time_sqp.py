@@ -20,8 +20,9 @@ same first-order conditions as the search's end.
    violation of the goal rows and the (tightened) limit rows over x and T (``hoc_cli.goals.restoration``): at a
    guess T with no plan within the limits (the UR5's fast catch) T moves to where there is one, and the plan
    at the guess is made there, from the restored trajectory. Where the coarse stage below applies, the restoration
-   runs on its elements (``_restored``: the UR5's fast catch 13 restoration steps there against 15 on its 8
-   elements, then 15 steps in x and T on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30).
+   runs on its elements (``_restored``: the UR5's fast catch 11 restoration steps there against 13 on its 8
+   elements, then 10 steps in x and T on 4 elements and 3 on the mesh, where the steps on the mesh took 29 + 30). The
+   restoration ends at ``RESTORE_TOL``, and the coarse steps in x and T from it take ``RESTORED_FLOOR``.
    The coarse stage starts its steps in x and T from the restored trajectory at once, without steps at the restored
    T (T has left the guess already; on the UR5's fast catch those took 11 steps, then 10 in x and T).
    When the restoration stalls (a local minimum of the violation), it restarts from the initial trajectory at the middle
@@ -85,8 +86,15 @@ MAX_STEPS = 120  # Newton steps in x and T from the plan at the guess before the
 COLD_STEPS = 200  # Newton steps at the guess T from the initial trajectory before ``plan_goals`` takes over (the lbr7
 # catch under the torque cost takes 86, where ``plan_goals`` takes 50 s)
 COARSE_N = 4  # elements of the mesh on which a cold free-T plan of 2·COARSE_N elements or more first finds its T
+RESTORE_TOL = 1e-4  # the restoration ends feasible with the goal rows met to this (m, rad, m/s) and the tightened
+# rows to this of their size (inside the limits by ``restoration.MARGIN``): the SQP steps meet the rows from there, where
+# its Gauss-Newton steps to 1e-9 cost the UR5's fast catch from 0.5 s 2 restoration steps and 3 coarse steps more
 RESTART_GAP = 0.05  # a restoration restarts (``_restore_either_end``) only at a T this far (relative) from the start's
 FINE_STEPS = 20  # steps in x and T from the resampled coarse optimum (the lbr7 catch: 5-7) before steps at the coarse T
+RESTORED_FLOOR = 5e-2  # the same of the coarse steps in x and T from a restored trajectory: it meets the goal rows, but
+# its J is far above the optimum's (the UR5's fast catch: 619 against 99), and the first long steps curve off the rows
+# (the catch from 0.5 s: 10 steps there where 2 cm takes 13; from 0.6 s: 8, then 3 on the mesh, where with 2 cm the
+# coarse steps ran to their limit of 120 and the mesh's took 7 at the restored T and 5 in x and T)
 COLD_FLOOR = 1e-2  # m, rad, m/s: the goal rows' violation a step from scratch may reach undamped
 FREE_COLD_FLOOR = 2e-2  # the same on the coarse stage of a free T, whose steps in x and T move the target (the lbr7
 # catch: 1 cm halved a corrected step at 1.2e-2 thrice, twice); the fixed-T goal plans keep COLD_FLOOR (the Panda reach:
@@ -159,7 +167,7 @@ def _restored(system, start, goals, limits, span: TimeRange, coarse: int, initia
 
     Where ``_coarse_first`` applies (``_coarsens``), the restoration runs on the ``coarse`` elements it starts from (each
     step's programme a fraction of the size; the initial trajectory, one quintic, is the same there): the UR5's fast
-    catch restores in 13 steps there against 15 on its 8 elements, and the coarse optimum is then 3 steps from the mesh's.
+    catch restores in 11 steps there against 13 on its 8 elements, and the coarse optimum is then 3 steps from the mesh's.
     Its trajectory resampled to the mesh of ``start`` (exact when the coarse nodes are nodes of the mesh) starts the
     steps on the mesh when the coarse stage does not converge; when the coarse restoration finds no T, the restoration
     runs on the mesh of ``start`` (as where the coarse stage does not apply).
@@ -196,9 +204,9 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
     (those more than ``RESTART_GAP`` from the start's T), and the first feasible one is returned: the violation over x and
     T has local minima away from the T where the goal meets the limits (the UR5's fast catch: from the guess 0.4 s it
     stalls at 0.31 s with the goal rows 7 cm off, from 0.8 s at 0.47 s and 53 cm, where the search over T then ran for
-    minutes; from the middle 0.49 s it restores in 21 and 15 steps).
+    minutes; from the middle 0.49 s it restores in 18 and 12 steps).
     """
-    found = restore(system, on(start), goals, limits, span=span)
+    found = restore(system, on(start), goals, limits, span=span, tol=RESTORE_TOL)
     at_bound = found.stalled and found.T in (span.min, span.max)
     if found.feasible or not found.stalled or initial is None:
         return found, at_bound
@@ -206,7 +214,7 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
     for T1 in (math.sqrt(span.min * span.max), span.max, span.min):
         if abs(T1 - T0) <= RESTART_GAP * T0:
             continue
-        again = restore(system, on(initial(T1)), goals, limits, span=span)
+        again = restore(system, on(initial(T1)), goals, limits, span=span, tol=RESTORE_TOL)
         if again.feasible:
             return again, False
         at_bound = at_bound or (again.stalled and again.T in (span.min, span.max))
@@ -268,7 +276,8 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
                      violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
     if span is not None and (r is None or _met(r)):  # restored: T already left the guess, the steps in x and T at once
         r = _run(record, system, plan if r is None else r.plan, goals, free=span, limits=limits, fallback=False,
-                 max_steps=max_steps, violation_floor=floor, accuracy=COARSE_FREE_ACCURACY)
+                 max_steps=max_steps, violation_floor=floor if restored is None else RESTORED_FLOOR,
+                 accuracy=COARSE_FREE_ACCURACY)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
