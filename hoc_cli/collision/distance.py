@@ -131,9 +131,12 @@ def capsule_halfspace(a, b, r, normal, offset) -> Contact:
     return Contact(distance=h - r, normal=n.copy(), point_a=point_a, point_b=low - h[..., None] * n)
 
 
-def capsule_box(a, b, r, center, rotation, half) -> Contact:
+def capsule_box(a, b, r, center, rotation, half, spheres: tuple | None = None) -> Contact:
     """Capsule [a, b] radius r (A) against the box (B) with ``center`` (S, 3), ``rotation`` (S, 3, 3)
     (its axes as columns) and half side lengths ``half`` (S, 3).
+
+    ``spheres``: ``sphere_box``'s result on these rows when every row is a sphere (a = b, rows (M,) of
+    C-contiguous arrays) and the caller has it already; it is not computed again.
     """
     a, b, center = (np.asarray(x, dtype=float) for x in (a, b, center))
     R, h = np.asarray(rotation, dtype=float), np.asarray(half, dtype=float)
@@ -151,7 +154,7 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     if ball.size == 0:
         return _capsule_box_rows(a, b, r, center, R, h)
     if ball.size == M:  # every row a sphere (the penalty's rows): no gathering unless a centre is in a box
-        got, done = sphere_box(*(np.ascontiguousarray(x) for x in (a, r, center, R, h)))  # as the gathered rows
+        got, done = spheres if spheres is not None else sphere_box(*(np.ascontiguousarray(x) for x in (a, r, center, R, h)))
         if done.all():
             return Contact(*got)
     else:

@@ -203,7 +203,7 @@ def _box_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, r: np.nda
     got, done = sphere_box(a, r, center, rot, half)
     if done.all():
         return Contact(*got)
-    return capsule_box(a, b, r, center, rot, half)  # a centre in a box: its depth by the capsule path
+    return capsule_box(a, b, r, center, rot, half, spheres=(got, done))  # a centre in a box: its depth by the capsule path
 
 
 def _spheres(scene: CollisionScene) -> np.ndarray:
