@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross, sphere_box
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_capsule_distance, capsule_halfspace, cross, sphere_box, within_rounding
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -222,8 +222,7 @@ def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.nd
     """
     p = np.matmul((c - center)[..., None, :], rot)[..., 0, :]
     gap = np.linalg.norm(p - np.clip(p, -half, half), axis=-1)
-    scale = np.max(half, axis=-1) + np.linalg.norm(p, axis=-1) + 0.0
-    return gap - r, ~(gap <= 1e-12 * scale)
+    return gap - r, ~within_rounding(gap, p, half)
 
 
 def _fill_sphere_box(scene: CollisionScene, centres: np.ndarray, pairs: np.ndarray, fast: np.ndarray,
@@ -254,7 +253,35 @@ def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np
         _fill_sphere_box(scene, a[rows[fast], scene.prim[pairs[fast]]], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
-        out[rest] = pair_contacts(scene, a, b, rows[rest], pairs[rest]).distance
+        r, k = rows[rest], pairs[rest]
+        prim, other = scene.prim[k], scene.other[k]
+        self_rows = scene.kind[k] == KIND_SELF
+        a2, b2 = np.zeros((r.size, 3)), np.zeros((r.size, 3))
+        a2[self_rows], b2[self_rows] = a[r[self_rows], other[self_rows]], b[r[self_rows], other[self_rows]]
+        out[rest] = _distances_only(scene, a[r, prim], b[r, prim], a2, b2, k)
+    return out
+
+
+def _distances_only(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndarray, b2: np.ndarray,
+                    pairs: np.ndarray) -> np.ndarray:
+    """``_contacts``' distances (M,), the same numbers: two capsules' by ``capsule_capsule_distance`` (no normals or
+    witnesses), the other kinds' by ``_contacts``.
+    """
+    out = np.empty(pairs.size)
+    kind, other = scene.kind[pairs], scene.other[pairs]
+    caps = (kind == KIND_SELF) | (kind == KIND_CAPSULE)
+    if caps.any():
+        robot = scene.robot
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        o, sf = other[caps], kind[caps] == KIND_SELF
+        a, b, r2 = a2[caps], b2[caps], np.empty(o.size)
+        r2[sf] = robot.radius[o[sf]]
+        ob = ~sf  # capsule obstacles
+        a[ob], b[ob], r2[ob] = obs["ca"][o[ob]], obs["cb"][o[ob]], obs["cr"][o[ob]]
+        out[caps] = capsule_capsule_distance(a1[caps], b1[caps], robot.radius[scene.prim[pairs[caps]]], a, b, r2)
+    rest = np.flatnonzero(~caps)
+    if rest.size:
+        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
     return out
 
 
@@ -272,7 +299,7 @@ def row_distances(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> n
         _fill_sphere_box(scene, a1[fast], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
-        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
+        out[rest] = _distances_only(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest])
     return out
 
 
