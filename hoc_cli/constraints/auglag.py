@@ -59,6 +59,7 @@ class Penalized:
         self.base, self.terms = base, tuple(terms)
         self.mesh, self.layout = base.mesh, base.layout
         self.last = None
+        self._newton: tuple | None = None  # (ev, the Newton matrix there): the polish at the inner solve's last one
 
     def coefficients(self, x: np.ndarray) -> np.ndarray:
         return self.base.coefficients(x)
@@ -80,15 +81,25 @@ class Penalized:
         return self.evaluate(x, grad=False).J
 
     def newton(self, ev, extra: np.ndarray | None = None):
-        """The base's Newton matrix with the terms' blocks and ``extra`` (N, 2mn, 2mn) added."""
+        """The base's Newton matrix with the terms' blocks and ``extra`` (N, 2mn, 2mn) added. Without ``extra``, the
+        last one is kept: a second at the same evaluation (the polish after an inner solve whose last iteration built
+        it) is that one.
+        """
+        kept = self._newton
+        if extra is None and kept is not None and kept[0] is ev:
+            return kept[1]
         C = self.base.coefficients(ev.x)
         blocks = None
         for term in self.terms:
             b = term.newton_blocks(C)
             blocks = b if blocks is None else blocks + b
         if blocks is None:
-            return self.base.newton(ev, extra=extra)
-        return self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+            P = self.base.newton(ev, extra=extra)
+        else:
+            P = self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+        if extra is None:
+            self._newton = (ev, P)
+        return P
 
 
 def polish(problem, x: np.ndarray, ev=None, trial_gradient: bool = False) -> np.ndarray:
