@@ -523,9 +523,13 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs,
     body_b[self_rows] = np.where(robot.body[other[self_rows]] < 0, n, robot.body[other[self_rows]])
     moved_b = anc[body_b] & revolute
     JP = np.where(moved_a[:, None, :], cross(Zr, P[:, :, None] - Or, axis=1), 0.0)      # (M, 3, n)
-    JQ = np.where(moved_b[:, None, :], cross(Zr, Qp[:, :, None] - Or, axis=1), 0.0)
+    JQ = np.zeros_like(JP)  # B's: zero where no joint moves it (obstacles)
     before = anc[:n].T                                                       # before[i, j]: i on j's chain
-    H = _kinematic_curvature(normal, Zr, JP, moved_a, before) - _kinematic_curvature(normal, Zr, JQ, moved_b, before)
+    H = _kinematic_curvature(normal, Zr, JP, moved_a, before)
+    sr = np.flatnonzero(self_rows)
+    if sr.size:  # x − 0 = x: the other rows' B part adds nothing
+        JQ[sr] = np.where(moved_b[sr, None, :], cross(Zr[sr], Qp[sr, :, None] - Or[sr], axis=1), 0.0)
+        H[sr] -= _kinematic_curvature(normal[sr], Zr[sr], JQ[sr], moved_b[sr], before)
     box = kind == KIND_BOX
     if box.any():  # the segment of A is a point here (a sphere row): its distance to the box curves at edges
         s = np.flatnonzero(box & np.all(a1 == b1, axis=1))
