@@ -198,7 +198,8 @@ class ControlProblem:
         self.terms: tuple = ()  # extra objective terms (module docstring, "Hooks"); set by an outer loop
         self.last: Evaluation | None = None
         self._kept_hessians: tuple | None = None  # (ev, element blocks, per-sample PSD parts): ``_element_hessians``
-        self._bare_last: tuple | None = None  # (x, op, I(q_h)) of the last evaluation without gradient (``bare_cost``)
+        self._bare_last: tuple | None = None  # (x, op, I(q_h)) of the last evaluation (``bare_cost``)
+        self._cost_last: tuple | None = None  # (x, op, I(q_h), its gradient, noise, q, q̇, q̈, u): the last with gradient
         self._carried: np.ndarray | None = None  # x where the kept Hessian serves the next Newton matrix (``carry_hessian``)
 
     # -- design vector ---------------------------------------------------------------------------------
@@ -242,12 +243,29 @@ class ControlProblem:
         L = 0.5 * np.einsum("ki,ki->k", u, w)
         return SampleGradients(L=L, gq=gq, gdq=gdq, gddq=gddq, u=u, w=w, M=M, Jq=Jq, Jv=Jv)
 
-    def evaluate(self, x: np.ndarray, grad: bool = True) -> Evaluation:
-        """I(q_h) [(N·m)²·s / (kg·m²) covariant, (N·m)²·s torque] and its gradient with respect to x."""
+    def evaluate(self, x: np.ndarray, grad: bool = True, keep_gradient: bool = False) -> Evaluation:
+        """I(q_h) [(N·m)²·s / (kg·m²) covariant, (N·m)²·s torque] and its gradient with respect to x.
+
+        I(q_h) and its gradient at the last x evaluated with it are kept: an evaluation with gradient at that x
+        again (the next inner solve starting where the last one ended) evaluates only the ``terms``.
+        ``keep_gradient`` (without ``grad``): I(q_h)'s gradient is made and kept too, for such a next evaluation,
+        while the evaluation returned is the one without gradient (the terms' values alone).
+        """
         self.n_evals += 1
         C = self.coefficients(x)
+        kept = self._cost_last if grad else None
+        if kept is not None and kept[1] is self.op and np.array_equal(kept[0], x):
+            J, g, noise, q, dq, ddq, u = kept[2:]  # I(q_h) and its gradient at this x: only the terms change
+            return self._with_terms(C, x, J, g.copy(), noise, q, dq, ddq, u)
         q, dq, ddq = self.op.apply(C)
         wt = self.op.w
+        if not grad and keep_gradient:
+            J, g, noise, u = self._cost_gradient(q, dq, ddq)
+            self._cost_last = (np.array(x), self.op, J, g, noise, q, dq, ddq, u)
+            self._bare_last = (self._cost_last[0], self.op, J)
+            if self.terms:
+                J += sum(term.evaluate(C, grad=False)[0] for term in self.terms)
+            return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
         if not grad:
             if self.cost == "covariant":
                 u, M = self.system.id_and_mass(q, dq, ddq)
@@ -261,6 +279,24 @@ class ControlProblem:
             if self.terms:
                 J += sum(term.evaluate(C, grad=False)[0] for term in self.terms)
             return Evaluation(x=x, J=J, grad=None, q=q, dq=dq, ddq=ddq, u=u)
+        J, g, noise, u = self._cost_gradient(q, dq, ddq)
+        self._cost_last = (np.array(x), self.op, J, g.copy(), noise, q, dq, ddq, u)
+        self._bare_last = (self._cost_last[0], self.op, J)  # the same number as the evaluation without gradient
+        return self._with_terms(C, x, J, g, noise, q, dq, ddq, u)
+
+    def _with_terms(self, C: np.ndarray, x: np.ndarray, J: float, g: np.ndarray, noise: float, q: np.ndarray,
+                    dq: np.ndarray, ddq: np.ndarray, u: np.ndarray) -> Evaluation:
+        """The evaluation at x (coefficients C) from I(q_h) = J and its gradient g, the ``terms`` added; kept as ``last``."""
+        for term in self.terms:
+            value, gC = term.evaluate(C, grad=True)
+            J, g = J + value, g + self.layout.pack(gC)
+        ev = Evaluation(x=x, J=J, grad=g, q=q, dq=dq, ddq=ddq, u=u, noise=noise)
+        self.last = ev
+        return ev
+
+    def _cost_gradient(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
+        """(I(q_h), its gradient (P_free,), the rounding noise of I, u (K, n)) at the samples q, q̇, q̈ (K, n) of ``op``."""
+        wt = self.op.w
         s = self.sample_gradients(q, dq, ddq, jacobians=False)
         J = float(np.dot(wt, s.L))
         if not np.isfinite(J):
@@ -271,12 +307,7 @@ class ControlProblem:
         Mddq = np.einsum("kij,kj->ki", M, ddq)
         size = np.abs(Mddq) + np.abs(u - Mddq)
         noise = 64 * np.finfo(float).eps * float(np.dot(wt, np.einsum("ki,ki->k", np.abs(w), size)))
-        for term in self.terms:
-            value, gC = term.evaluate(C, grad=True)
-            J, g = J + value, g + self.layout.pack(gC)
-        ev = Evaluation(x=x, J=J, grad=g, q=q, dq=dq, ddq=ddq, u=u, noise=noise)
-        self.last = ev
-        return ev
+        return J, g, noise, u
 
     def gradient_from_samples(self, gq: np.ndarray, gdq: np.ndarray, gddq: np.ndarray) -> np.ndarray:
         """The design gradient (P_free,) of Σ_k φ_k(q_k, q̇_k, q̈_k) over the samples of ``self.op``.

@@ -198,3 +198,26 @@ def test_the_polish_steps_from_the_inner_solves_last_evaluation_without_a_second
     assert (out.status, out.stop) == ("converged", "met")
     np.testing.assert_allclose(out.x, a - A.T @ np.linalg.solve(A @ A.T, A @ a - b), atol=1e-12)
     assert base.evals == 3 * out.outer  # each outer iteration: the Newton step's, the accepted point's, the trial's
+
+
+def test_the_polish_at_the_evaluation_of_the_inner_solves_last_newton_matrix_takes_that_matrix():
+    """A second Newton matrix without ``extra`` at the same evaluation (the polish after an inner solve whose last
+    iteration built one there) is the first: the base's is not built again; another evaluation or ``extra`` builds."""
+    calls = []
+
+    class Counted(Distance):
+        def newton(self, ev, extra=None):
+            calls.append(extra)
+            return super().newton(ev, extra)
+
+    A, b = np.array([[1.0, 2.0, 0.0]]), np.array([0.5])
+    problem = Penalized(Counted(np.array([0.3, -1.2, 2.0])), (LinearRows(A, b, rho=3.0, rho0=1.0),))
+    ev = problem.evaluate(np.zeros(3))
+    P = problem.newton(ev)
+    assert problem.newton(ev) is P and len(calls) == 1
+    x = auglag.polish(problem, np.zeros(3), ev)
+    assert len(calls) == 1
+    np.testing.assert_allclose(x, -np.linalg.solve(np.eye(3) + 3.0 * A.T @ A, ev.grad), atol=1e-14)
+    problem.newton(ev, extra=np.eye(3))
+    problem.newton(problem.evaluate(np.zeros(3)))
+    assert len(calls) == 3

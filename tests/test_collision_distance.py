@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hoc_cli.collision.distance import capsule_box, capsule_capsule, capsule_halfspace
+from hoc_cli.collision.distance import capsule_box, capsule_capsule, capsule_capsule_distance, capsule_halfspace
 from hoc_cli.collision.evaluate import distance_gradient, distances, pair_gradient
 from hoc_cli.collision.robot import robot_geometry
 from hoc_cli.collision.scene import Obstacle, collision_scene
@@ -201,3 +201,18 @@ def test_pair_hessian_matches_central_differences_of_the_gradient(panda):
             assert np.median(e) < 1e-6 and np.mean(e < 1e-5) > 0.97, (k, np.median(e), np.max(e))  # the rest: kinks
             kinds.add(int(k))
     assert kinds == {0, 1, 2, 3}
+
+
+def test_two_capsules_distance_alone_is_the_contacts_distance_bit_for_bit():
+    """``capsule_capsule_distance`` (the distances of every pair at the points, the certificate) gives
+    ``capsule_capsule``'s numbers: random, crossing, parallel and point segments."""
+    rng = np.random.default_rng(11)
+    M = 2000
+    a1, b1, a2, b2 = (rng.normal(size=(M, 3)) for _ in range(4))
+    b2[:200] = a2[:200] + (b1[:200] - a1[:200])          # parallel
+    b1[200:300] = a1[200:300]                             # points
+    b2[250:350] = a2[250:350]
+    mid = 0.5 * (a1[400:500] + b1[400:500])               # crossing: the second segment through the first's midpoint
+    a2[400:500], b2[400:500] = mid - 0.3 * rng.normal(size=(100, 3)), mid
+    r1, r2 = rng.uniform(0.0, 0.2, M), rng.uniform(0.0, 0.2, M)
+    assert np.array_equal(capsule_capsule_distance(a1, b1, r1, a2, b2, r2), capsule_capsule(a1, b1, r1, a2, b2, r2).distance)

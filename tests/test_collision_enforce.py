@@ -12,10 +12,10 @@ from _collision_tasks import coal_two_link, plan, task_folder
 
 from hoc_cli.collision.constraint import SPHERE_PADDING, CollisionTerms, RowStart, point_configurations, row_reach, sphere_rows_scene
 from hoc_cli.collision.enforce import RHO_RANGE_STEPS, base_points
-from hoc_cli.collision.evaluate import contacts, distances, pair_distances, pair_gradient, row_contacts, world_capsules
+from hoc_cli.collision.evaluate import contacts, distances, pair_distances, pair_gradient, row_contacts, row_distances, world_capsules
 from hoc_cli.collision.geometry import Shape
 from hoc_cli.collision.robot import robot_geometry
-from hoc_cli.collision.scene import KIND_BOX, Obstacle, collision_scene
+from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_SELF, Obstacle, collision_scene
 from hoc_cli.collision.shapes import Box, sphere
 from hoc_cli.elements import HermiteMesh
 from hoc_cli.model import load_robot
@@ -195,6 +195,8 @@ def test_distances_alone_are_the_contacts_distances_spheres_in_and_out_of_boxes_
         rng = np.random.default_rng(8)
         rows, pairs = rng.integers(0, len(q), 4000), rng.integers(0, sc.size, 4000)
         assert np.array_equal(pair_distances(sc, a, b, rows, pairs), every[rows, pairs])
+        assert np.array_equal(row_distances(model, sc, q, rows, pairs), every[rows, pairs])
+    assert (scene.kind == KIND_CAPSULE).any() and (scene.kind == KIND_SELF).any()  # two capsules' distance alone
     box = rows_scene.kind == KIND_BOX
     assert (every[:, box] < -rows_scene.robot.radius[rows_scene.prim[box]]).any()  # centres in the box: the depth path
 

@@ -297,3 +297,43 @@ def test_bare_cost_after_an_evaluation_without_gradient_reuses_its_value(cost):
     other = copy.copy(P)
     other.op = other.mesh.quadrature(6)  # another quadrature (as a real-time copy on a rescaled mesh has)
     assert other.bare_cost(x) != fresh and other.n_evals == evals + 3
+
+
+@pytest.mark.parametrize("cost", ["covariant", "torque"])
+def test_an_evaluation_with_gradient_at_its_last_x_reuses_the_cost_part(cost):
+    """An evaluation with gradient at the x of the last one (the next inner solve starting at the polished point)
+    takes I(q_h), its gradient and noise from it without a dynamics pass, the terms evaluated afresh: the same numbers
+    as a fresh problem's; ``bare_cost`` there is the evaluation without gradient's number; another x or a copy with
+    another quadrature computes afresh."""
+    import copy
+
+    rng = np.random.default_rng(5)
+    model = load_robot(ROBOTS / "lbr7.urdf")
+    P = ControlProblem(RobotSystem(model), HermiteMesh("quintic", 1.0, 3), *_random_boundary(model, rng), cost=cost)
+    x = P.initial_guess() + 0.05 * rng.normal(size=P.layout.size)
+    ref = ControlProblem(RobotSystem(model), P.mesh, *P.boundary, cost=cost)
+    fresh, bare = ref.evaluate(x), ref.bare_cost(x)
+    assert ref.evaluate(x, grad=False).J == bare
+    calls = []
+    sample = P.sample_gradients
+    P.sample_gradients = lambda *a, **k: calls.append(1) or sample(*a, **k)
+    first = P.evaluate(x)
+    assert P.bare_cost(x.copy()) == bare and len(calls) == 1
+    first.grad[:] = 0.0  # a caller's change to its gradient does not reach the kept one
+    P.terms = (_Offset(),)
+    again = P.evaluate(x.copy())
+    assert len(calls) == 1 and again.J == fresh.J + 7.0 and np.array_equal(again.grad, fresh.grad)
+    assert again.noise == fresh.noise and np.array_equal(again.u, fresh.u)
+    P.evaluate(x + 1e-3)
+    assert len(calls) == 2
+    P.evaluate(x)
+    other = copy.copy(P)
+    other.op = other.mesh.quadrature(6)
+    other.evaluate(x)
+    assert len(calls) == 4
+    # a polish's trial point: the evaluation without gradient, I(q_h)'s gradient kept for the next inner solve
+    y = x + 2e-3
+    plain = ControlProblem(RobotSystem(model), P.mesh, *P.boundary, cost=cost)
+    trial = P.evaluate(y, grad=False, keep_gradient=True)
+    assert trial.grad is None and trial.J == plain.evaluate(y, grad=False).J + 7.0 and len(calls) == 5
+    assert P.evaluate(y).J == plain.evaluate(y).J + 7.0 and len(calls) == 5

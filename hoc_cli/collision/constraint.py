@@ -26,7 +26,7 @@ from functools import cached_property
 import numpy as np
 
 from hoc_cli.collision.distance import Contact
-from hoc_cli.collision.evaluate import pair_gradient_geometry, pair_hessian, row_contacts
+from hoc_cli.collision.evaluate import pair_gradient_geometry, pair_hessian, row_distances
 from hoc_cli.collision.robot import RobotGeometry, reach
 from hoc_cli.collision.scene import KIND_SELF, CollisionScene
 from hoc_cli.constraints.points import PointSet
@@ -271,12 +271,12 @@ class CollisionTerms:
         q = point_configurations(self.points, C)
         live = self._live(q)
         if live is None:
-            d = row_contacts(self.model, self.scene, q[used], inverse, self.pairs).distance
+            d = row_distances(self.model, self.scene, q[used], inverse, self.pairs)
         else:
             d = np.full(self.rows.size, np.inf)
             if live.any():
                 at, local = np.unique(inverse[live], return_inverse=True)
-                d[live] = row_contacts(self.model, self.scene, q[used[at]], local, self.pairs[live]).distance
+                d[live] = row_distances(self.model, self.scene, q[used[at]], local, self.pairs[live])
         self._anchor_at(q, d, live)
         return d
 

@@ -120,6 +120,15 @@ def capsule_capsule(a1, b1, r1, a2, b2, r2) -> Contact:
     return Contact(distance=gap - r1 - r2, normal=n, point_a=x1 - r1[..., None] * n, point_b=x2 + r2[..., None] * n)
 
 
+def capsule_capsule_distance(a1, b1, r1, a2, b2, r2) -> np.ndarray:
+    """``capsule_capsule``'s distance alone (S,), the same numbers, without its normal and witness points."""
+    s, t = segment_segment(a1, b1, a2, b2)
+    x1 = a1 + s[..., None] * (b1 - a1)
+    x2 = a2 + t[..., None] * (b2 - a2)
+    gap = np.linalg.norm(x1 - x2, axis=-1)
+    return gap - np.asarray(r1, dtype=float) - np.asarray(r2, dtype=float)
+
+
 def capsule_halfspace(a, b, r, normal, offset) -> Contact:
     """Capsule [a, b] radius r (A) against the half-space {x : normal · x <= offset} (B, unit normal)."""
     ha, hb = _dot(a, normal) - offset, _dot(b, normal) - offset
@@ -131,9 +140,12 @@ def capsule_halfspace(a, b, r, normal, offset) -> Contact:
     return Contact(distance=h - r, normal=n.copy(), point_a=point_a, point_b=low - h[..., None] * n)
 
 
-def capsule_box(a, b, r, center, rotation, half) -> Contact:
+def capsule_box(a, b, r, center, rotation, half, spheres: tuple | None = None) -> Contact:
     """Capsule [a, b] radius r (A) against the box (B) with ``center`` (S, 3), ``rotation`` (S, 3, 3)
     (its axes as columns) and half side lengths ``half`` (S, 3).
+
+    ``spheres``: ``sphere_box``'s result on these rows when every row is a sphere (a = b, rows (M,) of
+    C-contiguous arrays) and the caller has it already; it is not computed again.
     """
     a, b, center = (np.asarray(x, dtype=float) for x in (a, b, center))
     R, h = np.asarray(rotation, dtype=float), np.asarray(half, dtype=float)
@@ -151,7 +163,7 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     if ball.size == 0:
         return _capsule_box_rows(a, b, r, center, R, h)
     if ball.size == M:  # every row a sphere (the penalty's rows): no gathering unless a centre is in a box
-        got, done = sphere_box(*(np.ascontiguousarray(x) for x in (a, r, center, R, h)))  # as the gathered rows
+        got, done = spheres if spheres is not None else sphere_box(*(np.ascontiguousarray(x) for x in (a, r, center, R, h)))
         if done.all():
             return Contact(*got)
     else:
@@ -170,6 +182,19 @@ def capsule_box(a, b, r, center, rotation, half) -> Contact:
     return out
 
 
+def within_rounding(gap: np.ndarray, p: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Whether gap <= 1e-12·(max_i h_i + |p|) (gap (S,), a point p (S, 3) in the box frame, half sides h broadcast to (S, 3)):
+    a sphere's centre within rounding of its box (``sphere_box``). |p| is taken only where gap is at most
+    1e-11·(1 + max h) (elsewhere the test is false: |p| <= gap + |clip(p)| <= gap + √3·max h), the same booleans.
+    """
+    out = np.zeros(gap.shape, dtype=bool)
+    near = gap <= 1e-11 * (1.0 + float(np.max(h, initial=0.0)))
+    if near.any():
+        hn, pn = np.broadcast_to(h, p.shape)[near], p[near]
+        out[near] = gap[near] <= 1e-12 * (np.max(hn, axis=-1) + np.linalg.norm(pn, axis=-1))
+    return out
+
+
 def sphere_box(c, r, center, R, h):
     """``capsule_box`` for spheres (a = b = c, (S, 3), rows of C-contiguous arrays) outside the box: ((distance,
     normal, point_a, point_b), done (S,) bool); rows not done (the centre within rounding of the box) take the capsule
@@ -180,8 +205,7 @@ def sphere_box(c, r, center, R, h):
     h, _ = np.broadcast_arrays(h, p)
     y = np.clip(p, -h, h)
     n_box, gap = _unit(p - y, np.zeros(3))
-    scale = np.max(h, axis=-1) + np.linalg.norm(p, axis=-1)  # + |d| = 0 on the capsule path
-    done = ~(gap <= 1e-12 * scale)
+    done = ~within_rounding(gap, p, h)  # the capsule path's test, its |d| = 0
     normal = np.matmul(R, n_box[..., None])[..., 0]
     point_a = np.matmul(R, p[..., None])[..., 0] + center - r[..., None] * normal
     distance = gap - r

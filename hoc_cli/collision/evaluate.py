@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_halfspace, cross, sphere_box
+from hoc_cli.collision.distance import Contact, capsule_box, capsule_capsule, capsule_capsule_distance, capsule_halfspace, cross, sphere_box, within_rounding
 from hoc_cli.collision.scene import KIND_BOX, KIND_CAPSULE, KIND_HALFSPACE, KIND_SELF, CollisionScene
 from hoc_cli.collision.shapes import Box, Capsule, HalfSpace
 from hoc_cli.dynamics.kinematics import body_poses
@@ -203,7 +203,7 @@ def _box_contacts(scene: CollisionScene, a: np.ndarray, b: np.ndarray, r: np.nda
     got, done = sphere_box(a, r, center, rot, half)
     if done.all():
         return Contact(*got)
-    return capsule_box(a, b, r, center, rot, half)  # a centre in a box: its depth by the capsule path
+    return capsule_box(a, b, r, center, rot, half, spheres=(got, done))  # a centre in a box: its depth by the capsule path
 
 
 def _spheres(scene: CollisionScene) -> np.ndarray:
@@ -222,8 +222,7 @@ def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.nd
     """
     p = np.matmul((c - center)[..., None, :], rot)[..., 0, :]
     gap = np.linalg.norm(p - np.clip(p, -half, half), axis=-1)
-    scale = np.max(half, axis=-1) + np.linalg.norm(p, axis=-1) + 0.0
-    return gap - r, ~(gap <= 1e-12 * scale)
+    return gap - r, ~within_rounding(gap, p, half)
 
 
 def _fill_sphere_box(scene: CollisionScene, centres: np.ndarray, pairs: np.ndarray, fast: np.ndarray,
@@ -254,7 +253,35 @@ def pair_distances(scene: CollisionScene, a: np.ndarray, b: np.ndarray, rows: np
         _fill_sphere_box(scene, a[rows[fast], scene.prim[pairs[fast]]], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
-        out[rest] = pair_contacts(scene, a, b, rows[rest], pairs[rest]).distance
+        r, k = rows[rest], pairs[rest]
+        prim, other = scene.prim[k], scene.other[k]
+        self_rows = scene.kind[k] == KIND_SELF
+        a2, b2 = np.zeros((r.size, 3)), np.zeros((r.size, 3))
+        a2[self_rows], b2[self_rows] = a[r[self_rows], other[self_rows]], b[r[self_rows], other[self_rows]]
+        out[rest] = _distances_only(scene, a[r, prim], b[r, prim], a2, b2, k)
+    return out
+
+
+def _distances_only(scene: CollisionScene, a1: np.ndarray, b1: np.ndarray, a2: np.ndarray, b2: np.ndarray,
+                    pairs: np.ndarray) -> np.ndarray:
+    """``_contacts``' distances (M,), the same numbers: two capsules' by ``capsule_capsule_distance`` (no normals or
+    witnesses), the other kinds' by ``_contacts``.
+    """
+    out = np.empty(pairs.size)
+    kind, other = scene.kind[pairs], scene.other[pairs]
+    caps = (kind == KIND_SELF) | (kind == KIND_CAPSULE)
+    if caps.any():
+        robot = scene.robot
+        obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+        o, sf = other[caps], kind[caps] == KIND_SELF
+        a, b, r2 = a2[caps], b2[caps], np.empty(o.size)
+        r2[sf] = robot.radius[o[sf]]
+        ob = ~sf  # capsule obstacles
+        a[ob], b[ob], r2[ob] = obs["ca"][o[ob]], obs["cb"][o[ob]], obs["cr"][o[ob]]
+        out[caps] = capsule_capsule_distance(a1[caps], b1[caps], robot.radius[scene.prim[pairs[caps]]], a, b, r2)
+    rest = np.flatnonzero(~caps)
+    if rest.size:
+        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
     return out
 
 
@@ -272,7 +299,7 @@ def row_distances(model: RobotModel, scene: CollisionScene, q, rows, pairs) -> n
         _fill_sphere_box(scene, a1[fast], pairs, fast, out)
     rest = np.flatnonzero(~fast)
     if rest.size:
-        out[rest] = _contacts(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest]).distance
+        out[rest] = _distances_only(scene, a1[rest], b1[rest], a2[rest], b2[rest], pairs[rest])
     return out
 
 
@@ -496,9 +523,13 @@ def pair_hessian(model: RobotModel, scene: CollisionScene, q, rows, pairs,
     body_b[self_rows] = np.where(robot.body[other[self_rows]] < 0, n, robot.body[other[self_rows]])
     moved_b = anc[body_b] & revolute
     JP = np.where(moved_a[:, None, :], cross(Zr, P[:, :, None] - Or, axis=1), 0.0)      # (M, 3, n)
-    JQ = np.where(moved_b[:, None, :], cross(Zr, Qp[:, :, None] - Or, axis=1), 0.0)
+    JQ = np.zeros_like(JP)  # B's: zero where no joint moves it (obstacles)
     before = anc[:n].T                                                       # before[i, j]: i on j's chain
-    H = _kinematic_curvature(normal, Zr, JP, moved_a, before) - _kinematic_curvature(normal, Zr, JQ, moved_b, before)
+    H = _kinematic_curvature(normal, Zr, JP, moved_a, before)
+    sr = np.flatnonzero(self_rows)
+    if sr.size:  # x − 0 = x: the other rows' B part adds nothing
+        JQ[sr] = np.where(moved_b[sr, None, :], cross(Zr[sr], Qp[sr, :, None] - Or[sr], axis=1), 0.0)
+        H[sr] -= _kinematic_curvature(normal[sr], Zr[sr], JQ[sr], moved_b[sr], before)
     box = kind == KIND_BOX
     if box.any():  # the segment of A is a point here (a sphere row): its distance to the box curves at edges
         s = np.flatnonzero(box & np.all(a1 == b1, axis=1))

@@ -104,7 +104,8 @@ class LimitState:
         term = self.term
         prev = math.inf  # ρ grows on a stall within these rounds, not on the collision's move before them
         for _ in range(EXACT_ROUNDS if exact else ROUNDS):
-            res, x = auglag.solve(problem, (term,), x, tol, minimize, polish_step=polish or exact)
+            res, x = auglag.solve(problem, (term,), x, tol, minimize, polish_step=polish or exact,
+                                trial_gradient=True)  # the next round starts at the polished point
             if exact and x is not res.x:  # the polish step: the next round's first Newton matrix takes this one's cost Hessian
                 problem.carry_hessian(x)
             m = term.measure(problem, x, res, tol)

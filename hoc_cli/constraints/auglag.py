@@ -59,12 +59,14 @@ class Penalized:
         self.base, self.terms = base, tuple(terms)
         self.mesh, self.layout = base.mesh, base.layout
         self.last = None
+        self._newton: tuple | None = None  # (ev, the Newton matrix there): the polish at the inner solve's last one
 
     def coefficients(self, x: np.ndarray) -> np.ndarray:
         return self.base.coefficients(x)
 
-    def evaluate(self, x: np.ndarray, grad: bool = True):
-        ev = self.base.evaluate(x, grad=grad)
+    def evaluate(self, x: np.ndarray, grad: bool = True, keep_gradient: bool = False):
+        """I + Σ Φ at x (``keep_gradient``: as ``ControlProblem.evaluate``'s, passed to the base)."""
+        ev = self.base.evaluate(x, grad=grad, keep_gradient=keep_gradient) if keep_gradient else self.base.evaluate(x, grad=grad)
         C = self.base.coefficients(x)
         J, g = ev.J, ev.grad
         for term in self.terms:
@@ -79,20 +81,32 @@ class Penalized:
         return self.evaluate(x, grad=False).J
 
     def newton(self, ev, extra: np.ndarray | None = None):
-        """The base's Newton matrix with the terms' blocks and ``extra`` (N, 2mn, 2mn) added."""
+        """The base's Newton matrix with the terms' blocks and ``extra`` (N, 2mn, 2mn) added. Without ``extra``, the
+        last one is kept: a second at the same evaluation (the polish after an inner solve whose last iteration built
+        it) is that one.
+        """
+        kept = self._newton
+        if extra is None and kept is not None and kept[0] is ev:
+            return kept[1]
         C = self.base.coefficients(ev.x)
         blocks = None
         for term in self.terms:
             b = term.newton_blocks(C)
             blocks = b if blocks is None else blocks + b
         if blocks is None:
-            return self.base.newton(ev, extra=extra)
-        return self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+            P = self.base.newton(ev, extra=extra)
+        else:
+            P = self.base.newton(ev, extra=blocks if extra is None else blocks + extra)
+        if extra is None:
+            self._newton = (ev, P)
+        return P
 
 
-def polish(problem, x: np.ndarray, ev=None) -> np.ndarray:
+def polish(problem, x: np.ndarray, ev=None, trial_gradient: bool = False) -> np.ndarray:
     """One full Newton step on I + Φ from an inner optimum (``ev``: the evaluation at x with its gradient, when
-    the caller has it; else it is made here).
+    the caller has it; else it is made here). ``trial_gradient``: the trial point's evaluation also makes and keeps
+    I(q_h)'s gradient there (``ControlProblem.evaluate``'s ``keep_gradient``), for a next inner solve that starts
+    there; the terms are evaluated without theirs, as otherwise.
 
     The inner stopping test weighs the decrement against |J|; a violation δ changes Φ by about
     ½ρ δ², below the rounding level of J long before δ reaches 1e-9. The Newton step, made from
@@ -103,7 +117,8 @@ def polish(problem, x: np.ndarray, ev=None) -> np.ndarray:
         ev = problem.evaluate(x)
     trial = x - problem.newton(ev).solve(ev.grad)
     try:
-        if np.isfinite(problem.evaluate(trial, grad=False).J):
+        got = problem.evaluate(trial, grad=False, keep_gradient=True) if trial_gradient else problem.evaluate(trial, grad=False)
+        if np.isfinite(got.J):
             return trial
     except NumericalError:  # a trial point the dynamics cannot evaluate (singular mass matrix)
         pass
@@ -224,10 +239,13 @@ def minimize(base, terms: Sequence[Term], x: np.ndarray, tol: float,
 
 
 def solve(base, terms: Sequence[Term], x: np.ndarray, tol: float,
-          inner_solve: Callable[[object, np.ndarray, float], object], polish_step: bool = True):
+          inner_solve: Callable[[object, np.ndarray, float], object], polish_step: bool = True,
+          trial_gradient: bool = False):
     """Steps 1 and 2 of an outer iteration (module docstring): each term readied (``term.begin``), the inner solve
     of I + Σ Φ from x, then, after a converged inner solve with rows imposed and ``polish_step``, ``polish`` from the
-    inner solve's last evaluation when it was at its x. Returns (the inner OptimizeResult, the plan x).
+    inner solve's last evaluation when it was at its x (its trial point keeping I(q_h)'s gradient when
+    ``trial_gradient``).
+    Returns (the inner OptimizeResult, the plan x).
     """
     problem = base
     for term in terms:
@@ -239,7 +257,7 @@ def solve(base, terms: Sequence[Term], x: np.ndarray, tol: float,
         ev = getattr(problem, "last", None)  # the inner solve's accepted point: no second evaluation there
         if ev is None or ev.grad is None or not np.array_equal(ev.x, x):
             ev = None
-        x = polish(problem, x, ev)
+        x = polish(problem, x, ev, trial_gradient)
     return res, x
 
 
