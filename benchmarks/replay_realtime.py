@@ -10,7 +10,10 @@ update [ms] with its plan's start, steps, status and J. The least of several run
 machine let it run; on a machine shared with other jobs even that varies by several ms, so ``--only K --passes P``
 runs update K (or a comma-separated list) after one warm call P times and nothing else: the difference of the instruction counts of
 ``--passes 1`` and ``--passes 0`` under valgrind's cachegrind is the update's work (it varies by about 1 % from
-run to run with Python's hash seed), which does not depend on the load.
+run to run with Python's hash seed), which does not depend on the load. With ``--marks`` each timed update is
+bracketed by ``os.getppid()`` calls, so that one run of
+``valgrind --tool=callgrind --dump-before=getppid ... --only 0,1,2 --marks`` writes each update's count to a file of
+its own (the first file: everything before; then one per update in order).
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import dataclasses
+import os
 import time
 from pathlib import Path
 
@@ -72,13 +76,20 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--only", default=None, help="run these updates (comma-separated indices) alone, after one warm call")
     ap.add_argument("--passes", type=int, default=1, help="with --only: its runs after the warm call")
+    ap.add_argument("--marks", action="store_true",
+                    help="with --only: os.getppid() before each timed update and after the last (valgrind --tool=callgrind "
+                         "--dump-before=getppid then writes one count per update)")
     args = ap.parse_args()
     rp, inputs = captured_updates(args.scenario, args.N)
     if args.only is not None:
         chosen = [inputs[int(k)] for k in args.only.split(",")]
-        for _ in range(1 + args.passes):
+        for p in range(1 + args.passes):
             for inp in chosen:
+                if args.marks and p:
+                    os.getppid()
                 replay(rp, inp)
+        if args.marks:
+            os.getppid()
         return
     for k, inp in enumerate(inputs):
         best = float("inf")

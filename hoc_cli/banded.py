@@ -53,6 +53,38 @@ def element_blocks(op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
     return np.matmul(AT, np.matmul(Hw, A)).sum(axis=1) * (cols[:, :, None] * cols[:, None, :])
 
 
+@lru_cache(maxsize=64)
+def _pair_rows(op: QuadratureOperator) -> np.ndarray:
+    """B[r, g, a] B[s, g, b] as a (G·9, 4m²) matrix, row (g, r, s), column (a, b): ``element_blocks_kron``'s
+    contraction. Read-only, cached per operator.
+    """
+    B = op.B
+    K = np.einsum("rga,sgb->grsab", B, B).reshape(op.G * 9, -1)
+    K.flags.writeable = False
+    return K
+
+
+def element_blocks_kron(op: QuadratureOperator, Hs: np.ndarray) -> np.ndarray:
+    """``element_blocks(op, Hs)`` (N, 2mn, 2mn) by the Kronecker structure of Ã = B ⊗ I_n: block entry (a i, b j) =
+    Σ_g w_g Σ_(r,s) B[r, g, a] B[s, g, b] Hs_g[r i, s j], one matrix product (4m², G·9) × (G·9, N n²) for all the
+    elements, without the products with the zeros of Ã (about a seventh of the arithmetic at n = 7). The same
+    numbers to rounding (another order of the sums).
+    """
+    n = Hs.shape[-1] // 3
+    N, G = op.mesh.N, op.G
+    L = op.B.shape[-1]
+    Hw = (Hs * op.w[:, None, None]).reshape(N, G, 3 * n, 3 * n)
+    if op.row_scale is not None:  # non-uniform mesh, as ``element_blocks``
+        rows = np.repeat(op.row_scale.T, n, axis=1)  # (N, 3n)
+        Hw = Hw * (rows[:, None, :, None] * rows[:, None, None, :])
+    H6 = Hw.reshape(N, G, 3, n, 3, n).transpose(1, 2, 4, 0, 3, 5).reshape(G * 9, N * n * n)  # (g r s, e i j)
+    out = (_pair_rows(op).T @ H6).reshape(L, L, N, n, n).transpose(2, 0, 3, 1, 4).reshape(N, L * n, L * n)
+    if op.row_scale is None:
+        return out
+    cols = np.repeat(op.col_scale, n, axis=1)  # (N, 2mn)
+    return out * (cols[:, :, None] * cols[:, None, :])
+
+
 @lru_cache(maxsize=16)
 def _pattern(E: int, L: int, stride: int, size: int, free: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where ``BandedSPD.assemble`` puts E element blocks (L, L) at offsets e·stride in the upper band storage

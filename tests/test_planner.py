@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hoc_cli.banded import element_blocks
+from hoc_cli.banded import element_blocks, element_blocks_kron
 from hoc_cli.elements import HermiteMesh, error_norm
 from hoc_cli.model import load_robot
 from hoc_cli.planner import plan
@@ -61,6 +61,33 @@ def test_banded_newton_matrix_equals_the_finite_difference_hessian(cost):
         D[e * mn:(e + 2) * mn, e * mn:(e + 2) * mn] += blocks[e]
     D = D[np.ix_(P.layout.free, P.layout.free)]
     np.testing.assert_allclose(D, 0.5 * (H + H.T), atol=1e-6 * np.abs(H).max())
+
+
+@pytest.mark.parametrize("order", ["cubic", "quintic"])
+@pytest.mark.parametrize("nodes", [None, [0.0, 0.05, 0.13, 0.2, 0.34, 0.41]])
+def test_element_blocks_by_their_kronecker_structure_equal_the_quadrature_of_the_sample_hessians(order, nodes):
+    """``element_blocks`` and ``element_blocks_kron`` assembled against Σ_k w_k J_kᵀ H_k J_k, with J_k the Jacobian of
+    the samples (q, q̇, q̈) at sample k in the coefficients, taken column by column from ``op.apply`` of unit
+    coefficients (a uniform and a non-uniform mesh)."""
+    rng = np.random.default_rng(7)
+    n = 3
+    mesh = HermiteMesh(order, 0.41, 5) if nodes is None else HermiteMesh.from_nodes(order, np.array(nodes))
+    op = mesh.quadrature(mesh.m + 3)
+    H = rng.normal(size=(op.K, 3 * n, 3 * n))
+    H = H + np.swapaxes(H, 1, 2)
+    size = (mesh.N + 1) * mesh.m * n
+    J = np.zeros((op.K, 3 * n, size))
+    for c in range(size):
+        unit = np.zeros(size)
+        unit[c] = 1.0
+        J[:, :, c] = np.concatenate(op.apply(unit.reshape(mesh.N + 1, mesh.m, n)), axis=1)
+    reference = np.einsum("k,kia,kij,kjb->ab", op.w, J, H, J)
+    mn = mesh.m * n
+    for blocks in (element_blocks(op, H), element_blocks_kron(op, H)):
+        D = np.zeros((size, size))
+        for e in range(mesh.N):
+            D[e * mn:(e + 2) * mn, e * mn:(e + 2) * mn] += blocks[e]
+        np.testing.assert_allclose(D, reference, rtol=0, atol=1e-12 * np.abs(reference).max())
 
 
 @pytest.mark.parametrize("urdf", SHIPPED)

@@ -70,7 +70,8 @@ def solve_qp(U: np.ndarray, g: np.ndarray, E: np.ndarray, e: np.ndarray, A: np.n
 
     Parameters
     ----------
-    U : (P, P) the upper Cholesky factor of the symmetric positive definite H = UᵀU (``upper_factor``).
+    U : (P, P) the upper Cholesky factor of the symmetric positive definite H = UᵀU (``upper_factor``), or None for
+        H = I (a projection: no triangular solves).
     g : (P,)
     E, e : (r, P), (r,) equality rows (r may be 0; dependent rows are allowed when consistent).
     A, b : (k, P), (k,) inequality rows (k may be 0).
@@ -136,6 +137,13 @@ def _minimises(M: np.ndarray, f: np.ndarray, w: np.ndarray) -> bool:
     return bool(np.all(w >= 0.0) and np.all(v <= tol) and np.all(np.abs(v[w > 0.0]) <= tol[w > 0.0]))
 
 
+def _solve_upper(U: np.ndarray | None, X: np.ndarray, trans: str) -> np.ndarray:
+    """U⁻¹ X (``trans`` "N") or U⁻ᵀ X ("T") for the upper triangular U (P, P), X (P,) or (P, k); U None: the identity
+    (X itself, the same numbers as a triangular solve with the identity).
+    """
+    return X if U is None else solve_triangular(U, X, trans=trans, check_finite=False)
+
+
 class Programme:
     """The programmes of one model (U, g) and one set of equality rows E (module docstring): the equality rows
     eliminated once, y = U d = y_p + Z z, z = z0 + u (y_p, the particular part, per right-hand side e), and the
@@ -148,10 +156,10 @@ class Programme:
         P = g.size
         self.U, self.g, self.E = U, g, E
         self.keyed = keyed
-        y0 = -solve_triangular(U, g, trans="T", check_finite=False)
+        y0 = -_solve_upper(U, g, "T")
         self._raw = None  # keyed: the Householder reflectors of Q (Eh.T = Q R Πᵀ), the rank, R and Π
         if E.shape[0]:
-            self.Eh = solve_triangular(U, E.T, trans="T", check_finite=False).T  # E U⁻¹ (r, P)
+            self.Eh = _solve_upper(U, E.T, "T").T  # E U⁻¹ (r, P)
             if keyed:
                 (Qr, tau), R, perm = qr(self.Eh.T, pivoting=True, mode="raw", check_finite=False)
                 rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
@@ -194,7 +202,7 @@ class Programme:
     def _transformed(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(A U⁻¹ (k, P), its part A U⁻¹ Z z0 (k,), the rows G = −A U⁻¹ Z normalised (k, P − rank), their norms (k,))."""
         if A is not self._A:
-            Ah = solve_triangular(self.U, A.T, trans="T", check_finite=False).T  # A U⁻¹ (k, P)
+            Ah = _solve_upper(self.U, A.T, "T").T  # A U⁻¹ (k, P)
             G = -(Ah @ self.Z)
             scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
             self._A, self._rows = A, (Ah, Ah @ (self.Z @ self.z0), G / scale[:, None], scale)
@@ -208,7 +216,7 @@ class Programme:
         missing = [i for i, key in enumerate(keys.tolist()) if key not in slot]
         if missing:
             rows = idx[missing]
-            AhT = solve_triangular(self.U, A[rows].T, trans="T", check_finite=False)  # (A U⁻¹)ᵀ (P, k')
+            AhT = _solve_upper(self.U, A[rows].T, "T")  # (A U⁻¹)ᵀ (P, k')
             rank = self._raw[2] if self._raw is not None else 0
             QA = self._apply_q(AhT, "T")[rank:] if self._raw is not None else AhT  # (A U⁻¹ Z)ᵀ
             scale = np.maximum(np.sqrt(np.einsum("ij,ij->j", QA, QA)), 1e-300)
@@ -263,8 +271,8 @@ class Programme:
             y = y_p + self.Z @ (self.z0 + u)
         else:  # keyed: Z (z0 + u) = Q [0; z0 + u]
             y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0 + u])[:, None], "N")[:, 0]
-        d = solve_triangular(U, y, check_finite=False)
-        stationarity = -(U.T @ y + g + (A.T @ mu if mu.size else 0.0))
+        d = _solve_upper(U, y, "N")
+        stationarity = -((y if U is None else U.T @ y) + g + (A.T @ mu if mu.size else 0.0))
         nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
         decrease = -float(g @ d + 0.5 * y @ y)
         return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)

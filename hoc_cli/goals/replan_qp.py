@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from hoc_cli.banded import element_blocks
+from hoc_cli.banded import element_blocks, element_blocks_kron
 from hoc_cli.constraints.check import check_limits
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_motion, rescale, row_time_derivatives
@@ -108,7 +108,8 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
             return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
     Hs, GNs = problem.hessian_samples(ev, samples)
-    Hb = element_blocks(problem.op_h, Hs)
+    blocks = element_blocks_kron if quick else element_blocks  # the same blocks to rounding, fewer products
+    Hb = blocks(problem.op_h, Hs)
     GNb = None
     for indefinite in (True, False):
         extra = extra_of(indefinite)
@@ -120,7 +121,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
         except NumericalError:
             if quick and indefinite:
                 continue
-        GNb = element_blocks(problem.op_h, GNs) if GNb is None else GNb
+        GNb = blocks(problem.op_h, GNs) if GNb is None else GNb
         GN = GNb if extra is None else GNb + extra
         try:
             limit = problem.banded(GN, shift)  # the shift's limit: no μ helps when it does not factor

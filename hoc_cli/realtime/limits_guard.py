@@ -32,8 +32,9 @@ from hoc_cli.constraints.points import PointSet
 from hoc_cli.elements import local_basis
 from hoc_cli.errors import NumericalError
 from hoc_cli.goals.active_limits import ActiveRows
-from hoc_cli.goals.qp_step import solve_qp
+from hoc_cli.goals.qp_step import Programme, solve_qp
 from hoc_cli.goals.replan_point import row_values
+from hoc_cli.goals.replan_qp import row_keys
 
 ROW_TOL = 1e-9  # a row holds when g ≤ this (the margin is 1e-9: the limit itself is then met to the check's 1e-9)
 GAP = 0.05  # rows within this of their bound enter the projection
@@ -74,8 +75,11 @@ def guard(system, limits, rows, C: np.ndarray, free: np.ndarray, keep: np.ndarra
         # the metric is the identity: d = 0 off the columns the rows touch
         cols = np.flatnonzero(np.any(A != 0.0, axis=0) | np.any(E != 0.0, axis=0))
         P = cols.size
+        # the metric's factor the identity (U None: no triangular solves); each row transformed alone (keyed)
+        E_c = E[:, cols]
         try:
-            step = solve_qp(np.eye(P), np.zeros(P), E[:, cols], np.zeros(E.shape[0]), A[:, cols], -g - PUSH)
+            step = solve_qp(None, np.zeros(P), E_c, np.zeros(E.shape[0]), A[:, cols], -g - PUSH,
+                            programme=Programme(None, np.zeros(P), E_c, keyed=True), keys=row_keys(rows_now))
         except NumericalError:
             break
         d = np.zeros(A.shape[1])
