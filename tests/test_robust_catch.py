@@ -127,21 +127,10 @@ def test_the_restoration_on_the_coarse_elements_reaches_the_optimum_of_the_steps
     assert coarse.J == pytest.approx(fine.J, rel=1e-10)
 
 
-def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeypatch):
-    """The restoration has moved T from the guess to where the catch meets its goal within the limits: the coarse stage
-    takes its steps in x and T from the restored trajectory, none at the restored T first (those took 11 steps from the
-    restored J = 609 to 129 at T = 0.553 s, then 10 in x and T; in x and T at once: 15 with the goal rows restored to 1e-9
-    and the violation floor 2 cm, 10 with them restored to ``free_time_sqp.RESTORE_TOL`` and ``RESTORED_FLOOR``; then 3
-    on the mesh), and the plan is the optimum reached by way of the steps at the guess on the 8 elements alone
-    (``coarse=0``): T to 1e-9, J to 1e-10 relative."""
+def _spy_on_runs(monkeypatch) -> list:
+    """A list that ``free_time_sqp._run`` appends (elements, free T?, steps) to at each of its runs from now on."""
     import hoc_cli.goals.free_time_sqp as fts
-    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
-    from hoc_cli.goals.time_solver import goal_solver
 
-    model, arm, limits, problem = ur5_catch()
-    goals = problem.goals()
-    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
-    fine = minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=0)
     runs: list = []
     run = fts._run
 
@@ -151,6 +140,24 @@ def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeyp
         return r
 
     monkeypatch.setattr(fts, "_run", spy)
+    return runs
+
+
+def test_after_the_restoration_the_coarse_stage_steps_in_x_and_T_at_once(monkeypatch):
+    """The restoration has moved T from the guess to where the catch meets its goal within the limits: the coarse stage
+    takes its steps in x and T from the restored trajectory, none at the restored T first (those took 11 steps from the
+    restored J = 609 to 129 at T = 0.553 s, then 10 in x and T; in x and T at once: 15 with the goal rows restored to 1e-9
+    and the violation floor 2 cm, 10 with them restored to ``free_time_sqp.RESTORE_TOL`` and ``RESTORED_FLOOR``; then 3
+    on the mesh), and the plan is the optimum reached by way of the steps at the guess on the 8 elements alone
+    (``coarse=0``): T to 1e-9, J to 1e-10 relative."""
+    from hoc_cli.goals.free_time_sqp import minimize_time_sqp
+    from hoc_cli.goals.time_solver import goal_solver
+
+    model, arm, limits, problem = ur5_catch()
+    goals = problem.goals()
+    solver = goal_solver(arm, "quintic", 8, problem.q0, problem.dq0, goals, limits=limits)
+    fine = minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=0)
+    runs = _spy_on_runs(monkeypatch)
     coarse = minimize_time_sqp(solver, arm, goals, 0.3, 0.8, guess=0.5, limits=limits, coarse=4)
     assert coarse.converged and coarse.bound is None
     assert [free for N, free, _ in runs if N == 4] == [True]
@@ -168,20 +175,11 @@ def test_from_the_guess_0_6_s_the_coarse_steps_from_the_restored_trajectory_conv
     import dataclasses
 
     import hoc_cli
-    import hoc_cli.goals.free_time_sqp as fts
     from hoc_cli import Free
 
     model, arm, limits, problem = ur5_catch()
     ref = hoc_cli.solve(problem)
-    runs: list = []
-    run = fts._run
-
-    def spy(record, *args, **options):
-        r = run(record, *args, **options)
-        runs.append((r.plan.mesh.N, options.get("free") is not None, r.steps))
-        return r
-
-    monkeypatch.setattr(fts, "_run", spy)
+    runs = _spy_on_runs(monkeypatch)
     late = hoc_cli.solve(dataclasses.replace(problem, time=Free(0.3, 0.8, guess=0.6)))
     assert late.converged and late.details["T_bound"] is None
     assert [free for N, free, _ in runs if N == 4] == [True]
