@@ -247,3 +247,32 @@ def test_world_capsules_are_the_rotated_and_translated_ends_with_a_sphere_s_b_it
             np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
         ball = np.all(sc.robot.a == sc.robot.b, axis=1)
         assert ball.any() == (sc is not scene) and np.array_equal(a[:, ball], b[:, ball])
+
+
+def test_the_effort_rows_gradient_takes_the_vjp_from_the_torques_pass(monkeypatch):
+    """The limits' penalty at a point with effort rows active makes one Newton-Euler pass (the torques'), its VJP
+    reusing it: Φ and its gradient bit for bit those of a system without kept passes (two passes)."""
+    from hoc_cli.dynamics import _passes
+
+    make, C, _ = _limit_terms()
+
+    class Plain:  # the System without inverse_dynamics_kept: torques and VJP in passes of their own
+        def __init__(self, system):
+            self.s = system
+
+        def inverse_dynamics(self, q, dq, ddq):
+            return self.s.inverse_dynamics(q, dq, ddq)
+
+        def id_vjp(self, q, dq, ddq, lam):
+            return self.s.id_vjp(q, dq, ddq, lam)
+
+    terms = make()
+    plain = dataclasses.replace(terms, system=Plain(terms.system))
+    passes = []
+    forward = _passes._forward
+    monkeypatch.setattr(_passes, "_forward", lambda *a, **k: passes.append(1) or forward(*a, **k))
+    ref = plain.evaluate(C)
+    assert len(passes) == 2
+    got = terms.evaluate(C)
+    assert len(passes) == 3  # one more pass: the torques' alone
+    assert np.any(ref.grad) and got.value == ref.value and np.array_equal(got.grad, ref.grad)

@@ -190,16 +190,31 @@ class LimitTerms:
         return self._bounds[2]
 
     def _values(self, C: np.ndarray):
+        """(the values of each kind at its rows (None: not imposed), the effort points' (q, q̇, q̈) or None, and what
+        ``_effort_vjp`` takes to reuse the torques' Newton-Euler pass).
+        """
         mesh = self.rows.mesh
         loc = mesh.local_coefficients(C)
         V = [self.rows.apply(k, loc) if self.working[k].any() else None for k in range(KINEMATIC)]
-        X = None
+        X = kept = None
         if self.working[EFFORT].any():
             X = self.rows.points.apply(C)
-            V.append(self.system.inverse_dynamics(X[0], X[1], X[2]))
+            if hasattr(self.system, "inverse_dynamics_kept"):
+                u, kept = self.system.inverse_dynamics_kept(X[0], X[1], X[2])
+            else:
+                u = self.system.inverse_dynamics(X[0], X[1], X[2])
+            V.append(u)
         else:
             V.append(None)
-        return V, X
+        return V, X, kept
+
+    def _effort_vjp(self, X: np.ndarray, kept, lam: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``system.id_vjp`` at the effort points' X (3, P, n) with weights lam (P, n), from the pass ``kept`` of their
+        torques when the system keeps one (the same numbers).
+        """
+        if kept is not None:
+            return self.system.id_vjp_kept(kept, lam)
+        return self.system.id_vjp(X[0], X[1], X[2], lam)
 
     def _residual(self, k: int, V: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         n = self.limits.n
@@ -246,7 +261,7 @@ class LimitTerms:
 
     def _evaluate(self, C: np.ndarray, grad: bool) -> PenaltyValue:
         """``evaluate`` without the cache."""
-        V, X = self._values(C)
+        V, X, kept = self._values(C)
         _, _, sig = self._bounds
         value = 0.0
         g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
@@ -261,7 +276,7 @@ class LimitTerms:
                 if k < KINEMATIC:
                     gloc += self.rows.transpose(k, dV)
                 elif np.any(dV):
-                    _, gq, gdq, gddq = self.system.id_vjp(X[0], X[1], X[2], dV)
+                    _, gq, gdq, gddq = self._effort_vjp(X, kept, dV)
                     G = self.rows.points.transpose(np.stack([gq, gdq, gddq]))
         if grad:
             Gk = self.rows.to_coefficients(gloc)
