@@ -297,3 +297,21 @@ def test_a_kept_inverse_dynamics_pass_gives_id_vjp_s_numbers_without_a_second_pa
     for x, y in zip(got, ref):
         assert np.array_equal(x, y) and x.flags.c_contiguous
     assert len(passes) == (1 if K <= 512 else 3)  # 700 samples: two chunks for the torques, the VJP its own pass
+
+
+@pytest.mark.parametrize("case", ["lbr7.urdf", "panda with a prismatic finger, reordered"])
+def test_the_velocity_product_rows_taken_by_index_are_the_products_with_their_0_1_rows(case):
+    """A v and g = Sᵀ f̄ pick rows of v and f̄ (one 1 per row of A9 and Sᵀ): indexing gives the numbers of the products
+    with those rows bit for bit, and the remaining product rows are those of the whole product, at any sample count."""
+    from hoc_cli.dynamics._layout import _consts
+
+    model = model_of(case)
+    C = _consts(model)
+    ABq = np.stack([C.ABq18[i] for i in range(model.n)])
+    rng = np.random.default_rng(2)
+    for K in (1, 3, 16, 180, 720):
+        v = rng.standard_normal((model.n, 6, K))
+        whole = np.matmul(C.ABq, v)
+        assert np.array_equal(whole[:, 18:], v[:, C.a_sel]) and np.array_equal(whole[:, :18], np.matmul(ABq, v))
+        Y = np.matmul(C.ISb, v)
+        assert np.array_equal(Y[:, 6:], v[:, C.s_sel]) and np.array_equal(Y[:, :6], np.matmul(C.I, v))
