@@ -276,3 +276,33 @@ def test_the_effort_rows_gradient_takes_the_vjp_from_the_torques_pass(monkeypatc
     got = terms.evaluate(C)
     assert len(passes) == 3  # one more pass: the torques' alone
     assert np.any(ref.grad) and got.value == ref.value and np.array_equal(got.grad, ref.grad)
+
+
+def test_the_distances_of_spheres_to_boxes_take_one_product_per_box_with_each_entry_s_numbers(lbr7_scene):  # noqa: F811
+    """``distances`` puts the sphere centres in each box's frame with one product per box (``_box_frames``): the numbers
+    of a 1 × 3 by 3 × 3 product per entry bit for bit, and every distance that of ``pair_contacts`` (the contact path),
+    among three turned boxes, centres inside and outside."""
+    from hoc_cli.collision.evaluate import _box_frames, _cached, _obstacle_arrays, _sphere_box_columns, distances, pair_contacts, world_capsules
+    from hoc_cli.collision.scene import KIND_BOX, Obstacle, collision_scene
+    from hoc_cli.collision.shapes import Box
+
+    model, base = lbr7_scene
+    rng = np.random.default_rng(21)
+    turn = [np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(3)]
+    boxes = [Obstacle(f"box{i}", Box(rng.uniform(-0.4, 0.4, 3) + [0.3, 0.0, 0.5], R * np.sign(np.linalg.det(R)),
+                                     rng.uniform(0.05, 0.2, 3))) for i, R in enumerate(turn)]
+    scene = sphere_rows_scene(collision_scene(model, base.robot, boxes, margin=0.02))
+    q = rng.uniform(-2.5, 2.5, (70, model.n))
+    cols, runs = _sphere_box_columns(scene)
+    assert len(runs) == 3 and cols.size == np.sum(scene.kind == KIND_BOX)
+    a, _ = world_capsules(model, scene, q)
+    c = a[:, scene.prim[cols]]
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+    o = scene.other[cols]
+    each = np.matmul((c - obs["center"][o])[..., None, :], obs["rot"][o])[..., 0, :]
+    assert np.array_equal(_box_frames(c, runs, obs), each)
+    D = distances(model, scene, q)
+    rows, pairs = np.nonzero(np.ones(D.shape, bool))
+    a, b = world_capsules(model, scene, q)
+    assert np.array_equal(D.ravel(), pair_contacts(scene, a, b, rows, pairs).distance)
+    assert (D[:, cols] < 0).any() and (D[:, cols] > 0).any()
