@@ -306,3 +306,21 @@ def test_the_distances_of_spheres_to_boxes_take_one_product_per_box_with_each_en
     a, b = world_capsules(model, scene, q)
     assert np.array_equal(D.ravel(), pair_contacts(scene, a, b, rows, pairs).distance)
     assert (D[:, cols] < 0).any() and (D[:, cols] > 0).any()
+
+
+def test_the_limits_gradient_at_the_first_step_s_secant_point_reuses_its_values(monkeypatch):
+    """The first step evaluates the limits at C + dC without the gradient (its effort secant); the line search's unit
+    trial asks the gradient there: the values, the torques' pass and Φ are taken from that evaluation (one ``_values``
+    call at C + dC), and the result is a fresh evaluation's bit for bit."""
+    make, C, dC = _limit_terms()
+    ref = make().evaluate(C + dC)
+    terms = make()
+    calls = []
+    values = LimitTerms._values
+    monkeypatch.setattr(LimitTerms, "_values", lambda self, C: calls.append(np.array(C)) or values(self, C))
+    limit_rows(terms, C, dC)               # the first step from C: the limits at C and at C + dC, no gradient
+    got = terms.evaluate(C + dC)           # the unit trial: the gradient at C + dC
+    assert len(calls) == 2, len(calls)
+    assert got.value == ref.value and np.array_equal(got.grad, ref.grad) and np.any(got.grad)
+    for a, b in zip(got.mu_lo + got.mu_hi + got.g_lo + got.g_hi, ref.mu_lo + ref.mu_hi + ref.g_lo + ref.g_hi):
+        assert np.array_equal(a, b)

@@ -246,7 +246,7 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
-        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None]
+        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None, what made it or None]
             pv = entry[1]
             if (not grad or pv.grad is not None) and np.array_equal(entry[0], C):
                 if grad or pv.grad is None:
@@ -254,34 +254,46 @@ class LimitTerms:
                 if entry[2] is None:
                     entry[2] = dataclasses.replace(pv, grad=None)
                 return entry[2]
-        pv = self._evaluate(C, grad)
-        self._cache.append([np.array(C), pv, None])
+        # the gradient at a point evaluated without it (the first step's secant point, the line search's unit trial):
+        # its values, torques' pass and Φ taken from there
+        known = next((entry for entry in self._cache if entry[3] is not None and np.array_equal(entry[0], C)), None)
+        pv, made = self._evaluate(C, grad, None if known is None else (known[3], known[1]))
+        self._cache.append([np.array(C), pv, None, None if grad else made])
         del self._cache[:-self.CACHE]
         return pv
 
-    def _evaluate(self, C: np.ndarray, grad: bool) -> PenaltyValue:
-        """``evaluate`` without the cache."""
-        V, X, kept = self._values(C)
+    def _evaluate(self, C: np.ndarray, grad: bool, known: tuple | None = None) -> tuple[PenaltyValue, tuple]:
+        """``evaluate`` without the cache: (the PenaltyValue, ``_values``' (V, X, kept)). ``known``: (``_values`` at C,
+        the PenaltyValue at C without its gradient), taken as they are.
+        """
+        made = self._values(C) if known is None else known[0]
+        V, X, kept = made
         _, _, sig = self._bounds
-        value = 0.0
-        g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
+        if known is None:
+            value = 0.0
+            g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
+            for k in range(len(KINDS)):
+                gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
+                value += part
+                g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
+            pv = PenaltyValue(value, None, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+        else:
+            pv = known[1]
+        if not grad:
+            return pv, made
         gloc = np.zeros((self.rows.mesh.N, 2 * self.rows.mesh.m, self.limits.n))
         G = None
         for k in range(len(KINDS)):
-            gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
-            value += part
-            g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
-            if grad and V[k] is not None:
-                dV = (mh - ml) / sig[k]
+            if V[k] is not None:
+                dV = (pv.mu_hi[k] - pv.mu_lo[k]) / sig[k]
                 if k < KINEMATIC:
                     gloc += self.rows.transpose(k, dV)
                 elif np.any(dV):
                     _, gq, gdq, gddq = self._effort_vjp(X, kept, dV)
                     G = self.rows.points.transpose(np.stack([gq, gdq, gddq]))
-        if grad:
-            Gk = self.rows.to_coefficients(gloc)
-            G = Gk if G is None else G + Gk
-        return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+        Gk = self.rows.to_coefficients(gloc)
+        G = Gk if G is None else G + Gk
+        return dataclasses.replace(pv, grad=G), made
 
     def _kind(self, k: int, V: np.ndarray | None) -> tuple:
         """Kind k's (g_lo, g_hi, μ_lo, μ_hi, its part of Φ) from its values V (None: not imposed)."""
