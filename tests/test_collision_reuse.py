@@ -324,3 +324,21 @@ def test_the_limits_gradient_at_the_first_step_s_secant_point_reuses_its_values(
     assert got.value == ref.value and np.array_equal(got.grad, ref.grad) and np.any(got.grad)
     for a, b in zip(got.mu_lo + got.mu_hi + got.g_lo + got.g_hi, ref.mu_lo + ref.mu_hi + ref.g_lo + ref.g_hi):
         assert np.array_equal(a, b)
+
+
+def test_the_limits_newton_blocks_take_the_effort_points_of_the_evaluation_at_their_point(monkeypatch):
+    """The Newton blocks at the point just evaluated take that evaluation's (q, q̇, q̈) at the effort points: one
+    ``PointSet.apply`` at C instead of two, the blocks those made afresh."""
+    from hoc_cli.constraints.points import PointSet
+
+    make, C, _ = _limit_terms()
+    ref = make().newton_blocks(C)
+    terms = make()
+    calls = []
+    apply = PointSet.apply
+    monkeypatch.setattr(PointSet, "apply", lambda self, C: calls.append(1) or apply(self, C))
+    terms.evaluate(C)
+    blocks = terms.newton_blocks(C.copy())
+    assert len(calls) == 1 and np.array_equal(blocks, ref)
+    eff = terms.working[-1].any() and any(np.any(m) for m in (terms.evaluate(C).mu_lo[-1], terms.evaluate(C).mu_hi[-1]))
+    assert eff  # effort rows active: the blocks need the points

@@ -208,6 +208,13 @@ class LimitTerms:
             V.append(None)
         return V, X, kept
 
+    def _effort_points(self, C: np.ndarray) -> np.ndarray:
+        """The effort points' (q, q̇, q̈) (3, P, n) at C: an evaluation's at C when kept (the same numbers)."""
+        for entry in self._cache:
+            if entry[3][1] is not None and np.array_equal(entry[0], C):
+                return entry[3][1]
+        return self.rows.points.apply(C)
+
     def _effort_vjp(self, X: np.ndarray, kept, lam: np.ndarray) -> tuple[np.ndarray, ...]:
         """``system.id_vjp`` at the effort points' X (3, P, n) with weights lam (P, n), from the pass ``kept`` of their
         torques when the system keeps one (the same numbers).
@@ -246,7 +253,7 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
-        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None, what made it or None]
+        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None, ``_values`` at C]
             pv = entry[1]
             if (not grad or pv.grad is not None) and np.array_equal(entry[0], C):
                 if grad or pv.grad is None:
@@ -258,7 +265,7 @@ class LimitTerms:
         # its values, torques' pass and Φ taken from there
         known = next((entry for entry in self._cache if entry[3] is not None and np.array_equal(entry[0], C)), None)
         pv, made = self._evaluate(C, grad, None if known is None else (known[3], known[1]))
-        self._cache.append([np.array(C), pv, None, None if grad else made])
+        self._cache.append([np.array(C), pv, None, made])
         del self._cache[:-self.CACHE]
         return pv
 
@@ -349,7 +356,7 @@ class LimitTerms:
             eff = np.where(actives[EFFORT], self.rho * self.rows.weight(EFFORT) / sig[EFFORT] ** 2, 0.0)
         if eff is not None:
             which = np.flatnonzero(eff.any(axis=1))
-            X = self.rows.points.apply(C)[:, which]
+            X = self._effort_points(C)[:, which]
             _, Jq, Jv, M = self.system.id_derivatives(X[0], X[1], X[2])
             D = np.concatenate([Jq, Jv, M], axis=2)  # (P', n, 3n)
             Hs = np.einsum("pia,pi,pib->pab", D, eff[which], D)
