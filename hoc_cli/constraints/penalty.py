@@ -263,7 +263,7 @@ class LimitTerms:
                 return entry[2]
         # the gradient at a point evaluated without it (the first step's secant point, the line search's unit trial):
         # its values, torques' pass and Φ taken from there
-        known = next((entry for entry in self._cache if entry[3] is not None and np.array_equal(entry[0], C)), None)
+        known = next((entry for entry in self._cache if np.array_equal(entry[0], C)), None)
         pv, made = self._evaluate(C, grad, None if known is None else (known[3], known[1]))
         self._cache.append([np.array(C), pv, None, made])
         del self._cache[:-self.CACHE]
