@@ -134,6 +134,18 @@ class RobotSystem:
 
         return dynamics.id_vjp(self.model, q, dq, ddq, lam)
 
+    def inverse_dynamics_kept(self, q, dq, ddq):
+        """(``inverse_dynamics``, what ``id_vjp_kept`` takes to reuse its Newton-Euler pass)."""
+        from hoc_cli import dynamics
+
+        return dynamics.inverse_dynamics_kept(self.model, q, dq, ddq)
+
+    def id_vjp_kept(self, kept, lam):
+        """``id_vjp`` at the inputs of an ``inverse_dynamics_kept`` call (its ``kept``): the same numbers."""
+        from hoc_cli import dynamics
+
+        return dynamics.id_vjp_kept(self.model, kept, lam)
+
     def mass_quadratic_grad(self, q, v):
         from hoc_cli import dynamics
 

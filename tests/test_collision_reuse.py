@@ -247,3 +247,98 @@ def test_world_capsules_are_the_rotated_and_translated_ends_with_a_sphere_s_b_it
             np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
         ball = np.all(sc.robot.a == sc.robot.b, axis=1)
         assert ball.any() == (sc is not scene) and np.array_equal(a[:, ball], b[:, ball])
+
+
+def test_the_effort_rows_gradient_takes_the_vjp_from_the_torques_pass(monkeypatch):
+    """The limits' penalty at a point with effort rows active makes one Newton-Euler pass (the torques'), its VJP
+    reusing it: Φ and its gradient bit for bit those of a system without kept passes (two passes)."""
+    from hoc_cli.dynamics import _passes
+
+    make, C, _ = _limit_terms()
+
+    class Plain:  # the System without inverse_dynamics_kept: torques and VJP in passes of their own
+        def __init__(self, system):
+            self.s = system
+
+        def inverse_dynamics(self, q, dq, ddq):
+            return self.s.inverse_dynamics(q, dq, ddq)
+
+        def id_vjp(self, q, dq, ddq, lam):
+            return self.s.id_vjp(q, dq, ddq, lam)
+
+    terms = make()
+    plain = dataclasses.replace(terms, system=Plain(terms.system))
+    passes = []
+    forward = _passes._forward
+    monkeypatch.setattr(_passes, "_forward", lambda *a, **k: passes.append(1) or forward(*a, **k))
+    ref = plain.evaluate(C)
+    assert len(passes) == 2
+    got = terms.evaluate(C)
+    assert len(passes) == 3  # one more pass: the torques' alone
+    assert np.any(ref.grad) and got.value == ref.value and np.array_equal(got.grad, ref.grad)
+
+
+def test_the_distances_of_spheres_to_boxes_take_one_product_per_box_with_each_entry_s_numbers(lbr7_scene):  # noqa: F811
+    """``distances`` puts the sphere centres in each box's frame with one product per box (``_box_frames``): the numbers
+    of a 1 × 3 by 3 × 3 product per entry bit for bit, and every distance that of ``pair_contacts`` (the contact path),
+    among three turned boxes, centres inside and outside."""
+    from hoc_cli.collision.evaluate import _box_frames, _cached, _obstacle_arrays, _sphere_box_columns, distances, pair_contacts, world_capsules
+    from hoc_cli.collision.scene import KIND_BOX, Obstacle, collision_scene
+    from hoc_cli.collision.shapes import Box
+
+    model, base = lbr7_scene
+    rng = np.random.default_rng(21)
+    turn = [np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(3)]
+    boxes = [Obstacle(f"box{i}", Box(rng.uniform(-0.4, 0.4, 3) + [0.3, 0.0, 0.5], R * np.sign(np.linalg.det(R)),
+                                     rng.uniform(0.05, 0.2, 3))) for i, R in enumerate(turn)]
+    scene = sphere_rows_scene(collision_scene(model, base.robot, boxes, margin=0.02))
+    q = rng.uniform(-2.5, 2.5, (70, model.n))
+    cols, runs = _sphere_box_columns(scene)
+    assert len(runs) == 3 and cols.size == np.sum(scene.kind == KIND_BOX)
+    a, _ = world_capsules(model, scene, q)
+    c = a[:, scene.prim[cols]]
+    obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
+    o = scene.other[cols]
+    each = np.matmul((c - obs["center"][o])[..., None, :], obs["rot"][o])[..., 0, :]
+    assert np.array_equal(_box_frames(c, runs, obs), each)
+    D = distances(model, scene, q)
+    rows, pairs = np.nonzero(np.ones(D.shape, bool))
+    a, b = world_capsules(model, scene, q)
+    assert np.array_equal(D.ravel(), pair_contacts(scene, a, b, rows, pairs).distance)
+    assert (D[:, cols] < 0).any() and (D[:, cols] > 0).any()
+
+
+def test_the_limits_gradient_at_the_first_step_s_secant_point_reuses_its_values(monkeypatch):
+    """The first step evaluates the limits at C + dC without the gradient (its effort secant); the line search's unit
+    trial asks the gradient there: the values, the torques' pass and Φ are taken from that evaluation (one ``_values``
+    call at C + dC), and the result is a fresh evaluation's bit for bit."""
+    make, C, dC = _limit_terms()
+    ref = make().evaluate(C + dC)
+    terms = make()
+    calls = []
+    values = LimitTerms._values
+    monkeypatch.setattr(LimitTerms, "_values", lambda self, C: calls.append(np.array(C)) or values(self, C))
+    limit_rows(terms, C, dC)               # the first step from C: the limits at C and at C + dC, no gradient
+    got = terms.evaluate(C + dC)           # the unit trial: the gradient at C + dC
+    assert len(calls) == 2, len(calls)
+    assert got.value == ref.value and np.array_equal(got.grad, ref.grad) and np.any(got.grad)
+    for a, b in zip(got.mu_lo + got.mu_hi + got.g_lo + got.g_hi, ref.mu_lo + ref.mu_hi + ref.g_lo + ref.g_hi):
+        assert np.array_equal(a, b)
+
+
+def test_the_limits_newton_blocks_take_the_effort_points_of_the_evaluation_at_their_point(monkeypatch):
+    """The Newton blocks at the point just evaluated take that evaluation's (q, q̇, q̈) at the effort points: one
+    ``PointSet.apply`` at C instead of two, the blocks those made afresh."""
+    from hoc_cli.constraints.points import PointSet
+
+    make, C, _ = _limit_terms()
+    ref = make().newton_blocks(C)
+    terms = make()
+    calls = []
+    apply = PointSet.apply
+    monkeypatch.setattr(PointSet, "apply", lambda self, C: calls.append(1) or apply(self, C))
+    terms.evaluate(C)
+    blocks = terms.newton_blocks(C.copy())
+    assert len(calls) == 1 and np.array_equal(blocks, ref)
+    eff = terms.working[-1].any() and any(np.any(m) for m in (terms.evaluate(C).mu_lo[-1], terms.evaluate(C).mu_hi[-1]))
+    assert eff  # effort rows active: the blocks need the points

@@ -271,3 +271,47 @@ def test_id_and_mass_gives_the_same_numbers_as_inverse_dynamics_and_mass_matrix(
     assert u1.shape == (model.n,) and M1.shape == (model.n, model.n)
     np.testing.assert_allclose(u1, D.inverse_dynamics(model, q[3], dq[3], ddq[3]), rtol=0, atol=1e-13 * np.abs(u1).max())
     np.testing.assert_allclose(M1, D.mass_matrix(model, q[3]), rtol=0, atol=1e-13 * np.abs(M1).max())
+
+
+@pytest.mark.parametrize("case", ["two_link.urdf", "lbr7.urdf", "panda with a prismatic finger, reordered",
+                                  "alex upper body (19 joints, branching)"])
+@pytest.mark.parametrize("K", [1, 65, 700])
+def test_a_kept_inverse_dynamics_pass_gives_id_vjp_s_numbers_without_a_second_pass(case, K, monkeypatch):
+    """``inverse_dynamics_kept`` and ``id_vjp_kept`` are ``inverse_dynamics`` and ``id_vjp`` bit for bit (one sample,
+    one chunk, and more samples than a chunk, where the VJP makes its own pass), and within a chunk the VJP runs no
+    second Newton-Euler pass."""
+    from hoc_cli.dynamics import _passes
+
+    model = model_of(case)
+    rng = np.random.default_rng(11)
+    q, dq, ddq = random_state(rng, K, model.n)
+    lam = rng.standard_normal((K, model.n))
+    ref_u = D.inverse_dynamics(model, q, dq, ddq)
+    ref = D.id_vjp(model, q, dq, ddq, lam)
+    passes = []
+    forward = _passes._forward
+    monkeypatch.setattr(_passes, "_forward", lambda *a, **k: passes.append(1) or forward(*a, **k))
+    u, kept = D.inverse_dynamics_kept(model, q, dq, ddq)
+    got = D.id_vjp_kept(model, kept, lam)
+    assert np.array_equal(u, ref_u) and u.flags.c_contiguous
+    for x, y in zip(got, ref):
+        assert np.array_equal(x, y) and x.flags.c_contiguous
+    assert len(passes) == (1 if K <= 512 else 3)  # 700 samples: two chunks for the torques, the VJP its own pass
+
+
+@pytest.mark.parametrize("case", ["lbr7.urdf", "panda with a prismatic finger, reordered"])
+def test_the_velocity_product_rows_taken_by_index_are_the_products_with_their_0_1_rows(case):
+    """A v and g = Sᵀ f̄ pick rows of v and f̄ (one 1 per row of A9 and Sᵀ): indexing gives the numbers of the products
+    with those rows bit for bit, and the remaining product rows are those of the whole product, at any sample count."""
+    from hoc_cli.dynamics._layout import _consts
+
+    model = model_of(case)
+    C = _consts(model)
+    ABq = np.stack([C.ABq18[i] for i in range(model.n)])
+    rng = np.random.default_rng(2)
+    for K in (1, 3, 16, 180, 720):
+        v = rng.standard_normal((model.n, 6, K))
+        whole = np.matmul(C.ABq, v)
+        assert np.array_equal(whole[:, 18:], v[:, C.a_sel]) and np.array_equal(whole[:, :18], np.matmul(ABq, v))
+        Y = np.matmul(C.ISb, v)
+        assert np.array_equal(Y[:, 6:], v[:, C.s_sel]) and np.array_equal(Y[:, :6], np.matmul(C.I, v))

@@ -215,14 +215,41 @@ def _spheres(scene: CollisionScene) -> np.ndarray:
     return (scene.kind == KIND_BOX) & ball[scene.prim]
 
 
-def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.ndarray, half: np.ndarray):
+def _sphere_box_gap(c: np.ndarray, r: np.ndarray, center: np.ndarray, rot: np.ndarray, half: np.ndarray,
+                    p: np.ndarray | None = None):
     """(distance, outside) of spheres (centres c (..., 3), radii r) and boxes, the arrays broadcast over the leading
     shape: the clamp of the centre in the box frame, as ``distance.capsule_box`` takes a sphere outside the box (the
     same operations, so the same numbers); ``outside`` False where the centre is in the box (its depth is not this).
+    ``p``: the centres in the box frames (c − center) rot when the caller has them (``_box_frames``).
     """
-    p = np.matmul((c - center)[..., None, :], rot)[..., 0, :]
+    if p is None:
+        p = np.matmul((c - center)[..., None, :], rot)[..., 0, :]
     gap = np.linalg.norm(p - np.clip(p, -half, half), axis=-1)
     return gap - r, ~within_rounding(gap, p, half)
+
+
+def _sphere_box_columns(scene: CollisionScene) -> tuple[np.ndarray, list[tuple[int, int, int]]]:
+    """The pairs of a sphere and a box (``_spheres``) ordered by box, and each box's run in that order: (columns (F,),
+    [(start, stop, box)]).
+    """
+    cols = np.flatnonzero(_spheres(scene))
+    cols = cols[np.argsort(scene.other[cols], kind="stable")]
+    o = scene.other[cols]
+    cuts = np.concatenate([[0], np.flatnonzero(np.diff(o)) + 1, [cols.size]])
+    return cols, [(int(a), int(b), int(o[a])) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+
+
+def _box_frames(c: np.ndarray, runs: list[tuple[int, int, int]], obs: dict) -> np.ndarray:
+    """(c − center) rot (K, F, 3) for centres c (K, F, 3) whose columns ``runs`` (``_sphere_box_columns``) face one
+    box each: one product per box instead of one 1 × 3 by 3 × 3 product per entry (the same numbers: each entry's
+    three products summed alike).
+    """
+    K = c.shape[0]
+    p = np.empty(c.shape)
+    for a, b, box in runs:
+        rel = c[:, a:b] - obs["center"][box]
+        p[:, a:b] = (rel.reshape(-1, 3) @ obs["rot"][box]).reshape(K, b - a, 3)
+    return p
 
 
 def _fill_sphere_box(scene: CollisionScene, centres: np.ndarray, pairs: np.ndarray, fast: np.ndarray,
@@ -323,9 +350,11 @@ def distances(model: RobotModel, scene: CollisionScene, q) -> np.ndarray:
     inside = np.zeros((K, Q), dtype=bool)
     if fast.any():  # spheres against boxes on the grid of samples × pairs (``_sphere_box_gap``)
         obs = _cached("obstacles", scene, lambda: _obstacle_arrays(scene))
-        cols = np.flatnonzero(fast)
+        cols, runs = _cached("sphere box columns", scene, lambda: _sphere_box_columns(scene))
         o, prim = scene.other[cols], scene.prim[cols]
-        d, outside = _sphere_box_gap(a[:, prim], scene.robot.radius[prim], obs["center"][o], obs["rot"][o], obs["half"][o])
+        c = a[:, prim]
+        d, outside = _sphere_box_gap(c, scene.robot.radius[prim], obs["center"][o], obs["rot"][o], obs["half"][o],
+                                     p=_box_frames(c, runs, obs))
         D[:, cols] = d
         inside[:, cols] = ~outside
     rows, pairs = np.nonzero(inside | ~fast[None, :])  # the rest, and centres in a box, by ``pair_contacts``

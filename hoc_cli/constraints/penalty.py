@@ -190,16 +190,38 @@ class LimitTerms:
         return self._bounds[2]
 
     def _values(self, C: np.ndarray):
+        """(the values of each kind at its rows (None: not imposed), the effort points' (q, q̇, q̈) or None, and what
+        ``_effort_vjp`` takes to reuse the torques' Newton-Euler pass).
+        """
         mesh = self.rows.mesh
         loc = mesh.local_coefficients(C)
         V = [self.rows.apply(k, loc) if self.working[k].any() else None for k in range(KINEMATIC)]
-        X = None
+        X = kept = None
         if self.working[EFFORT].any():
             X = self.rows.points.apply(C)
-            V.append(self.system.inverse_dynamics(X[0], X[1], X[2]))
+            if hasattr(self.system, "inverse_dynamics_kept"):
+                u, kept = self.system.inverse_dynamics_kept(X[0], X[1], X[2])
+            else:
+                u = self.system.inverse_dynamics(X[0], X[1], X[2])
+            V.append(u)
         else:
             V.append(None)
-        return V, X
+        return V, X, kept
+
+    def _effort_points(self, C: np.ndarray) -> np.ndarray:
+        """The effort points' (q, q̇, q̈) (3, P, n) at C: an evaluation's at C when kept (the same numbers)."""
+        for entry in self._cache:
+            if entry[3][1] is not None and np.array_equal(entry[0], C):
+                return entry[3][1]
+        return self.rows.points.apply(C)
+
+    def _effort_vjp(self, X: np.ndarray, kept, lam: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``system.id_vjp`` at the effort points' X (3, P, n) with weights lam (P, n), from the pass ``kept`` of their
+        torques when the system keeps one (the same numbers).
+        """
+        if kept is not None:
+            return self.system.id_vjp_kept(kept, lam)
+        return self.system.id_vjp(X[0], X[1], X[2], lam)
 
     def _residual(self, k: int, V: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         n = self.limits.n
@@ -231,7 +253,7 @@ class LimitTerms:
 
     def evaluate(self, C: np.ndarray, grad: bool = True) -> PenaltyValue:
         """Φ and (optionally) ∂Φ/∂C (N+1, m, n) at coefficients C."""
-        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None]
+        for entry in self._cache:  # [C, PenaltyValue, the same without its gradient or None, ``_values`` at C]
             pv = entry[1]
             if (not grad or pv.grad is not None) and np.array_equal(entry[0], C):
                 if grad or pv.grad is None:
@@ -239,34 +261,46 @@ class LimitTerms:
                 if entry[2] is None:
                     entry[2] = dataclasses.replace(pv, grad=None)
                 return entry[2]
-        pv = self._evaluate(C, grad)
-        self._cache.append([np.array(C), pv, None])
+        # the gradient at a point evaluated without it (the first step's secant point, the line search's unit trial):
+        # its values, torques' pass and Φ taken from there
+        known = next((entry for entry in self._cache if np.array_equal(entry[0], C)), None)
+        pv, made = self._evaluate(C, grad, None if known is None else (known[3], known[1]))
+        self._cache.append([np.array(C), pv, None, made])
         del self._cache[:-self.CACHE]
         return pv
 
-    def _evaluate(self, C: np.ndarray, grad: bool) -> PenaltyValue:
-        """``evaluate`` without the cache."""
-        V, X = self._values(C)
+    def _evaluate(self, C: np.ndarray, grad: bool, known: tuple | None = None) -> tuple[PenaltyValue, tuple]:
+        """``evaluate`` without the cache: (the PenaltyValue, ``_values``' (V, X, kept)). ``known``: (``_values`` at C,
+        the PenaltyValue at C without its gradient), taken as they are.
+        """
+        made = self._values(C) if known is None else known[0]
+        V, X, kept = made
         _, _, sig = self._bounds
-        value = 0.0
-        g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
+        if known is None:
+            value = 0.0
+            g_lo, g_hi, mu_lo, mu_hi = [], [], [], []
+            for k in range(len(KINDS)):
+                gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
+                value += part
+                g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
+            pv = PenaltyValue(value, None, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+        else:
+            pv = known[1]
+        if not grad:
+            return pv, made
         gloc = np.zeros((self.rows.mesh.N, 2 * self.rows.mesh.m, self.limits.n))
         G = None
         for k in range(len(KINDS)):
-            gl, gh, ml, mh, part = self._kind(k, V[k]) if V[k] is not None else self._idle[k]
-            value += part
-            g_lo.append(gl), g_hi.append(gh), mu_lo.append(ml), mu_hi.append(mh)
-            if grad and V[k] is not None:
-                dV = (mh - ml) / sig[k]
+            if V[k] is not None:
+                dV = (pv.mu_hi[k] - pv.mu_lo[k]) / sig[k]
                 if k < KINEMATIC:
                     gloc += self.rows.transpose(k, dV)
                 elif np.any(dV):
-                    _, gq, gdq, gddq = self.system.id_vjp(X[0], X[1], X[2], dV)
+                    _, gq, gdq, gddq = self._effort_vjp(X, kept, dV)
                     G = self.rows.points.transpose(np.stack([gq, gdq, gddq]))
-        if grad:
-            Gk = self.rows.to_coefficients(gloc)
-            G = Gk if G is None else G + Gk
-        return PenaltyValue(value, G, tuple(g_lo), tuple(g_hi), tuple(mu_lo), tuple(mu_hi))
+        Gk = self.rows.to_coefficients(gloc)
+        G = Gk if G is None else G + Gk
+        return dataclasses.replace(pv, grad=G), made
 
     def _kind(self, k: int, V: np.ndarray | None) -> tuple:
         """Kind k's (g_lo, g_hi, μ_lo, μ_hi, its part of Φ) from its values V (None: not imposed)."""
@@ -322,7 +356,7 @@ class LimitTerms:
             eff = np.where(actives[EFFORT], self.rho * self.rows.weight(EFFORT) / sig[EFFORT] ** 2, 0.0)
         if eff is not None:
             which = np.flatnonzero(eff.any(axis=1))
-            X = self.rows.points.apply(C)[:, which]
+            X = self._effort_points(C)[:, which]
             _, Jq, Jv, M = self.system.id_derivatives(X[0], X[1], X[2])
             D = np.concatenate([Jq, Jv, M], axis=2)  # (P', n, 3n)
             Hs = np.einsum("pia,pi,pib->pab", D, eff[which], D)

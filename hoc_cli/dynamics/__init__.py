@@ -66,6 +66,7 @@ from ..model.tree import RobotModel
 from ._adjoint import _jac_work, _jacobians_into, _vjp_rows
 from ._layout import (
     DERIV_CHUNK,
+    ID_CHUNK,
     JAC_MIN_K,
     MASS_CHUNK,
     VJP_CHUNK,
@@ -92,7 +93,8 @@ from .kinematics import (
 
 __all__ = [
     "SINGULAR_PIVOT", "bias_forces", "covariant_gradient_terms", "forward_dynamics",
-    "frame_jacobian", "gravity_forces", "id_and_mass", "id_derivatives", "id_vjp", "inverse_dynamics",
+    "frame_jacobian", "gravity_forces", "id_and_mass", "id_derivatives", "id_vjp", "id_vjp_kept", "inverse_dynamics",
+    "inverse_dynamics_kept",
     "link_motion", "link_poses", "link_velocity", "link_velocity_derivatives", "mass_cholesky", "mass_matrix",
     "mass_quadratic_grad",
 ]
@@ -266,6 +268,34 @@ def id_vjp(model: RobotModel, q, dq, ddq, lam, gravity: bool = True):
         gq[sl], gdq[sl], gddq[sl] = _vjp_rows(C, P, lT[:, sl])
         u[sl] = _tau_of(C, P).T
     return tuple(_shape_out(x, one_d) for x in (u, gq, gdq, gddq))
+
+
+def inverse_dynamics_kept(model: RobotModel, q, dq, ddq) -> tuple[np.ndarray, object]:
+    """``inverse_dynamics`` (gravity included) and what :func:`id_vjp_kept` takes to run ``id_vjp`` at the same
+    (q, q̇, q̈) without a second Newton-Euler pass.
+
+    Returns
+    -------
+        (u (K, n), kept): kept holds the finished pass when K ≤ ``ID_CHUNK`` (one chunk, as ``id_vjp`` would make
+        it: the same numbers), else the inputs (``id_vjp_kept`` then runs ``id_vjp``).
+    """
+    (qT, dqT, ddqT), K, one_d = _inputs(model, q=q, dq=dq, ddq=ddq)
+    if K > ID_CHUNK or K > VJP_CHUNK or not model.n or not K:
+        return _shape_out(_tau(model, qT, dqT, ddqT, True), one_d), (q, dq, ddq)
+    P = _newton_euler(_consts(model), qT, dqT, ddqT, True, cols=False)
+    return _shape_out(np.ascontiguousarray(_tau_of(_consts(model), P).T), one_d), P
+
+
+def id_vjp_kept(model: RobotModel, kept, lam) -> tuple[np.ndarray, ...]:
+    """``id_vjp`` at the (q, q̇, q̈) of an :func:`inverse_dynamics_kept` call (its ``kept``), weights lam (K, n):
+    (u, gq, gdq, gddq), each (K, n), the same numbers.
+    """
+    if isinstance(kept, tuple):
+        return id_vjp(model, *kept, lam)
+    (lT,), K, one_d = _inputs(model, lam=lam)
+    C = _consts(model)
+    out = (_tau_of(C, kept).T,) + _vjp_rows(C, kept, lT)
+    return tuple(_shape_out(np.ascontiguousarray(x), one_d) for x in out)
 
 
 def mass_quadratic_grad(model: RobotModel, q, v) -> np.ndarray:

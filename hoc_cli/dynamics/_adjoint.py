@@ -77,9 +77,8 @@ def _vjp(C: _Consts, P: _Pass, lam: np.ndarray):
     ch = 2 if hv else 1
     MB = np.empty((n, 14, ch, SK))
     if hv:
-        Y = np.matmul(C.ISb, b)  # (I f̄, g_π2, g_π1, g_π1, g_π2)
-        MB[:, 0:6, 1] = Y[:, :6]
-        Pm = Y[:, 6:]
+        np.matmul(C.I, b, out=MB[:, 0:6, 1])  # I f̄
+        Pm = b[:, C.s_sel]  # (g_π2, g_π1, g_π1, g_π2), g = Sᵀ f̄: rows of f̄
         _sx(Pm, S)[...] *= _kx(P.Gq, S)
         ZZ = np.empty((n, 18, SK))  # (Bv × g, g × Av)
         np.subtract(Pm[:, 0:9], Pm[:, 9:18], out=ZZ[:, 0:9])
@@ -164,7 +163,7 @@ def _jac(C: _Consts, P: _Pass, gq, gdq, gddq, work: np.ndarray) -> None:
         Mi = MB[i]
         np.matmul(C.I[i], b, out=Mi[0:6, 1, :h].reshape(6, h * K))
         Pm = Yb[:36 * h * K].reshape(36, h * K)
-        np.matmul(C.ISb[i, 6:], b, out=Pm)
+        np.take(b, C.s_sel, axis=0, out=Pm, mode="clip")  # ISb[i, 6:] b: rows of b
         Pm3 = Pm.reshape(36, h, K)
         Pm3 *= P.Gq[i][:, None, :]
         ZZ = ZZb[:18 * h * K].reshape(18, h * K)

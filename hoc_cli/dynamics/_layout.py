@@ -82,6 +82,12 @@ def _perm_rows(M9: np.ndarray, perm: np.ndarray) -> np.ndarray:
     return M9.reshape(3, 3, -1)[perm].reshape(9, -1)
 
 
+def _selection(M: np.ndarray) -> np.ndarray:
+    """The column of the single 1 in each row of a 0/1 matrix M (r, c) whose rows each hold one: (r,) indices."""
+    assert np.all((M == 0) | (M == 1)) and np.all(M.sum(axis=1) == 1)
+    return np.ascontiguousarray(np.argmax(M, axis=1))
+
+
 class _Consts:
     """Per-model constants of the kernels, computed once per model (cached weakly by model)."""
 
@@ -156,6 +162,12 @@ class _Consts:
             AB9T.append(np.vstack([A9, B9]).T)
         stack = (lambda L, shape: np.ascontiguousarray(np.stack(L)) if n else np.zeros((0,) + shape))
         self.ABq = stack(ABq, (36, 6))
+        # A v and g = Sᵀ f̄ pick rows (each row of A9 and of Sᵀ holds a single 1): their rows of Gq and of the
+        # adjoint's factors are taken by indexing, the numbers the products with those 0/1 rows give
+        self.ABq18 = np.ascontiguousarray(self.ABq[:, :18])
+        self.a_sel = _selection(np.vstack([_perm_rows(A9, _PI2), _perm_rows(A9, _PI1)]))  # (18,)
+        self.s_sel = _selection(np.vstack([_perm_rows(St, _PI2), _perm_rows(St, _PI1),
+                                           _perm_rows(St, _PI1), _perm_rows(St, _PI2)]))  # (36,)
         self.ISf = stack(ISf, (6, 24))
         self.ISb = stack(ISb, (42, 6))
         self.AB9T = stack(AB9T, (6, 18))

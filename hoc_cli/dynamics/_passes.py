@@ -88,7 +88,10 @@ def _forces(C: _Consts, P: _Pass, only_acc: bool = False) -> None:
         if only_acc:
             Gq = P.Gq
         else:
-            P.Gq = Gq = np.matmul(C.ABq, TT[:, 4:10, 0])
+            v = TT[:, 4:10, 0]
+            P.Gq = Gq = np.empty((n, 36, K))
+            np.matmul(C.ABq18, v, out=Gq[:, :18])  # (Bπ1, Bπ2) v
+            Gq[:, 18:] = v[:, C.a_sel]  # (Aπ2, Aπ1) v: rows of v
         U = np.empty((n, 24, K))
         U[:, :6] = TT[:, 4:10, 1]
         np.multiply(Gq[:, 18:], Gq[:, :18], out=U[:, 6:])
