@@ -545,13 +545,15 @@ def test_a_wrong_scipy_nnls_answer_is_repaired_from_its_passive_set(monkeypatch)
     wrong = np.array(ref.w)
     wrong[ref.passive[0]] = 0.0
     monkeypatch.setattr(scipy.optimize, "nnls", lambda A, b, maxiter=None: (wrong, 0.0))
-    starts = []
+    starts, how = [], []
     warm = qp_step.warm_nnls
-    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, **k: starts.append(k.get("passive")) or warm(*a, **k))
+    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, **k: starts.append(k.get("passive")) or
+                        how.append(k.get("retriangulate", False)) or warm(*a, **k))
     for repair in (False, True):
         w = qp_step._cold_nnls(M, repair=repair)
         assert np.abs(M @ w - M @ ref.w).max() <= 1e-12
     assert starts[0] is None and sorted(starts[1]) == sorted(ref.passive[1:])
+    assert how == [False, True]  # the real-time repair refactors dropped columns by one QR, the offline one as before
 
 
 def test_the_dense_factor_is_the_banded_factor_on_the_free_coefficients():
