@@ -14,7 +14,8 @@ ends): the passive set of the same problem with fewer columns (a least-distance 
 A given passive set whose least-squares solution has non-positive entries (a guess) loses those entries until it
 is positive. The least-squares solutions come from a thin QR factor of M's columns in S (Householder for a given
 set), extended by one Gram-Schmidt column (orthogonalised twice) when a column enters; when columns leave, the
-factor of the columns before the first one that left is kept and the later ones are appended again.
+factor of the columns before the first one that left is kept and the later ones are appended again (or, with
+``retriangulate``, refactored at once by one small QR of their rows of R).
 
 A column enters only when its part orthogonal to the columns in S exceeds ``DEPENDENT`` of its norm and its
 least-squares entry is positive, as in Lawson & Hanson's test: a column that fails is passed over at that
