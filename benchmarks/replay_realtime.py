@@ -13,7 +13,9 @@ runs update K (or a comma-separated list) after one warm call P times and nothin
 run to run with Python's hash seed), which does not depend on the load. With ``--marks`` each timed update is
 bracketed by ``os.getppid()`` calls, so that one run of
 ``valgrind --tool=callgrind --dump-before=getppid ... --only 0,1,2 --marks`` writes each update's count to a file of
-its own (the first file: everything before; then one per update in order).
+its own (the first file: everything before; then one per update in order). ``--inputs FILE`` keeps the captured updates
+in FILE (pickle) and, when FILE exists, replays those instead of running the loop: two versions of the code then
+replay the same updates (the loop's plans, hence its later updates' inputs, differ between them).
 """
 from __future__ import annotations
 
@@ -22,7 +24,9 @@ import _blas_threads  # noqa: F401  (before numpy: one BLAS thread, as hoc_cli s
 # isort: on
 import argparse
 import dataclasses
+import math
 import os
+import pickle
 import time
 from pathlib import Path
 
@@ -62,6 +66,30 @@ def captured_updates(scenario: str, N: int) -> tuple[Replanner, list]:
     return rp, inputs
 
 
+def kept_updates(scenario: str, N: int, path: str | None) -> tuple[Replanner, list]:
+    """``captured_updates``, or with ``path``: the updates kept in that file when it exists (the replanner built from the
+    scenario's cold plan, without the loop), else the captured ones, kept there (the plans' costs not kept: NaN).
+    """
+    if path is None or not os.path.exists(path):
+        rp, inputs = captured_updates(scenario, N)
+        if path is not None:
+            bare = []
+            for (cur, lam, active, mu), t, x, target, free_time in inputs:  # a Deferred cost is not kept
+                cur = dataclasses.replace(cur, cost=math.nan, steps_cost=math.nan, kkt=math.nan)
+                bare.append(((cur, lam, active, mu), t, x, target, free_time))
+            with open(path, "wb") as fh:
+                pickle.dump(bare, fh)
+        return rp, inputs
+    sc = load_scenario(scenario)
+    task = apply_overrides(sc.task, N=N)
+    model = load_model(task)
+    states = resolve(task, model.joint_names)
+    problem = problem_from_task(task, model, states, task_limits(model, states.limits))
+    with open(path, "rb") as fh:
+        inputs = pickle.load(fh)
+    return Replanner(problem, solve(problem), max_steps=sc.cycle.steps), inputs
+
+
 def replay(rp: Replanner, inp: tuple):
     """The update of ``inp`` from its state again; its plan."""
     state, t, x, target, free_time = inp
@@ -79,8 +107,9 @@ def main() -> None:
     ap.add_argument("--marks", action="store_true",
                     help="with --only: os.getppid() before each timed update and after the last (valgrind --tool=callgrind "
                          "--dump-before=getppid then writes one count per update)")
+    ap.add_argument("--inputs", default=None, help="keep the captured updates in this file, or replay them from it")
     args = ap.parse_args()
-    rp, inputs = captured_updates(args.scenario, args.N)
+    rp, inputs = kept_updates(args.scenario, args.N, args.inputs)
     if args.only is not None:
         chosen = [inputs[int(k)] for k in args.only.split(",")]
         for p in range(1 + args.passes):

@@ -83,3 +83,49 @@ def test_the_iteration_cap_raises_a_numerical_error():
     M, f = _problem(0, 30, 40)
     with pytest.raises(NumericalError):
         nnls(M, f, max_iter=2)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_drop_retriangulated_is_the_factor_of_the_kept_columns(seed):
+    """``_ThinQR.keep`` with ``retriangulate`` (one small QR of the later columns' rows of R): Q orthonormal, Q R the
+    kept columns of M in their order, Qᵀf the stored right-hand side, R upper triangular; several drops in a row,
+    the first column among them.
+    """
+    from hoc_cli.optimize.nnls import _ThinQR
+
+    M, f = _problem(seed, 40, 25)
+    MT = np.ascontiguousarray(M.T)
+    rng = np.random.default_rng(seed)
+    cols = list(rng.permutation(25)[:18])
+    qrf = _ThinQR(MT, f, cols, retriangulate=True)
+    for drop in (7, 0, 11, 4):
+        mask = np.ones(len(qrf.cols), bool)
+        mask[min(drop, mask.size - 1)] = False
+        kept = [c for c, k in zip(qrf.cols, mask) if k]
+        qrf.keep(mask)
+        assert qrf.cols == kept
+        p = len(kept)
+        Q, R = qrf.Q[:, :p], np.triu(qrf.R[:p, :p])
+        assert np.abs(Q.T @ Q - np.eye(p)).max() <= 1e-14
+        assert np.abs(Q @ R - M[:, kept]).max() <= 1e-13 * np.abs(M).max()
+        assert np.abs(qrf.qf[:p] - Q.T @ f).max() <= 1e-13 * np.linalg.norm(f)
+        z = qrf.solve()
+        ref = np.linalg.lstsq(M[:, kept], f, rcond=None)[0]
+        assert np.abs(z - ref).max() <= 1e-11 * max(np.abs(ref).max(), 1.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("duplicates", [False, True])
+def test_retriangulated_drops_take_the_same_iterations_to_scipys_minimiser(seed, duplicates):
+    """``nnls(..., retriangulate=True)``: the same iterations and passive set as appending again, the residual of
+    scipy's minimiser, from no passive set and from a guess that must lose columns first.
+    """
+    M, f = _problem(seed, 30, 50, duplicates=duplicates)
+    ref, _ = scipy_nnls(M, f, maxiter=2500)
+    guess = np.random.default_rng(200 + seed).permutation(50)[:20]
+    for passive in (None, guess):
+        a = nnls(M, f, passive=passive)
+        b = nnls(M, f, passive=passive, retriangulate=True)
+        assert b.iterations == a.iterations and sorted(b.passive) == sorted(a.passive)
+        assert np.linalg.norm(b.residual - (M @ ref - f)) <= 1e-11 * np.linalg.norm(f)
+        assert _kkt(M, f, b) <= 1e-12

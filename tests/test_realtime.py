@@ -266,6 +266,39 @@ def test_an_update_takes_one_step_towards_a_moved_target_within_the_limits(catch
     assert up.violation < 0.1 * viol0
 
 
+def test_a_steps_first_programme_starts_from_the_rows_its_free_step_breaks_and_is_the_full_programmes_step(catch,
+                                                                                                         monkeypatch):
+    """The real-time step's first programme (``qp_steps(..., quick=True)``) is ``solve_qp_within`` from no row: over the
+    rows the step without inequality rows breaks, then with any row its step breaks. Its step is the minimiser over
+    every candidate row (``solve_qp`` of the same programme, SciPy's NNLS from no active row: the reference) and it meets
+    every candidate row.
+    """
+    from hoc_cli.goals import qp_step, replan_qp
+
+    problem, plan = catch
+    seen = []
+    within = replan_qp.solve_qp_within
+
+    def spy(U, g, E, e, A, b, rows, programme=None, keys=None):
+        step = within(U, g, E, e, A, b, rows, programme=programme, keys=keys)
+        if not np.any(rows):  # the first programme of a step
+            ref = qp_step.solve_qp(U, g, E, e, A, b, programme=qp_step.Programme(U, g, E, keyed=True), keys=keys)
+            seen.append((A.shape[0], step, ref, float(np.max(A @ step.d - b))))
+        return step
+
+    monkeypatch.setattr(replan_qp, "solve_qp_within", spy)
+    rp = Replanner(problem, plan, max_steps=1)
+    for t, dp in ((0.05, [0.01, -0.005, 0.0]), (0.07, [0.012, -0.004, 0.002])):
+        x = (rp.current.state(t)[0], rp.current.state(t, 1)[0])
+        rp.update(t, x, Target(P0 + dp + V0 * t + 0.5 * G * t**2, V0 + G * t, G), budget_s=10.0)
+    assert len(seen) >= 2
+    for k, step, ref, worst in seen:
+        scale = max(float(np.max(np.abs(ref.d))), 1e-12)
+        assert np.max(np.abs(step.d - ref.d)) <= 1e-9 * scale
+        assert abs(step.decrease - ref.decrease) <= 1e-9 * max(abs(ref.decrease), 1.0)
+        assert worst <= 1e-9
+
+
 def test_the_point_after_the_last_step_is_evaluated_without_derivatives_and_the_plan_is_the_same(catch, monkeypatch):
     """The point after an update's last allowed step (``max_steps``): no step starts there, so ℒ's derivatives are
     not evaluated (``evaluate_point(..., derivatives=False)``), nor its cost (``value=False``: no dynamics); the plan,
@@ -545,13 +578,15 @@ def test_a_wrong_scipy_nnls_answer_is_repaired_from_its_passive_set(monkeypatch)
     wrong = np.array(ref.w)
     wrong[ref.passive[0]] = 0.0
     monkeypatch.setattr(scipy.optimize, "nnls", lambda A, b, maxiter=None: (wrong, 0.0))
-    starts = []
+    starts, how = [], []
     warm = qp_step.warm_nnls
-    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, **k: starts.append(k.get("passive")) or warm(*a, **k))
+    monkeypatch.setattr(qp_step, "warm_nnls", lambda *a, **k: starts.append(k.get("passive")) or
+                        how.append(k.get("retriangulate", False)) or warm(*a, **k))
     for repair in (False, True):
         w = qp_step._cold_nnls(M, repair=repair)
         assert np.abs(M @ w - M @ ref.w).max() <= 1e-12
     assert starts[0] is None and sorted(starts[1]) == sorted(ref.passive[1:])
+    assert how == [False, True]  # the real-time repair refactors dropped columns by one QR, the offline one as before
 
 
 def test_the_dense_factor_is_the_banded_factor_on_the_free_coefficients():

@@ -33,7 +33,7 @@ def test_the_family_of_20_noisy_throws_is_caught_within_the_limits_in_every_cycl
     """The issue's test: σ = 5 mm at 100 Hz, at least 19 of the 20 seeded throws caught (flange within 5 mm of the
     true ball at the catch time, relative speed below 0.05 m/s), with configs/catch_throw.yaml's cycle, untimed
     (one SQP step per update, every correction applied: the same on every machine). Every plan the arm executed
-    passes the exact limits check. Measured: 19 caught, error median 3.0 mm; the miss (throw 18, 5.1 mm) is the
+    passes the exact limits check. Measured: 19 caught, error median 3.2 mm; the miss (throw 18, 5.3 mm) is the
     ball's estimate, which is 4.9-5.4 mm off at the catch from any observations up to 0-20 ms before it.
     """
     problem, plan = catch

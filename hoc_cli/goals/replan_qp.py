@@ -356,6 +356,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                         # from step to step and the working set with it: the Panda reach's coarse steps cycled 29 ↔ 31 rows)
                         step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, _reduced_rows(cand, *previous, A.shape[0]),
                                                programme=prog)
+                    elif quick:  # first over the rows that the step without inequality rows breaks (solve_qp_within)
+                        step = solve_qp_within(U, grad, E, rhs_E, A, rhs_A, np.zeros(A.shape[0], bool), programme=prog,
+                                               keys=keys)
                     else:
                         step = solve_qp(U, grad, E, rhs_E, A, rhs_A, programme=prog, keys=keys)
                 except NumericalError as exc:

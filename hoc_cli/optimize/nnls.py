@@ -14,7 +14,8 @@ ends): the passive set of the same problem with fewer columns (a least-distance 
 A given passive set whose least-squares solution has non-positive entries (a guess) loses those entries until it
 is positive. The least-squares solutions come from a thin QR factor of M's columns in S (Householder for a given
 set), extended by one Gram-Schmidt column (orthogonalised twice) when a column enters; when columns leave, the
-factor of the columns before the first one that left is kept and the later ones are appended again.
+factor of the columns before the first one that left is kept and the later ones are appended again (or, with
+``retriangulate``, refactored at once by one small QR of their rows of R).
 
 A column enters only when its part orthogonal to the columns in S exceeds ``DEPENDENT`` of its norm and its
 least-squares entry is positive, as in Lawson & Hanson's test: a column that fails is passed over at that
@@ -51,8 +52,9 @@ class _ThinQR:
     buffers of m columns, with Qᵀf (p,) for the least-squares solutions.
     """
 
-    def __init__(self, MT: np.ndarray, f: np.ndarray, cols: list[int]) -> None:
+    def __init__(self, MT: np.ndarray, f: np.ndarray, cols: list[int], retriangulate: bool = False) -> None:
         self.MT, self.f = MT, f  # MT (k, m): M's columns as contiguous rows
+        self.retriangulate = retriangulate  # ``keep``: one small QR instead of appending the later columns again
         m = MT.shape[1]
         self.Q = np.zeros((m, m), order="F")
         self.R = np.zeros((m, m), order="F")
@@ -70,13 +72,27 @@ class _ThinQR:
 
     def keep(self, mask: np.ndarray) -> None:
         """The columns where ``mask`` (p,) holds kept, in order: the factor of the columns before the first one
-        dropped is unchanged, the later ones are appended again (they stay independent: a subset).
+        dropped is unchanged; the later ones are appended again (they stay independent: a subset), or, ``retriangulate``,
+        their rows first..p of R (an upper Hessenberg-like block B, (p − first, L)) are factored B = Q_B R_B once and
+        Q's columns first..p turned by Q_B (the same factor to rounding, one small QR instead of L appends).
         """
         first = int(np.argmin(mask))
-        later = [c for c, kc in zip(self.cols[first:], mask[first:]) if kc]
+        p = len(self.cols)
+        idx = [i for i in range(first, p) if mask[i]]
+        later = [self.cols[i] for i in idx]
         self.cols = self.cols[:first]
-        for c in later:
-            self.append(c, check=False)
+        if not self.retriangulate:
+            for c in later:
+                self.append(c, check=False)
+            return
+        L = len(idx)
+        if L:
+            QB, RB = np.linalg.qr(self.R[first:p, idx])  # (p − first, L), (L, L)
+            self.R[:first, first:first + L] = self.R[:first, idx]
+            self.R[first:first + L, first:first + L] = RB
+            self.Q[:, first:first + L] = self.Q[:, first:p] @ QB
+            self.qf[first:first + L] = QB.T @ self.qf[first:p]
+        self.cols += later
 
     def append(self, j: int, check: bool = True) -> bool:
         """Column j appended (classical Gram-Schmidt, twice); False (nothing changed) when it is dependent (tested
@@ -118,11 +134,15 @@ class _ThinQR:
         return self.f - self.Q[:, :p] @ self.qf[:p]
 
 
-def nnls(M: np.ndarray, f: np.ndarray, passive: np.ndarray | None = None, max_iter: int | None = None) -> NNLSResult:
+def nnls(M: np.ndarray, f: np.ndarray, passive: np.ndarray | None = None, max_iter: int | None = None,
+         retriangulate: bool = False) -> NNLSResult:
     """Min ‖M w − f‖ over w ≥ 0 (module docstring), from the passive set ``passive`` (column indices (p,) int, e.g.
     the last solution's over fewer columns; None: empty, Lawson & Hanson's own start).
 
-    M : (m, k); f : (m,); max_iter : columns entered plus inner steps at most (3k when None).
+    M : (m, k); f : (m,); max_iter : columns entered plus inner steps at most (3k when None);
+    retriangulate : when columns leave S, the factor of the later ones by one small QR of their rows of R (``_ThinQR.keep``)
+        instead of appending them again one by one: the same iterates to rounding, fewer numpy calls (the real-time
+        steps: hoc's Lawson-Hanson's time is mostly those appends).
     Raises ``NumericalError`` when the iterations run out.
     """
     M = np.asarray(M, float)
@@ -134,7 +154,7 @@ def nnls(M: np.ndarray, f: np.ndarray, passive: np.ndarray | None = None, max_it
     MT = np.ascontiguousarray(M.T)
     cols = [] if passive is None else [int(j) for j in passive]
     p = len(cols)
-    qrf = _ThinQR(MT, f, cols if p <= m else [])
+    qrf = _ThinQR(MT, f, cols if p <= m else [], retriangulate)
     if p and not (p <= m and np.all(np.abs(np.diag(qrf.R[:p, :p])) > DEPENDENT * norms[cols])):
         qrf.refactor([])  # dependent columns: appended one by one, each dependent one left out
         for j in cols:
