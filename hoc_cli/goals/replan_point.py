@@ -89,12 +89,22 @@ def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cach
     """The largest |c| over the goal rows at coefficients C on [0, T] (0 without rows): ``evaluate_point``'s goal rows alone,
     the same numbers (its problem from the same ``cache``), without the dynamics.
     """
-    problem, _, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
-    if not problem.points:
-        return 0.0
+    c = goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache, fractions)[2]
+    return float(np.max(np.abs(c), initial=0.0))
+
+
+def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
+    """(the mesh's limit rows at T, C (N+1, m, n) with the fixed coefficients set, the goal rows c (r,)) at coefficients
+    C on [0, T]: ``evaluate_point``'s numbers (its problem from the same ``cache``) without the dynamics and the rows'
+    Jacobian.
+    """
+    problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     C = problem.coefficients(problem.layout.pack(C))
+    if not problem.points:
+        return rows, C, np.zeros(0)
     lam = [np.zeros(p.residual.size) for p in problem.points]
-    return max(float(np.max(np.abs(r[0]), initial=0.0)) for r in GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C))
+    res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C)
+    return rows, C, np.concatenate([r[0] for r in res])
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,

@@ -65,6 +65,7 @@ from hoc_cli.goals.replan_point import (
     damped_trial,
     dense_factor,
     evaluate_point,
+    goal_values,
     goal_violation,
     point_problem,
     row_values,
@@ -245,6 +246,9 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
 
     def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
         return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
+
+    def goal_values_at(T_, C_):  # (limit rows, C, the goal rows) alone (``at``'s, without the dynamics)
+        return goal_values(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
 
     def due(name: str) -> None:
         if late is not None and late(name):
@@ -434,7 +438,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                    programme=prog, keys=keys, rows_only=not valued)
+                                                                    programme=prog, keys=keys, rows_only=not valued,
+                                                                    goal_values_at=goal_values_at)
             if corrected is not None:
                 trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
             else:
@@ -521,7 +526,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
                     cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None,
-                    keys: np.ndarray | None = None, rows_only: bool = False):
+                    keys: np.ndarray | None = None, rows_only: bool = False, goal_values_at: Callable | None = None):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -534,21 +539,28 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused), ``keys``
     its row keys of A when it is keyed (``row_keys``). ``rows_only``: ``at`` evaluates the goal rows alone (no
     dynamics: ``evaluate_point(..., value=False)``), so the corrected point is evaluated once and its violation read
-    from it (``goal_rows_at``'s numbers).
+    from it (``goal_rows_at``'s numbers). Else the full step's goal rows are evaluated first, alone (``goal_values_at``:
+    (T, C) -> (limit rows, C, c), ``replan_point.goal_values``' numbers): a step whose rows break the floor is corrected
+    without the dynamics at its end (the UR5's moving target: 5 of its 32 evaluations).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
     try:
-        _, trial = at_full(1.0)
+        if rows_only:
+            _, trial = at_full(1.0)
+            rows1, C1, c1 = trial.rows, trial.C, trial.c[:r]
+        else:  # the goal rows first: a step they reject needs no dynamics at its end, only those rows for its correction
+            rows1, C1, c1 = goal_values_at(T1, rescale(problem.coefficients(pt.x + dx), T, T1))
+        v1 = float(np.max(np.abs(c1), initial=0.0))
+        if v1 <= max(violation, floor) and not rows_only:
+            _, trial = at_full(1.0)
     except NumericalError:
         return None
-    v1 = float(np.max(np.abs(trial.c[:r]), initial=0.0))
     if v1 <= max(violation, floor) and (accept is None or accept(1.0, T1, trial)):
         return trial, T1, 1.0, v1, lam_new, new_active, dx, dT
     # the second-order correction: the same programme with the rows' values at the trial point
-    c1 = trial.c[:r]
-    _, A1_full = cand.jacobian(trial.rows, limits, problem.layout.free)
-    g1 = A1_full @ trial.C.ravel() + cand.offsets(limits)
+    _, A1_full = cand.jacobian(rows1, limits, problem.layout.free)
+    g1 = A1_full @ C1.ravel() + cand.offsets(limits)
     rhs_E = E @ step.d - c1
     k = cand.size
     rhs_A2 = rhs_A.copy()
