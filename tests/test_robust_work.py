@@ -82,3 +82,24 @@ def test_a_step_whose_goal_rows_break_the_floor_is_corrected_without_its_dynamic
     assert plan.converged
     assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
     assert sum(calls) <= 30
+
+
+def test_the_steps_in_x_and_T_start_from_the_last_point_of_the_steps_at_the_guess(monkeypatch):
+    """The coarse runs share their points' problems (``replan``'s ``cache``): the moving target's steps in x and T start
+    at the last point of the steps at the guess T, whose dynamics, goal rows and Hessian samples they reuse (25 Hessian
+    sweeps, 26 when each run evaluated its first point afresh), and the plan is the same to the last bit."""
+    import hoc_cli
+    from hoc_cli.problem import ControlProblem
+
+    sweeps: list = []
+    hessian_samples = ControlProblem.hessian_samples
+
+    def spy(self, *args, **options):
+        sweeps.append(self.mesh.N)
+        return hessian_samples(self, *args, **options)
+
+    monkeypatch.setattr(ControlProblem, "hessian_samples", spy)
+    plan = hoc_cli.solve(ur5_moving())
+    assert plan.converged
+    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    assert len(sweeps) <= 25

@@ -285,27 +285,33 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
     start_accuracy = COARSE_ACCURACY if span is None else COARSE_START_ACCURACY  # T fixed: this is the coarse optimum
     floor = COLD_FLOOR if span is None else FREE_COLD_FLOOR
     r = None
+    # the points' problems of the coarse runs, then of the mesh's: each run starts where the last one ended (its first
+    # point's dynamics, goal rows and Hessian samples are the last one's)
+    coarse_cache: dict = {}
+    fine_cache: dict = {}
     if restored is None or span is None:
         r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=floor,
-                 merit=True, accuracy=start_accuracy)
+                 merit=True, accuracy=start_accuracy, cache=coarse_cache)
         if r.steps == 0 and start_accuracy != COARSE_ACCURACY:  # the start itself passed: its model says little there
             r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                     violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
+                     violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY, cache=coarse_cache)
     if span is not None and (r is None or _met(r)):  # restored: T already left the guess, the steps in x and T at once
         r = _run(record, system, plan if r is None else r.plan, goals, free=span, limits=limits, fallback=False,
                  max_steps=max_steps, violation_floor=floor if restored is None else RESTORED_FLOOR,
-                 accuracy=COARSE_FREE_ACCURACY)
+                 accuracy=COARSE_FREE_ACCURACY, cache=coarse_cache)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
     plan = previous_plan(system, fine, resample(r.plan.mesh, r.plan.coeffs, fine), q0, dq0, goals, cost=cost, G=G,
                          limits=limits)
-    r = _run(record, system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
+    r = _run(record, system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS),
+             cache=fine_cache)
     if not r.converged:  # far from the mesh's optimum (the torque cost): steps at the coarse T first, as from scratch
         r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                   violation_floor=COLD_FLOOR, merit=True)
+                   violation_floor=COLD_FLOOR, merit=True, cache=fine_cache)
         if r.converged and span is not None:
-            r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+            r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
+                     cache=fine_cache)
     r = _with_quadrature(r, system, goals, span, limits, max_steps, record) if r.converged else None
     if r is None:
         return None
@@ -385,7 +391,9 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, rec
     among them are not unique: each step's programme picks some, depending on the working set it started from. The
     least-squares estimate does not depend on the path: warm replans from it (``hoc_cli.realtime``) take the steps
     they take from the plan of the steps on the mesh alone (the lbr7 catch: 2-4 steps after a step cut by its budget,
-    where the multipliers of the coarse path's last programme took up to 12).
+    where the multipliers of the coarse path's last programme took up to 12). The confirming steps evaluate on a problem
+    of their own at T (not the one ``r``'s steps rescaled there): a plan read back from its file and replanned
+    (``hoc plan --init``) has its J to the last bit.
     """
     from hoc_cli.goals.warm import previous_plan
 

@@ -117,7 +117,8 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     c and their Jacobian D only, the cost by inverse dynamics alone (``GoalProblem.value``'s numbers); g, ``samples``
     and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last); ``value``
     False too: no dynamics at all, J NaN and ``ev`` None, c and D the goal rows' alone (a point whose cost is read
-    later, if ever).
+    later, if ever). The dynamics and goal rows of the last point evaluated with derivatives are kept on its problem:
+    the same x again (the next replan's first point, on the same ``cache``) reuses them.
     """
     if not derivatives:
         return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions,
@@ -133,11 +134,15 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
     op = problem.op
-    q, dq, ddq = op.apply(C)
-    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
-    J = float(np.dot(op.w, s.L))
-    if not np.isfinite(J):
-        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+    kept = getattr(problem, "_point_kept", None)  # the last point's dynamics and goal rows on this problem
+    if kept is not None and kept[0] is op and np.array_equal(kept[1], x):
+        q, dq, ddq, s, J, rows_kept = kept[2:]
+    else:
+        q, dq, ddq = op.apply(C)
+        s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+        J, rows_kept = float(np.dot(op.w, s.L)), None
+        if not np.isfinite(J):
+            raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
     Wt = op.w[:, None]
     Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
     dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
@@ -155,7 +160,9 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     res = samples = None
     if problem.points:
         terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0, where)
-        res, samples = terms.residuals_with_samples(C)  # and those of the goal rows' curvature, in the same pass
+        # and those of the goal rows' curvature, in the same pass
+        res, samples = terms.residuals_with_samples(C) if rows_kept is None else rows_kept
+        rows_kept = res, samples
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
         if slope:
@@ -171,6 +178,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
             values = A_full @ C.ravel()
             dT = dT - float(np.dot(mu * active.kind, values)) / T
             Gc = Gc + (mu @ A_full).reshape(C.shape)
+    problem._point_kept = (op, np.array(x), q, dq, ddq, s, J, rows_kept)
     g = problem.layout.pack(G_all)
     if D.size:
         g = g + D.T @ np.concatenate(lam)

@@ -108,7 +108,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
         except NumericalError:
             return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
-    Hs, GNs = problem.hessian_samples(ev, samples)
+    Hs, GNs = _hessian_samples(problem, ev, samples)
     blocks = element_blocks_kron if quick else element_blocks  # the same blocks to rounding, fewer products
     Hb = blocks(problem.op_h, Hs)
     GNb = None
@@ -138,6 +138,18 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
             return factored, Hs
         return limit, Hs
     raise NumericalError("the Newton matrix is not positive definite")
+
+
+def _hessian_samples(problem, ev, samples) -> tuple[np.ndarray, np.ndarray]:
+    """``problem.hessian_samples(ev, samples)``, kept on the problem for its quadrature and ev's x: a later Newton matrix
+    at the same point of the same problem (the next replan's first, from this one's last point) reuses them.
+    """
+    kept = getattr(problem, "_replan_hessians", None)
+    if kept is not None and kept[0] is problem.op and np.array_equal(kept[1], ev.x):
+        return kept[2]
+    out = problem.hessian_samples(ev, samples)
+    problem._replan_hessians = (problem.op, np.array(ev.x), out)
+    return out
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None,
@@ -196,7 +208,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
              late: Callable[[str], bool] | None = None, accuracy: float | None = None,
-             relative_rho: bool = False) -> QPReplan:
+             relative_rho: bool = False, cache: dict | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -235,7 +247,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     T, C = mesh0.T, np.array(plan0.coeffs)
     weight = free.weight if free is not None else 0.0
     npts = len(lam) - 1
-    cache: dict = {}
+    cache = {} if cache is None else cache  # the points' problems by T (``point_problem``), perhaps an earlier replan's
 
     def at(T_, C_, lam_, active_, derivatives=True, value=True):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
