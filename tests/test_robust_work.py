@@ -103,3 +103,24 @@ def test_the_steps_in_x_and_T_start_from_the_last_point_of_the_steps_at_the_gues
     assert plan.converged
     assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
     assert len(sweeps) <= 25
+
+
+def test_the_goal_rows_checked_before_a_step_are_those_of_its_evaluation(monkeypatch):
+    """``replan_point.goal_values`` (a step's goal rows read before its dynamics) makes the rows' pass of the point's
+    evaluation (with the samples of their curvature) and keeps it: the evaluation that follows reuses it. The moving
+    target's plan makes 55 passes of the tool's forward kinematics (83 when each evaluation made its own)."""
+    import hoc_cli
+    from hoc_cli.goals.residuals import FrameResidual
+
+    passes: list = []
+    batch = FrameResidual.batch
+
+    def spy(self, q, *args, **options):
+        passes.append(len(q))
+        return batch(self, q, *args, **options)
+
+    monkeypatch.setattr(FrameResidual, "batch", spy)
+    plan = hoc_cli.solve(ur5_moving())
+    assert plan.converged
+    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    assert len(passes) <= 55

@@ -96,15 +96,26 @@ def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cach
 def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
     """(the mesh's limit rows at T, C (N+1, m, n) with the fixed coefficients set, the goal rows c (r,)) at coefficients
     C on [0, T]: ``evaluate_point``'s numbers (its problem from the same ``cache``) without the dynamics and the rows'
-    Jacobian.
+    Jacobian. The rows' pass (with the samples of their curvature) is kept on the problem: the point's evaluation, when
+    it follows, reuses it.
     """
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
-    C = problem.coefficients(problem.layout.pack(C))
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
     if not problem.points:
         return rows, C, np.zeros(0)
-    lam = [np.zeros(p.residual.size) for p in problem.points]
-    res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C)
-    return rows, C, np.concatenate([r[0] for r in res])
+    res = _goal_rows_kept(problem, x)
+    if res is None:  # with the samples of the rows' curvature: the same pass, kept for the point's evaluation
+        lam = [np.zeros(p.residual.size) for p in problem.points]
+        res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals_with_samples(C)
+        problem._rows_kept = (problem.op, np.array(x), res)
+    return rows, C, np.concatenate([r[0] for r in res[0]])
+
+
+def _goal_rows_kept(problem, x: np.ndarray) -> tuple | None:
+    """The goal rows (``GoalTerms.residuals_with_samples``) that ``goal_values`` kept on ``problem`` at x, or None."""
+    kept = getattr(problem, "_rows_kept", None)
+    return kept[2] if kept is not None and kept[0] is problem.op and np.array_equal(kept[1], x) else None
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
@@ -140,7 +151,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     else:
         q, dq, ddq = op.apply(C)
         s = problem.sample_gradients(q, dq, ddq, jacobians=False)
-        J, rows_kept = float(np.dot(op.w, s.L)), None
+        J, rows_kept = float(np.dot(op.w, s.L)), _goal_rows_kept(problem, x)
         if not np.isfinite(J):
             raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
     Wt = op.w[:, None]
