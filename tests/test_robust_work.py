@@ -124,3 +124,38 @@ def test_the_goal_rows_checked_before_a_step_are_those_of_its_evaluation(monkeyp
     assert plan.converged
     assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
     assert len(passes) <= 55
+
+
+def test_the_T_columns_points_come_from_the_evaluations_kinematics_pass(monkeypatch):
+    """With a free T, ``GoalTerms.residuals_with_samples(C, V1)`` also holds the goal rows at (q, q̇, T) ± ε·δ that
+    ``GoalTerms.time_column`` differences: its column, c' and Λ'' from them are its own pass's numbers to the last bit
+    (the catch's goal at a point of its initial trajectory), and the moving target's steps make that pass once, in
+    their points' evaluations (``terms._plus_minus`` once instead of 16 times)."""
+    import hoc_cli
+    import hoc_cli.goals.terms as terms_module
+    from hoc_cli.elements import HermiteMesh
+    from hoc_cli.free_time import fixed_coefficient_motion
+    from hoc_cli.goals.terms import GoalTerms
+    from hoc_cli.goals.warm import initial_plan
+
+    _, arm, _, problem = ur5_catch()
+    start = initial_plan(arm, HermiteMesh("quintic", 0.55, 8), problem.q0, problem.dq0, problem.goals())
+    C, T = start.coeffs, start.mesh.T
+    V1, V2 = fixed_coefficient_motion(start.problem.layout.free, C, T)
+    terms = GoalTerms(start.mesh, start.problem.points, [np.array([0.3, -0.2, 0.1, 0.5, 0.4, -0.6])], 0.0)
+    res, samples = terms.residuals_with_samples(C, V1)
+    alone = terms.time_column(C, T, V1, V2, terms.residuals(C))
+    shared = terms.time_column(C, T, V1, V2, res, samples=samples)
+    assert np.array_equal(alone[0], shared[0]) and np.array_equal(alone[1], shared[1]) and alone[2] == shared[2]
+
+    calls: list = []
+    plus_minus = terms_module._plus_minus
+
+    def spy(*args, **options):
+        calls.append(1)
+        return plus_minus(*args, **options)
+
+    monkeypatch.setattr(terms_module, "_plus_minus", spy)
+    plan = hoc_cli.solve(ur5_moving())
+    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    assert len(calls) <= 1

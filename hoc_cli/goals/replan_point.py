@@ -85,19 +85,21 @@ def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: d
     return cache[T]
 
 
-def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> float:
+def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None,
+                   slope: bool = False) -> float:
     """The largest |c| over the goal rows at coefficients C on [0, T] (0 without rows): ``evaluate_point``'s goal rows alone,
-    the same numbers (its problem from the same ``cache``), without the dynamics.
+    the same numbers (its problem from the same ``cache``), without the dynamics (``goal_values``, ``slope`` as there).
     """
-    c = goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache, fractions)[2]
+    c = goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache, fractions, slope)[2]
     return float(np.max(np.abs(c), initial=0.0))
 
 
-def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> tuple:
+def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None,
+                slope: bool = False) -> tuple:
     """(the mesh's limit rows at T, C (N+1, m, n) with the fixed coefficients set, the goal rows c (r,)) at coefficients
     C on [0, T]: ``evaluate_point``'s numbers (its problem from the same ``cache``) without the dynamics and the rows'
-    Jacobian. The rows' pass (with the samples of their curvature) is kept on the problem: the point's evaluation, when
-    it follows, reuses it.
+    Jacobian. The rows' pass (with the samples of their curvature and, ``slope``: a free T, of their T column) is kept
+    on the problem: the point's evaluation, when it follows, reuses it.
     """
     problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
     x = problem.layout.pack(C)
@@ -107,7 +109,8 @@ def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: 
     res = _goal_rows_kept(problem, x)
     if res is None:  # with the samples of the rows' curvature: the same pass, kept for the point's evaluation
         lam = [np.zeros(p.residual.size) for p in problem.points]
-        res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals_with_samples(C)
+        V1 = fixed_coefficient_motion(problem.layout.free, C, T)[0] if slope else None
+        res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals_with_samples(C, V1)
         problem._rows_kept = (problem.op, np.array(x), res)
     return rows, C, np.concatenate([r[0] for r in res[0]])
 
@@ -171,8 +174,11 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     res = samples = None
     if problem.points:
         terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0, where)
-        # and those of the goal rows' curvature, in the same pass
-        res, samples = terms.residuals_with_samples(C) if rows_kept is None else rows_kept
+        # and those of the goal rows' curvature (with a free T: and of their T column), in the same pass
+        if rows_kept is None:
+            rows_kept = terms.residuals_with_samples(C, fixed_coefficient_motion(problem.layout.free, C, T)[0]
+                                                     if slope else None)
+        res, samples = rows_kept
         rows_kept = res, samples
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
@@ -259,7 +265,7 @@ def time_column(pt: LagrangianPoint, lam: list, active: ActiveRows | None, Hs: n
         if Hs is None:
             c_T = terms.time_slopes(pt.C, T, V1, pt.res)
         else:
-            c_T, goal_column, goal_h = terms.time_column(pt.C, T, V1, V2, pt.res)
+            c_T, goal_column, goal_h = terms.time_column(pt.C, T, V1, V2, pt.res, samples=pt.curvature_samples)
             column, h = column + goal_column, h + goal_h
     b = None if column is None else problem.layout.pack(column)
     held_T = np.zeros(0)

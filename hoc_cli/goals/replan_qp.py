@@ -257,10 +257,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
 
     def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
-        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
+        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions,
+                              slope=free is not None)
 
     def goal_values_at(T_, C_):  # (limit rows, C, the goal rows) alone (``at``'s, without the dynamics)
-        return goal_values(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
+        return goal_values(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions,
+                           slope=free is not None)
 
     def due(name: str) -> None:
         if late is not None and late(name):
