@@ -159,3 +159,35 @@ def test_the_T_columns_points_come_from_the_evaluations_kinematics_pass(monkeypa
     plan = hoc_cli.solve(ur5_moving())
     assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
     assert len(calls) <= 1
+
+
+@pytest.mark.parametrize("task", ["catch", "moving"])
+def test_the_multipliers_confirmation_makes_no_hessian_sweep(monkeypatch, task):
+    """``free_time_sqp._canonical_multipliers`` confirms the least-squares multipliers by steps whose Newton matrix is
+    made of the sample Hessians that confirmed the plan (``GoalResult.newton_hessians``): no sweep of its own, and the
+    plan the same (T to 1e-9, J to 1e-10 relative)."""
+    import hoc_cli
+    import hoc_cli.goals.free_time_sqp as fts
+    from hoc_cli.problem import ControlProblem
+
+    inside, sweeps = [False], []
+    hessian_samples, canonical = ControlProblem.hessian_samples, fts._canonical_multipliers
+
+    def spy(self, *args, **options):
+        sweeps.append(inside[0])
+        return hessian_samples(self, *args, **options)
+
+    def confirming(*args, **options):
+        inside[0] = True
+        try:
+            return canonical(*args, **options)
+        finally:
+            inside[0] = False
+
+    monkeypatch.setattr(ControlProblem, "hessian_samples", spy)
+    monkeypatch.setattr(fts, "_canonical_multipliers", confirming)
+    plan = hoc_cli.solve(ur5_catch()[3] if task == "catch" else ur5_moving())
+    assert plan.converged
+    T, J = (CATCH_T, CATCH_J) if task == "catch" else (MOVING_T, MOVING_J)
+    assert plan.T == pytest.approx(T, rel=1e-9) and plan.J == pytest.approx(J, rel=1e-10)
+    assert sweeps and not any(sweeps)

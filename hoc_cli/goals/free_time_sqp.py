@@ -393,7 +393,9 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, rec
     they take from the plan of the steps on the mesh alone (the lbr7 catch: 2-4 steps after a step cut by its budget,
     where the multipliers of the coarse path's last programme took up to 12). The confirming steps evaluate on a problem
     of their own at T (not the one ``r``'s steps rescaled there): a plan read back from its file and replanned
-    (``hoc plan --init``) has its J to the last bit.
+    (``hoc plan --init``) has its J to the last bit. Their Newton matrix is made of the sample Hessians of the one
+    that confirmed ``r`` (its last point's, or of the point a tiny step before: ``replan_qp.keeps_factor``), with the
+    new multipliers' rows: no Hessian sweep.
     """
     from hoc_cli.goals.warm import previous_plan
 
@@ -401,7 +403,9 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, rec
     q0, dq0 = plan.problem.boundary[:2]
     again = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G,
                           limits=limits)
-    confirmed = _run(record, system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
+    # the Newton matrix of the stopping test of r's steps (r's last point or the one a tiny step before): its samples
+    confirmed = _run(record, system, again, goals, free=span, limits=limits, fallback=False, max_steps=0,
+                     hessians=plan.newton_hessians)
     return confirmed if confirmed.converged and confirmed.steps == 0 else r
 
 

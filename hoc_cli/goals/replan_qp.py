@@ -91,7 +91,7 @@ RUNAWAY = 1e16  # a programme whose decrease exceeds this·max(|J|, 1) (1/ε: be
 
 
 def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool,
-            weights: dict | None = None, samples=None):
+            weights: dict | None = None, samples=None, known: tuple | None = None):
     """The Newton matrix (``BandedSPD``) of the cost plus the element blocks ``extra_of(indefinite)`` at ``ev``: with
     the goal rows' full curvature (``indefinite`` True), else without the curvature's negative part; each factored
     as it is, then (not ``quick``) made positive definite by adding μ times the cost's positive semi-definite part
@@ -99,8 +99,9 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
     searched when that part plus the blocks factors (else no μ can help: the rows' own negative curvature is the
     cause); ``weights`` keeps the last μ accepted for each, and the next search starts a decade below it. ``samples``: ev's
     ``SampleGradients`` (their torques and mass matrices serve the Hessian sweep, ``hessian_samples``). ``quick``
-    (the real-time replanner's steps, where time counts): the first is not shifted. Raises ``NumericalError`` when
-    neither is positive definite.
+    (the real-time replanner's steps, where time counts): the first is not shifted. ``known``: the cost's per-sample
+    Hessians and their positive semi-definite parts to use instead of ev's (``hessian_samples``' pair). Returns (the
+    factored matrix, that pair or None); raises ``NumericalError`` when neither is positive definite.
     """
     if problem.terms:
         try:
@@ -108,7 +109,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
         except NumericalError:
             return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
-    Hs, GNs = _hessian_samples(problem, ev, samples)
+    Hs, GNs = known if known is not None else _hessian_samples(problem, ev, samples)
     blocks = element_blocks_kron if quick else element_blocks  # the same blocks to rounding, fewer products
     Hb = blocks(problem.op_h, Hs)
     GNb = None
@@ -118,7 +119,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
             raise NumericalError("the Newton matrix is not positive definite")
         H = Hb if extra is None else Hb + extra
         try:
-            return problem.banded(H, shift), Hs
+            return problem.banded(H, shift), (Hs, GNs)
         except NumericalError:
             if quick and indefinite:
                 continue
@@ -135,8 +136,8 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
                                           start=None if last is None else 0.1 * last)
         if factored is not None:
             weights[indefinite] = mu
-            return factored, Hs
-        return limit, Hs
+            return factored, (Hs, GNs)
+        return limit, (Hs, GNs)
     raise NumericalError("the Newton matrix is not positive definite")
 
 
@@ -198,6 +199,7 @@ class QPReplan:
     check: object = None
     derive: Callable[[], object] | None = None  # when ``point`` has no derivatives (g None): the point with them
     J_from: float = math.nan  # the cost at the point the last programme was made at (its decrement's point)
+    hessians: tuple | None = None  # the cost's sample Hessians of the last Newton matrix (``_newton``'s pair)
 
 
 class OutOfTime(Exception):
@@ -208,7 +210,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
              late: Callable[[str], bool] | None = None, accuracy: float | None = None,
-             relative_rho: bool = False, cache: dict | None = None) -> QPReplan:
+             relative_rho: bool = False, cache: dict | None = None, hessians: tuple | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -239,6 +241,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         (relative to |J|/T + weight) are met to it instead of ``tol``, ``EQ_ACCEPT`` and ``SLOPE_RTOL`` (the imposed
         rows still to ``ROW_ACCEPT``, the check still exact; when the check finds a limit broken there, the steps go on
         to the full test): a coarse stage whose optimum only starts the mesh's steps.
+    relative_rho : see rho_aug.
+    cache : the points' problems by T (``replan_point.point_problem``) of an earlier replan on the same mesh,
+        quadrature, cost, x0 and goals: where the steps evaluate a point it evaluated last on a problem, its dynamics,
+        goal rows and Hessian samples are reused (``evaluate_point``, ``_hessian_samples``).
+    hessians : the cost's sample Hessians (``_newton``'s pair, a ``QPReplan``'s ``hessians``) of a point at most a
+        tiny step from plan0's x (the stopping test of the replan that ended there, ``keeps_factor``): the first
+        Newton matrix is made from them, with this point's rows' blocks, instead of a new sweep (as that test used them).
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -275,7 +284,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     J_from = pt.J
-    U_last = check = Hs_last = None
+    U_last = check = Hs_last = pair_last = None
     previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
@@ -310,13 +319,16 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                     return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts,
                                    pt.curvature_samples)
 
+                known = hessians if steps == 0 and hessians is not None and hessians[0].shape[0] == problem.op.w.size \
+                    else None
                 try:
-                    W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples)
+                    W, pair = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples, known)
                 except NumericalError:
                     if _log.isEnabledFor(logging.DEBUG):
                         _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
                     break
                 U = dense_factor(W)
+                Hs, pair_last = (None, None) if pair is None else (pair[0], pair)
             U_last, Hs_last = U, Hs
             everything = row_values(limits, pt.rows, C)
             lo_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_lo)
@@ -474,7 +486,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
     derive = functools.partial(at, T, pt.C, lam, active) if pt.g is None else None
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from)
+                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from, hessians=pair_last)
 
 
 def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:
