@@ -36,7 +36,7 @@ On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the sta
 ``COARSE_N`` elements (resampled, or restored there) keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
 of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
 steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 6 to 7 + 7 steps on 4 elements and
-4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 86 + 10 steps on
+4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 85 + 10 steps on
 4 elements and 6 + 1 on the mesh; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
 ``FINE_STEPS`` and steps at the coarse T (merit test) and in x and T follow. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
@@ -106,10 +106,11 @@ COARSE_ACCURACY = 1e-6  # the coarse stage's stopping test (decrement and ∂ℒ
 COARSE_FREE_ACCURACY = 1e-4  # the same test of the coarse steps in x and T: about the coarse optimum's distance to the
 # mesh's (the lbr7 catch: J 5e-4, T 2e-4 relative), which the steps on the mesh cover anyway (7 steps there instead of
 # 8 to COARSE_ACCURACY, then 4 on the mesh either way)
-COARSE_G = 6  # Gauss points per element of the coarse stage (the cost, its gradient and its exact Hessian; the mesh's: 8 for
-# quintic elements): m + 3, exact for the degree-10 polynomial part of the integrand, as the Newton matrices of the fixed-T
-# solves; the coarse optimum then moves by 6e-8 of J on the UR5's fast catch, against 2.5e-5 between it and the mesh's
-# optimum (the same steps on both UR5 tasks, each with 3/4 of the samples' dynamics)
+COARSE_G = 5  # Gauss points per element of the coarse stage (the cost, its gradient and its exact Hessian; the mesh's: 8 for
+# quintic elements): the coarse optimum then moves by 3e-7 of J on the UR5's fast catch (6e-8 with 6 points), far less than
+# the 2.5e-5 between it and the mesh's optimum; the same steps on both UR5 tasks with 5/8 of the samples' dynamics. The
+# steps on the mesh from the coarse optimum vary with its last digits: on the lbr7 catch at N = 32, 4 from 5, 7 or 8
+# points, 6 from 6 (catch_ball.yaml -N 32)
 COARSE_START_ACCURACY = 1e-3  # the same test of the coarse steps at the guess T before those in x and T (a free T): they
 # only start the steps in x and T, which move T by 20 % on the lbr7 catch (7 steps there instead of 9, then 7 either way);
 # not at the start itself (the lbr7 catch under the torque cost: its first programme predicts 0.24 of J = 614, where
