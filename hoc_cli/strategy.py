@@ -216,7 +216,7 @@ def check_reach(problem: OptimalControlProblem, goals) -> None:
         if ball is None:
             continue
         o, r = ball
-        dist = np.array([np.linalg.norm(res.target(s * T)[0] - o) for T in times])
+        dist = np.linalg.norm(res.target((s * times)[:, None])[0] - o, axis=1)  # the targets (k, 3) at once
         if np.all(dist > r * (1 + 1e-9)):
             where = "" if free is None else f" for every T in [{free.min:g}, {free.max:g}] s"
             raise UnreachableGoal(f"infeasible: the goal of {res.link} is {dist.min():.4g} m from the first joint "

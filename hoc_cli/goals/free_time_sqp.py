@@ -36,7 +36,7 @@ On a uniform mesh of 2·``COARSE_N`` elements or more without vias, when the sta
 ``COARSE_N`` elements (resampled, or restored there) keeps the limits, 1. and 2. run first on those elements (steps of a programme a fraction
 of the size), and the coarse optimum, resampled to the mesh at its T with least-squares multipliers, starts the
 steps in x and T there (``_coarse_first``). The lbr7 catch at N = 8, 16, 32: 6 to 7 + 7 steps on 4 elements and
-4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 78 + 10 steps on
+4 to 6 on the mesh (each programme there of up to ~700 unknowns at N = 32). Under the torque cost: 85 + 10 steps on
 4 elements and 6 + 1 on the mesh; when the coarse optimum is farther from the mesh's, the steps in x and T from it stop after
 ``FINE_STEPS`` and steps at the coarse T (merit test) and in x and T follow. The optimum reached is the one the steps on the mesh
 reach: J to 1e-14 relative, T within the steps' own stopping test (|F| ≤ 1e-7·|J|/T leaves T uncertain by
@@ -49,7 +49,9 @@ the limit rows and the exact check as on the mesh), as ``plan_goals``' coarse le
 mesh's by the discretisation anyway. With a free T its steps in x and T stop at ``COARSE_FREE_ACCURACY``, about that
 difference (the lbr7 catch: J 5e-4, T 2e-4 relative), and its steps at the guess sooner, at ``COARSE_START_ACCURACY``:
 they only start the steps in x and T, which move T away from the guess by 20 %; not at their start, whose first
-programme can predict a small decrease far from the optimum (the torque catch's).
+programme can predict a small decrease far from the optimum (the torque catch's). Its cost, gradient and exact Hessian
+take ``COARSE_G`` Gauss points per element (the mesh's G when that is fewer): the quadrature's change of the coarse
+optimum is far below the discretisation's.
 
 ``plan_fixed_time`` is 1. alone at a fixed T (no restoration: T cannot move), coarse first where that applies, with
 the quadrature test and ``_canonical_multipliers``: ``hoc_cli.solve``'s fixed-T goal plan within enforced limits
@@ -104,6 +106,11 @@ COARSE_ACCURACY = 1e-6  # the coarse stage's stopping test (decrement and ∂ℒ
 COARSE_FREE_ACCURACY = 1e-4  # the same test of the coarse steps in x and T: about the coarse optimum's distance to the
 # mesh's (the lbr7 catch: J 5e-4, T 2e-4 relative), which the steps on the mesh cover anyway (7 steps there instead of
 # 8 to COARSE_ACCURACY, then 4 on the mesh either way)
+COARSE_G = 5  # Gauss points per element of the coarse stage (the cost, its gradient and its exact Hessian; the mesh's: 8 for
+# quintic elements): the coarse optimum then moves by 3e-7 of J on the UR5's fast catch (6e-8 with 6 points), far less than
+# the 2.5e-5 between it and the mesh's optimum; the same steps on both UR5 tasks with 5/8 of the samples' dynamics. The
+# steps on the mesh from the coarse optimum vary with its last digits: on the lbr7 catch at N = 32, 4 from 5, 7 or 8
+# points, 6 from 6 (catch_ball.yaml -N 32)
 COARSE_START_ACCURACY = 1e-3  # the same test of the coarse steps at the guess T before those in x and T (a free T): they
 # only start the steps in x and T, which move T by 20 % on the lbr7 catch (7 steps there instead of 9, then 7 either way);
 # not at the start itself (the lbr7 catch under the torque cost: its first programme predicts 0.24 of J = 614, where
@@ -125,13 +132,17 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
     if initial is not None and cold_steps > 0 and limits is not None and limits.any:
         start = initial(guess)
         level, stalled = None, False  # the start on ``coarse`` elements, when the restoration made it there
+        restored = None  # restored on ``coarse`` elements: makes the start on the mesh, when the coarse stage fails
         if _breaks_limits(system, start, limits):  # perhaps no plan at the guess: T moves to where there is one
-            start, level, stalled = _restored(system, start, goals, limits, span, coarse, initial)
-            guess = start.mesh.T
+            restored, level, stalled, guess = _restored(system, start, goals, limits, span, coarse, initial)
+            if level is None:
+                start, restored = restored(), None
+        # (with ``level`` the coarse stage reads only the mesh's order, N and kind, x0, the cost and G of ``start``)
         coarsened = (_coarse_first(system, start, goals, limits, span, cold_steps, max_steps, coarse, level=level)
                      if coarse else None)
         if coarsened is not None:
             return coarsened
+        start = restored() if restored is not None else start
         r = replan(system, start, goals, limits=limits, fallback=False, max_steps=cold_steps,
                    violation_floor=COLD_FLOOR, merit=True)
         if not r.converged and stalled:  # the violation's minimum at T's bound: no T in range meets the limits
@@ -157,8 +168,8 @@ def minimize_time_sqp(solve: Callable[[float, TimePoint | None], TimePoint], sys
 
 
 def _restored(system, start, goals, limits, span: TimeRange, coarse: int, initial: Callable | None = None):
-    """(the start of the steps on the mesh of ``start``, the start on ``coarse`` elements or None, whether the
-    restoration on the mesh stalled at a bound of T) after the restoration (``hoc_cli.goals.restoration.restore``) of
+    """(a function making the start of the steps on the mesh of ``start``, the start on ``coarse`` elements or None,
+    whether the restoration on the mesh stalled at a bound of T, the start's T) after the restoration (``hoc_cli.goals.restoration.restore``) of
     ``start``, the initial trajectory at the guess that breaks a kinematic limit: both at the restored T with zero
     multipliers, or ``start`` itself and None when no T was found. Stalled at a bound: the violation's minimum over x
     and T sits at the end of T's range, where it still decreases beyond it (the UR5's fast catch with T ≤ 0.5 s); a stall
@@ -178,23 +189,25 @@ def _restored(system, start, goals, limits, span: TimeRange, coarse: int, initia
     q0, dq0 = start.problem.boundary[:2]
     cost, G = start.problem.cost, start.G
 
-    def plan_on(level: HermiteMesh, C: np.ndarray):
+    def plan_on(level: HermiteMesh, C: np.ndarray, G: int = G):
         return previous_plan(system, level, C, q0, dq0, goals, cost=cost, G=G, multipliers="zeros")
 
     if coarse and _coarsens(mesh, goals, coarse):
         def coarse_start(plan):
             level = HermiteMesh(mesh.order, plan.mesh.T, coarse)
-            return plan_on(level, resample(plan.mesh, plan.coeffs, level))
+            return plan_on(level, resample(plan.mesh, plan.coeffs, level), _coarse_gauss(G))
 
         found, _ = _restore_either_end(system, start, goals, limits, span, coarse_start, initial)
         if found.feasible:
             level = HermiteMesh(mesh.order, found.T, coarse)
             fine = HermiteMesh(mesh.order, found.T, mesh.N)
-            return plan_on(fine, resample(level, found.coeffs, fine)), plan_on(level, found.coeffs), False
+            return (lambda: plan_on(fine, resample(level, found.coeffs, fine)), plan_on(level, found.coeffs, _coarse_gauss(G)),
+                    False, found.T)
     found, at_bound = _restore_either_end(system, start, goals, limits, span, lambda plan: plan, initial)
     if not found.feasible:
-        return start, None, at_bound
-    return plan_on(scaled_mesh(mesh.order, found.T, mesh.N, mesh_fractions(mesh)), found.coeffs), None, False
+        return lambda: start, None, at_bound, mesh.T
+    restored = plan_on(scaled_mesh(mesh.order, found.T, mesh.N, mesh_fractions(mesh)), found.coeffs)
+    return lambda: restored, None, False, found.T
 
 
 def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Callable, initial: Callable | None):
@@ -224,6 +237,11 @@ def _restore_either_end(system, start, goals, limits, span: TimeRange, on: Calla
 def _coarsens(mesh, goals, coarse: int) -> bool:
     """Whether ``_coarse_first`` applies on ``mesh``: uniform, at least 2·``coarse`` elements, no vias."""
     return mesh.uniform and mesh.N >= 2 * coarse and not goals.vias
+
+
+def _coarse_gauss(G: int) -> int:
+    """The Gauss points per element of the coarse stage: ``COARSE_G``, or G when that is fewer."""
+    return min(G, COARSE_G)
 
 
 def _coarse_first(system, start, goals, limits, span: TimeRange, cold_steps: int, max_steps: int,
@@ -261,34 +279,40 @@ def _coarse_replan(system, start, goals, limits, span: TimeRange | None, cold_st
     plan = restored = level
     if plan is None:
         level = HermiteMesh(mesh.order, mesh.T, coarse)
-        plan = previous_plan(system, level, resample(mesh, start.coeffs, level), q0, dq0, goals, cost=cost, G=G,
-                             multipliers="zeros")
+        plan = previous_plan(system, level, resample(mesh, start.coeffs, level), q0, dq0, goals, cost=cost,
+                             G=_coarse_gauss(G), multipliers="zeros")
     if _breaks_limits(system, plan, limits):
         return None
     start_accuracy = COARSE_ACCURACY if span is None else COARSE_START_ACCURACY  # T fixed: this is the coarse optimum
     floor = COLD_FLOOR if span is None else FREE_COLD_FLOOR
     r = None
+    # the points' problems of the coarse runs, then of the mesh's: each run starts where the last one ended (its first
+    # point's dynamics, goal rows and Hessian samples are the last one's)
+    coarse_cache: dict = {}
+    fine_cache: dict = {}
     if restored is None or span is None:
         r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps, violation_floor=floor,
-                 merit=True, accuracy=start_accuracy)
+                 merit=True, accuracy=start_accuracy, cache=coarse_cache)
         if r.steps == 0 and start_accuracy != COARSE_ACCURACY:  # the start itself passed: its model says little there
             r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                     violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY)
+                     violation_floor=floor, merit=True, accuracy=COARSE_ACCURACY, cache=coarse_cache)
     if span is not None and (r is None or _met(r)):  # restored: T already left the guess, the steps in x and T at once
         r = _run(record, system, plan if r is None else r.plan, goals, free=span, limits=limits, fallback=False,
                  max_steps=max_steps, violation_floor=floor if restored is None else RESTORED_FLOOR,
-                 accuracy=COARSE_FREE_ACCURACY)
+                 accuracy=COARSE_FREE_ACCURACY, cache=coarse_cache)
     if not _met(r):
         return None
     fine = HermiteMesh(mesh.order, r.T, mesh.N)
     plan = previous_plan(system, fine, resample(r.plan.mesh, r.plan.coeffs, fine), q0, dq0, goals, cost=cost, G=G,
                          limits=limits)
-    r = _run(record, system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS))
+    r = _run(record, system, plan, goals, free=span, limits=limits, fallback=False, max_steps=min(max_steps, FINE_STEPS),
+             cache=fine_cache)
     if not r.converged:  # far from the mesh's optimum (the torque cost): steps at the coarse T first, as from scratch
         r = _run(record, system, plan, goals, limits=limits, fallback=False, max_steps=cold_steps,
-                   violation_floor=COLD_FLOOR, merit=True)
+                   violation_floor=COLD_FLOOR, merit=True, cache=fine_cache)
         if r.converged and span is not None:
-            r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps)
+            r = _run(record, system, r.plan, goals, free=span, limits=limits, fallback=False, max_steps=max_steps,
+                     cache=fine_cache)
     r = _with_quadrature(r, system, goals, span, limits, max_steps, record) if r.converged else None
     if r is None:
         return None
@@ -368,7 +392,11 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, rec
     among them are not unique: each step's programme picks some, depending on the working set it started from. The
     least-squares estimate does not depend on the path: warm replans from it (``hoc_cli.realtime``) take the steps
     they take from the plan of the steps on the mesh alone (the lbr7 catch: 2-4 steps after a step cut by its budget,
-    where the multipliers of the coarse path's last programme took up to 12).
+    where the multipliers of the coarse path's last programme took up to 12). The confirming steps evaluate on a problem
+    of their own at T (not the one ``r``'s steps rescaled there): a plan read back from its file and replanned
+    (``hoc plan --init``) has its J to the last bit. Their Newton matrix is made of the sample Hessians of the one
+    that confirmed ``r`` (its last point's, or of the point a tiny step before: ``replan_qp.keeps_factor``), with the
+    new multipliers' rows: no Hessian sweep.
     """
     from hoc_cli.goals.warm import previous_plan
 
@@ -376,7 +404,9 @@ def _canonical_multipliers(system, r, goals, limits, span: TimeRange | None, rec
     q0, dq0 = plan.problem.boundary[:2]
     again = previous_plan(system, plan.mesh, plan.coeffs, q0, dq0, goals, cost=plan.problem.cost, G=plan.G,
                           limits=limits)
-    confirmed = _run(record, system, again, goals, free=span, limits=limits, fallback=False, max_steps=0)
+    # the Newton matrix of the stopping test of r's steps (r's last point or the one a tiny step before): its samples
+    confirmed = _run(record, system, again, goals, free=span, limits=limits, fallback=False, max_steps=0,
+                     hessians=plan.newton_hessians)
     return confirmed if confirmed.converged and confirmed.steps == 0 else r
 
 
@@ -454,10 +484,14 @@ def _with_quadrature(r, system, goals, span: TimeRange | None, limits, max_steps
 
 def _quadrature_converged(plan) -> bool:
     """J of the plan with G + 4 Gauss points per element equal to its J to ``QUADRATURE_RTOL`` (or within four
-    times the cost's rounding noise), as ``plan_goals`` accepts a quadrature.
+    times the cost's rounding noise), as ``plan_goals`` accepts a quadrature. The plan's J (a replan's: its problem's
+    cost at its coefficients, the same number) decides alone when it is within the first; else its problem's evaluation
+    gives the noise.
     """
     problem = plan.problem
     x = problem.layout.pack(plan.coeffs)
-    ev = problem.evaluate(x)
     J4 = problem.with_quadrature(problem.G + 4).value(x)
+    if not problem.terms and abs(J4 - plan.J) <= QUADRATURE_RTOL * abs(J4):  # the plan's J is the problem's at x
+        return True
+    ev = problem.evaluate(x)  # and the noise
     return abs(J4 - ev.J) <= max(QUADRATURE_RTOL * abs(J4), 4 * ev.noise)

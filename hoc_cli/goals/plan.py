@@ -168,7 +168,8 @@ class GoalTerm:
 class GoalResult(PlanResult):
     """A ``PlanResult`` with the goal rows: ``terms`` (their final multipliers), ``violation`` max |c|;
     ``newton_factor``: a replan's last Newton matrix (dense upper Cholesky factor on the free coefficients),
-    the first step of the next replan from this plan (``hoc_cli.goals.replan_qp``).
+    the first step of the next replan from this plan (``hoc_cli.goals.replan_qp``); ``newton_hessians``: the cost's
+    sample Hessians it was made of (``replan_qp._newton``'s pair).
     """
 
     terms: GoalTerms | None = None
@@ -176,6 +177,7 @@ class GoalResult(PlanResult):
     outer_iterations: int = 0
     goals: Goals = field(default_factory=Goals)
     newton_factor: np.ndarray | None = field(default=None, repr=False)
+    newton_hessians: tuple | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:

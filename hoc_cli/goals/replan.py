@@ -124,7 +124,7 @@ def _start(previous) -> tuple[GoalResult, float | None]:
 def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, limits=None,
            curvature: float | None = None, tol: float = DECREMENT_TOL, max_steps: int = 40,
            fallback: bool = True, violation_floor: float = VIOLATION_FLOOR, merit: bool = False,
-           accuracy: float | None = None) -> ReplanResult:
+           accuracy: float | None = None, cache: dict | None = None, hessians: tuple | None = None) -> ReplanResult:
     """Re-solve ``goals`` warm from ``previous`` (see the module docstring).
 
     Parameters
@@ -148,6 +148,12 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
         merit function (``replan_qp.MeritTest``): for steps from far away (the initial trajectory).
     accuracy : with kinematic limits as the steps' rows, the looser stopping test of a coarse stage
         (``replan_qp.qp_steps``); None: the full one.
+    cache : with kinematic limits as the steps' rows, the points' problems by T (``replan_point.point_problem``'s
+        ``cache``) of an earlier replan on the same mesh, quadrature, cost, x0 and goals, whose points (their
+        dynamics and goal rows, Hessian samples) this one reuses where it evaluates the same x and T
+        (``qp_steps``); None: a new one.
+    hessians : with kinematic limits as the steps' rows, the cost's sample Hessians of the last Newton matrix of the
+        replan that ended at ``previous`` (its plan's ``newton_hessians``), for the first Newton matrix (``qp_steps``).
 
     Returns
     -------
@@ -187,7 +193,8 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     rho_aug = RHO_AUG * max(abs(plan0.J), 1.0)
     if active is not None:
         out = qp_steps(system, plan0, goals, lam, active, free=free, limits=limits, tol=tol, max_steps=max_steps,
-                       rho_aug=rho_aug, floor=violation_floor, merit=merit, accuracy=accuracy)
+                       rho_aug=rho_aug, floor=violation_floor, merit=merit, accuracy=accuracy, cache=cache,
+                       hessians=hessians)
     else:
         out = _penalty_steps(system, plan0, goals, lam, state, free=free, limits=limits if limited else None,
                              tol=tol, max_steps=max_steps, rho_aug=rho_aug, start=start, floor=violation_floor)
@@ -215,7 +222,7 @@ def replan(system, previous, goals: Goals, *, free: TimeRange | None = None, lim
     plan = GoalResult(mesh=mesh, coeffs=C, J=J, optimizer=opt, G=G, quadrature_change=math.nan,
                       wall_time_s=time.perf_counter() - start, problem=problem, limits=enforced, terms=used,
                       violation=violation, outer_iterations=steps, goals=goals,
-                      newton_factor=getattr(out, "factor", None))
+                      newton_factor=getattr(out, "factor", None), newton_hessians=getattr(out, "hessians", None))
     if status is not Status.CONVERGED and fallback:  # from the previous plan: the steps may have wandered off
         return _finish(system, plan0 if violation > 1e-6 else plan, goals, free, limits, d2, start)
     return ReplanResult(plan=plan, T=T, dJ_dT=slope, curvature=d2, steps=steps, fallback=False,

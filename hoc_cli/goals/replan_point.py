@@ -85,16 +85,40 @@ def point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache: d
     return cache[T]
 
 
-def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None) -> float:
+def goal_violation(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None,
+                   slope: bool = False) -> float:
     """The largest |c| over the goal rows at coefficients C on [0, T] (0 without rows): ``evaluate_point``'s goal rows alone,
-    the same numbers (its problem from the same ``cache``), without the dynamics.
+    the same numbers (its problem from the same ``cache``), without the dynamics (``goal_values``, ``slope`` as there).
     """
-    problem, _, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
+    c = goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache, fractions, slope)[2]
+    return float(np.max(np.abs(c), initial=0.0))
+
+
+def goal_values(system, order, N, T, C, q0, dq0, goals, cost, G, limits, cache: dict, fractions=None,
+                slope: bool = False) -> tuple:
+    """(the mesh's limit rows at T, C (N+1, m, n) with the fixed coefficients set, the goal rows c (r,)) at coefficients
+    C on [0, T]: ``evaluate_point``'s numbers (its problem from the same ``cache``) without the dynamics and the rows'
+    Jacobian. The rows' pass (with the samples of their curvature and, ``slope``: a free T, of their T column) is kept
+    on the problem: the point's evaluation, when it follows, reuses it.
+    """
+    problem, rows, where = point_problem(system, order, N, T, q0, dq0, goals, cost, G, limits, cache, fractions)
+    x = problem.layout.pack(C)
+    C = problem.coefficients(x)
     if not problem.points:
-        return 0.0
-    C = problem.coefficients(problem.layout.pack(C))
-    lam = [np.zeros(p.residual.size) for p in problem.points]
-    return max(float(np.max(np.abs(r[0]), initial=0.0)) for r in GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals(C))
+        return rows, C, np.zeros(0)
+    res = _goal_rows_kept(problem, x)
+    if res is None:  # with the samples of the rows' curvature: the same pass, kept for the point's evaluation
+        lam = [np.zeros(p.residual.size) for p in problem.points]
+        V1 = fixed_coefficient_motion(problem.layout.free, C, T)[0] if slope else None
+        res = GoalTerms(problem.mesh, problem.points, lam, 0.0, where).residuals_with_samples(C, V1)
+        problem._rows_kept = (problem.op, np.array(x), res)
+    return rows, C, np.concatenate([r[0] for r in res[0]])
+
+
+def _goal_rows_kept(problem, x: np.ndarray) -> tuple | None:
+    """The goal rows (``GoalTerms.residuals_with_samples``) that ``goal_values`` kept on ``problem`` at x, or None."""
+    kept = getattr(problem, "_rows_kept", None)
+    return kept[2] if kept is not None and kept[0] is problem.op and np.array_equal(kept[1], x) else None
 
 
 def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, limit_state, weight, slope,
@@ -107,7 +131,8 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     c and their Jacobian D only, the cost by inverse dynamics alone (``GoalProblem.value``'s numbers); g, ``samples``
     and ``ev``'s gradient None, F and F_I NaN (a point where no step starts: a real-time update's last); ``value``
     False too: no dynamics at all, J NaN and ``ev`` None, c and D the goal rows' alone (a point whose cost is read
-    later, if ever).
+    later, if ever). The dynamics and goal rows of the last point evaluated with derivatives are kept on its problem:
+    the same x again (the next replan's first point, on the same ``cache``) reuses them.
     """
     if not derivatives:
         return _point_values(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits, cache, active, fractions,
@@ -123,11 +148,15 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     x = problem.layout.pack(C)
     C = problem.coefficients(x)
     op = problem.op
-    q, dq, ddq = op.apply(C)
-    s = problem.sample_gradients(q, dq, ddq, jacobians=False)
-    J = float(np.dot(op.w, s.L))
-    if not np.isfinite(J):
-        raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
+    kept = getattr(problem, "_point_kept", None)  # the last point's dynamics and goal rows on this problem
+    if kept is not None and kept[0] is op and np.array_equal(kept[1], x):
+        q, dq, ddq, s, J, rows_kept = kept[2:]
+    else:
+        q, dq, ddq = op.apply(C)
+        s = problem.sample_gradients(q, dq, ddq, jacobians=False)
+        J, rows_kept = float(np.dot(op.w, s.L)), _goal_rows_kept(problem, x)
+        if not np.isfinite(J):
+            raise NumericalError("the cost is not finite (NaN or inf) along the trajectory")
     Wt = op.w[:, None]
     Gc = op.transpose(Wt * s.gq, Wt * s.gdq, Wt * s.gddq)  # ∂I/∂C (N+1, m, n)
     dT = float(np.dot(op.w, s.L - np.einsum("ki,ki->k", s.gdq, dq) - 2 * np.einsum("ki,ki->k", s.gddq, ddq))) / T
@@ -145,7 +174,12 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
     res = samples = None
     if problem.points:
         terms = GoalTerms(mesh, problem.points, lam[:npts], 0.0, where)
-        res, samples = terms.residuals_with_samples(C)  # and those of the goal rows' curvature, in the same pass
+        # and those of the goal rows' curvature (with a free T: and of their T column), in the same pass
+        if rows_kept is None:
+            rows_kept = terms.residuals_with_samples(C, fixed_coefficient_motion(problem.layout.free, C, T)[0]
+                                                     if slope else None)
+        res, samples = rows_kept
+        rows_kept = res, samples
         c, dc = terms.jacobian(C, res)
         D = dc.reshape(len(c), -1)[:, problem.layout.free]
         if slope:
@@ -161,6 +195,7 @@ def evaluate_point(system, order, N, T, C, q0, dq0, goals, cost, G, lam, limits,
             values = A_full @ C.ravel()
             dT = dT - float(np.dot(mu * active.kind, values)) / T
             Gc = Gc + (mu @ A_full).reshape(C.shape)
+    problem._point_kept = (op, np.array(x), q, dq, ddq, s, J, rows_kept)
     g = problem.layout.pack(G_all)
     if D.size:
         g = g + D.T @ np.concatenate(lam)
@@ -230,7 +265,7 @@ def time_column(pt: LagrangianPoint, lam: list, active: ActiveRows | None, Hs: n
         if Hs is None:
             c_T = terms.time_slopes(pt.C, T, V1, pt.res)
         else:
-            c_T, goal_column, goal_h = terms.time_column(pt.C, T, V1, V2, pt.res)
+            c_T, goal_column, goal_h = terms.time_column(pt.C, T, V1, V2, pt.res, samples=pt.curvature_samples)
             column, h = column + goal_column, h + goal_h
     b = None if column is None else problem.layout.pack(column)
     held_T = np.zeros(0)

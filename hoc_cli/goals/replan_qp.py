@@ -65,6 +65,7 @@ from hoc_cli.goals.replan_point import (
     damped_trial,
     dense_factor,
     evaluate_point,
+    goal_values,
     goal_violation,
     point_problem,
     row_values,
@@ -90,7 +91,7 @@ RUNAWAY = 1e16  # a programme whose decrease exceeds this·max(|J|, 1) (1/ε: be
 
 
 def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: float, quick: bool,
-            weights: dict | None = None, samples=None):
+            weights: dict | None = None, samples=None, known: tuple | None = None):
     """The Newton matrix (``BandedSPD``) of the cost plus the element blocks ``extra_of(indefinite)`` at ``ev``: with
     the goal rows' full curvature (``indefinite`` True), else without the curvature's negative part; each factored
     as it is, then (not ``quick``) made positive definite by adding μ times the cost's positive semi-definite part
@@ -98,8 +99,9 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
     searched when that part plus the blocks factors (else no μ can help: the rows' own negative curvature is the
     cause); ``weights`` keeps the last μ accepted for each, and the next search starts a decade below it. ``samples``: ev's
     ``SampleGradients`` (their torques and mass matrices serve the Hessian sweep, ``hessian_samples``). ``quick``
-    (the real-time replanner's steps, where time counts): the first is not shifted. Raises ``NumericalError`` when
-    neither is positive definite.
+    (the real-time replanner's steps, where time counts): the first is not shifted. ``known``: the cost's per-sample
+    Hessians and their positive semi-definite parts to use instead of ev's (``hessian_samples``' pair). Returns (the
+    factored matrix, that pair or None); raises ``NumericalError`` when neither is positive definite.
     """
     if problem.terms:
         try:
@@ -107,7 +109,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
         except NumericalError:
             return problem.newton(ev, extra=extra_of(False), shift=shift), None
     weights = {} if weights is None else weights
-    Hs, GNs = problem.hessian_samples(ev, samples)
+    Hs, GNs = known if known is not None else _hessian_samples(problem, ev, samples)
     blocks = element_blocks_kron if quick else element_blocks  # the same blocks to rounding, fewer products
     Hb = blocks(problem.op_h, Hs)
     GNb = None
@@ -117,7 +119,7 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
             raise NumericalError("the Newton matrix is not positive definite")
         H = Hb if extra is None else Hb + extra
         try:
-            return problem.banded(H, shift), Hs
+            return problem.banded(H, shift), (Hs, GNs)
         except NumericalError:
             if quick and indefinite:
                 continue
@@ -134,9 +136,21 @@ def _newton(problem, ev, extra_of: Callable[[bool], np.ndarray | None], shift: f
                                           start=None if last is None else 0.1 * last)
         if factored is not None:
             weights[indefinite] = mu
-            return factored, Hs
-        return limit, Hs
+            return factored, (Hs, GNs)
+        return limit, (Hs, GNs)
     raise NumericalError("the Newton matrix is not positive definite")
+
+
+def _hessian_samples(problem, ev, samples) -> tuple[np.ndarray, np.ndarray]:
+    """``problem.hessian_samples(ev, samples)``, kept on the problem for its quadrature and ev's x: a later Newton matrix
+    at the same point of the same problem (the next replan's first, from this one's last point) reuses them.
+    """
+    kept = getattr(problem, "_replan_hessians", None)
+    if kept is not None and kept[0] is problem.op and np.array_equal(kept[1], ev.x):
+        return kept[2]
+    out = problem.hessian_samples(ev, samples)
+    problem._replan_hessians = (problem.op, np.array(ev.x), out)
+    return out
 
 
 def _blocks(problem, lam: list, rho: float, C: np.ndarray, res, held: np.ndarray | None, indefinite: bool, where=None,
@@ -185,6 +199,7 @@ class QPReplan:
     check: object = None
     derive: Callable[[], object] | None = None  # when ``point`` has no derivatives (g None): the point with them
     J_from: float = math.nan  # the cost at the point the last programme was made at (its decrement's point)
+    hessians: tuple | None = None  # the cost's sample Hessians of the last Newton matrix (``_newton``'s pair)
 
 
 class OutOfTime(Exception):
@@ -195,7 +210,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
              rho_aug: float, floor: float = VIOLATION_FLOOR, merit: bool = False,
              stop: Callable[[int], bool] | None = None, quick: bool = False,
              late: Callable[[str], bool] | None = None, accuracy: float | None = None,
-             relative_rho: bool = False) -> QPReplan:
+             relative_rho: bool = False, cache: dict | None = None, hessians: tuple | None = None) -> QPReplan:
     """The SQP steps from the previous plan ``plan0`` (module docstring).
 
     lam : the goal rows' multipliers (one array per goal point) followed by the working set's (a,);
@@ -226,6 +241,13 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         (relative to |J|/T + weight) are met to it instead of ``tol``, ``EQ_ACCEPT`` and ``SLOPE_RTOL`` (the imposed
         rows still to ``ROW_ACCEPT``, the check still exact; when the check finds a limit broken there, the steps go on
         to the full test): a coarse stage whose optimum only starts the mesh's steps.
+    relative_rho : see rho_aug.
+    cache : the points' problems by T (``replan_point.point_problem``) of an earlier replan on the same mesh,
+        quadrature, cost, x0 and goals: where the steps evaluate a point it evaluated last on a problem, its dynamics,
+        goal rows and Hessian samples are reused (``evaluate_point``, ``_hessian_samples``).
+    hessians : the cost's sample Hessians (``_newton``'s pair, a ``QPReplan``'s ``hessians``) of a point at most a
+        tiny step from plan0's x (the stopping test of the replan that ended there, ``keeps_factor``): the first
+        Newton matrix is made from them, with this point's rows' blocks, instead of a new sweep (as that test used them).
     """
     mesh0, problem0 = plan0.mesh, plan0.problem
     order, N, G, cost = mesh0.order, mesh0.N, plan0.G, problem0.cost
@@ -234,7 +256,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     T, C = mesh0.T, np.array(plan0.coeffs)
     weight = free.weight if free is not None else 0.0
     npts = len(lam) - 1
-    cache: dict = {}
+    cache = {} if cache is None else cache  # the points' problems by T (``point_problem``), perhaps an earlier replan's
 
     def at(T_, C_, lam_, active_, derivatives=True, value=True):
         return evaluate_point(system, order, N, T_, C_, q0, dq0, goals, cost, G, lam_, limits, None, weight,
@@ -244,7 +266,12 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)[1]
 
     def goal_rows_at(T_, C_):  # the goal rows' violation alone (``at``'s, without the dynamics)
-        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions)
+        return goal_violation(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions,
+                              slope=free is not None)
+
+    def goal_values_at(T_, C_):  # (limit rows, C, the goal rows) alone (``at``'s, without the dynamics)
+        return goal_values(system, order, N, T_, C_, q0, dq0, goals, cost, G, limits, cache, fractions=fractions,
+                           slope=free is not None)
 
     def due(name: str) -> None:
         if late is not None and late(name):
@@ -257,7 +284,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
     tol, eq_tol, slope_rtol = full if accuracy is None else (accuracy, accuracy, accuracy)
     status, steps, evals, decrement = Status.MAX_ITER, 0, 0, math.inf
     J_from = pt.J
-    U_last = check = Hs_last = None
+    U_last = check = Hs_last = pair_last = None
     previous = None  # (the last step's programme outcome, its candidate rows)
     test = MeritTest(system, limits, r_goal=sum(v.size for v in lam[:npts]), weight=weight) if merit else None
     weights: dict = {}  # the Gauss-Newton weights last accepted (``_newton``)
@@ -292,13 +319,16 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
                     return _blocks(problem, lam[:npts], rho_aug, C, pt.res, held, indefinite, pt.where, parts,
                                    pt.curvature_samples)
 
+                known = hessians if steps == 0 and hessians is not None and hessians[0].shape[0] == problem.op.w.size \
+                    else None
                 try:
-                    W, Hs = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples)
+                    W, pair = _newton(problem, pt.ev, extra_of, lm, quick, weights, pt.samples, known)
                 except NumericalError:
                     if _log.isEnabledFor(logging.DEBUG):
                         _log.debug(f"qp step {steps}: the Newton matrix is not positive definite")
                     break
                 U = dense_factor(W)
+                Hs, pair_last = (None, None) if pair is None else (pair[0], pair)
             U_last, Hs_last = U, Hs
             everything = row_values(limits, pt.rows, C)
             lo_mask = tuple(g > -CANDIDATE_GAP for g in everything.g_lo)
@@ -437,7 +467,8 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
             corrected = None if not CORRECTION else _corrected_step(step, P, free, T, pt, problem, at_trial, goal_rows_at, lam_new, new_active, r,
                                                                     violation, floor, accept, U, grad, E, A, rhs_A, cand,
                                                                     limits, rho_aug, cg, lam[:npts], at_full=trial_at, quick=quick,
-                                                                    programme=prog, keys=keys, rows_only=not valued)
+                                                                    programme=prog, keys=keys, rows_only=not valued,
+                                                                    goal_values_at=goal_values_at)
             if corrected is not None:
                 trial, T_try, alpha, v_try, lam_new, new_active, dx, dT = corrected
             else:
@@ -458,7 +489,7 @@ def qp_steps(system, plan0, goals, lam: list, active: ActiveRows, *, free, limit
         steps, U_last, check = done, None, None  # a later step stopped: the point after the last completed one
     derive = functools.partial(at, T, pt.C, lam, active) if pt.g is None else None
     return QPReplan(point=pt, T=T, lam=lam, active=active, status=status, steps=steps, evals=evals,
-                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from)
+                    decrement=decrement, factor=U_last, check=check, derive=derive, J_from=J_from, hessians=pair_last)
 
 
 def _difference_column(pt, T: float, at, lam: list, active: ActiveRows) -> tuple[np.ndarray, float]:
@@ -524,7 +555,7 @@ def _rows_beyond(d: np.ndarray, P: int, free, T: float, pt, problem, limits, row
 def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at, lam_new, new_active, r: int,
                     violation: float, floor: float, accept, U, grad, E, A, rhs_A, cand, limits, rho_aug: float,
                     cg, lam_goal, at_full, quick: bool = False, programme: Programme | None = None,
-                    keys: np.ndarray | None = None, rows_only: bool = False):
+                    keys: np.ndarray | None = None, rows_only: bool = False, goal_values_at: Callable | None = None):
     """(point, T, 1, its goal rows' violation, multipliers, working set, dx, dT) of the full ``step`` when the goal rows'
     violation floor and the merit test (``accept``) take it, else of its second-order correction when they take that,
     else None (the step is then damped, ``damped_trial``).
@@ -537,21 +568,28 @@ def _corrected_step(step, P: int, free, T: float, pt, problem, at, goal_rows_at,
     ``programme``: the step's ``Programme(U, grad, E)`` (its elimination and transformed rows A are reused), ``keys``
     its row keys of A when it is keyed (``row_keys``). ``rows_only``: ``at`` evaluates the goal rows alone (no
     dynamics: ``evaluate_point(..., value=False)``), so the corrected point is evaluated once and its violation read
-    from it (``goal_rows_at``'s numbers).
+    from it (``goal_rows_at``'s numbers). Else the full step's goal rows are evaluated first, alone (``goal_values_at``:
+    (T, C) -> (limit rows, C, c), ``replan_point.goal_values``' numbers): a step whose rows break the floor is corrected
+    without the dynamics at its end (the UR5's moving target: 5 of its 32 evaluations).
     """
     dx, dT = step.d[:P], (float(step.d[P]) if free is not None else 0.0)
     T1 = T + dT
     try:
-        _, trial = at_full(1.0)
+        if rows_only:
+            _, trial = at_full(1.0)
+            rows1, C1, c1 = trial.rows, trial.C, trial.c[:r]
+        else:  # the goal rows first: a step they reject needs no dynamics at its end, only those rows for its correction
+            rows1, C1, c1 = goal_values_at(T1, rescale(problem.coefficients(pt.x + dx), T, T1))
+        v1 = float(np.max(np.abs(c1), initial=0.0))
+        if v1 <= max(violation, floor) and not rows_only:
+            _, trial = at_full(1.0)
     except NumericalError:
         return None
-    v1 = float(np.max(np.abs(trial.c[:r]), initial=0.0))
     if v1 <= max(violation, floor) and (accept is None or accept(1.0, T1, trial)):
         return trial, T1, 1.0, v1, lam_new, new_active, dx, dT
     # the second-order correction: the same programme with the rows' values at the trial point
-    c1 = trial.c[:r]
-    _, A1_full = cand.jacobian(trial.rows, limits, problem.layout.free)
-    g1 = A1_full @ trial.C.ravel() + cand.offsets(limits)
+    _, A1_full = cand.jacobian(rows1, limits, problem.layout.free)
+    g1 = A1_full @ C1.ravel() + cand.offsets(limits)
     rhs_E = E @ step.d - c1
     k = cand.size
     rhs_A2 = rhs_A.copy()

@@ -109,8 +109,8 @@ class FrameResidual:
         return (z if self.velocity is None else np.asarray(self.velocity, float),
                 z if self.acceleration is None else np.asarray(self.acceleration, float))
 
-    def target(self, T: float) -> tuple[np.ndarray, np.ndarray]:
-        """(p̄(T) [m], v̄(T) [m/s]) of the target at time T."""
+    def target(self, T: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(p̄(T) [m], v̄(T) [m/s]) of the target at time T: each (3,), or (k, 3) at times T (k, 1)."""
         v0, a = self._motion()
         return self.position + v0 * T + 0.5 * a * T**2, v0 + a * T
 

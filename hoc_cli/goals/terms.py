@@ -34,6 +34,8 @@ class GoalPoint:
     label: str = "goal"
 
 
+TIME_REL_STEP = 1e-5  # ε/T of ``GoalTerms.time_column``'s central differences along the rescaled family
+
 def point_set(mesh: HermiteMesh, points: list[GoalPoint]) -> PointSet:
     """The mesh points (element, local coordinate) of the goal points' times s·T."""
     s = np.array([p.s for p in points], float)
@@ -116,13 +118,19 @@ class GoalTerms:
         T = self.mesh.T
         return [(*gp.residual(X[0, i], X[1, i], T), X[0, i], X[1, i]) for i, gp in enumerate(self.points)]
 
-    def residuals_with_samples(self, C: np.ndarray) -> tuple[list, list]:
+    def residuals_with_samples(self, C: np.ndarray, V1: np.ndarray | None = None,
+                               rel_step: float = TIME_REL_STEP) -> tuple[list, list]:
         """(``residuals(C)``, per point the residual's (∂c/∂q, ∂c/∂q̇) (2n, r, n) at the 2n points ``newton_parts``
         perturbs (None for joint residuals)): each point and its perturbations in one pass of the kinematics (the
         same numbers as ``residuals`` and ``newton_parts``' own pass), for a point where a Newton matrix is made.
+        ``V1`` (N+1, m, n): the fixed coefficients' motion along the rescaled family (``free_time.fixed_coefficient_motion``),
+        for a free T: each point's samples then also hold the residual at (q, q̇, T) ± ε·δ that ``time_column`` differences
+        (ε = ``rel_step``·T; its ``_plus_minus``' numbers), in the same pass.
         """
         X = self._where().apply(C)
         T = self.mesh.T
+        Y1 = None if V1 is None else self._where().apply(V1)
+        eps = rel_step * T
         res, samples = [], []
         for i, gp in enumerate(self.points):
             q, dq = X[0, i], X[1, i]
@@ -132,9 +140,20 @@ class GoalTerms:
                 continue
             P = _perturbed(q, dq)[0]
             n = q.size
-            c, cq, cv, cT = gp.residual.batch(np.vstack([q[None], P[:, :n]]), np.vstack([dq[None], P[:, n:]]), T)
-            res.append((c[0], cq[0], cv[0], cT, q, dq))
-            samples.append((cq[1:], cv[1:]))
+            if Y1 is None:
+                c, cq, cv, cT = gp.residual.batch(np.vstack([q[None], P[:, :n]]), np.vstack([dq[None], P[:, n:]]), T)
+                res.append((c[0], cq[0], cv[0], cT, q, dq))
+                samples.append((cq[1:], cv[1:]))
+                continue
+            dz = (Y1[0, i], Y1[1, i] - dq / T)  # ``time_column``'s δ, and its two points at T ± ε
+            Q = np.vstack([q[None], P[:, :n], (q + eps * dz[0])[None], (q - eps * dz[0])[None]])
+            V = np.vstack([dq[None], P[:, n:], (dq + eps * dz[1])[None], (dq - eps * dz[1])[None]])
+            times = np.full(Q.shape[0], T)
+            times[-2], times[-1] = T + eps, T - eps
+            out = gp.residual.batch(Q, V, times)
+            c, cq, cv, cT = out
+            res.append((c[0], cq[0], cv[0], cT[0], q, dq))
+            samples.append((cq[1:-2], cv[1:-2], tuple(v[-2] for v in out), tuple(v[-1] for v in out)))
         return res, samples
 
     def violation(self, C: np.ndarray) -> float:
@@ -223,7 +242,7 @@ class GoalTerms:
                 base = D[:, :2 * n].T @ mu
                 X, steps = _perturbed(r[4], r[5])
                 if samples is not None and samples[i] is not None:
-                    cq, cv = samples[i]
+                    cq, cv = samples[i][:2]
                 else:
                     _, cq, cv, _ = self.points[i].residual.batch(X[:, :n], X[:, n:], T)
                 H = ((np.concatenate([cq, cv], axis=2).transpose(0, 2, 1) @ mu) - base).T / steps
@@ -238,7 +257,7 @@ class GoalTerms:
         return np.concatenate(rows) if rows else np.zeros(0)
 
     def time_column(self, C: np.ndarray, T: float, V1: np.ndarray, V2: np.ndarray, res: list | None = None,
-                    rel_step: float = 1e-5) -> tuple[np.ndarray, np.ndarray, float]:
+                    rel_step: float = TIME_REL_STEP, samples: list | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(c' (r,), ∂/∂T of ∂Λ/∂C (N+1, m, n), Λ'') of Λ = Σ λ·c (the multipliers as they are, ρ's part not
         included) along the rescaled family (``free_time.rescale``; V1, V2 the fixed coefficients' motion,
         ``free_time.fixed_coefficient_motion``).
@@ -249,7 +268,8 @@ class GoalTerms:
         and Λ'' = Γ'·δ + Γ·(the second derivative), where Γ' = ∇Γ·δ, the residual's second derivatives along δ, is a
         central difference of the residual's exact first derivatives at (q, q̇, T) ± ε·δ, ε = ``rel_step``·T (the
         goal rows alone, no dynamics: two residual evaluations per point, one pass of the kinematics where the residual has
-        ``batch``; ~1e-10 relative).
+        ``batch``; ~1e-10 relative). ``samples``: ``residuals_with_samples(C, V1, rel_step)``' second output, whose
+        points at ± ε are used where it holds them.
         """
         res = self.residuals(C) if res is None else res
         where = self._where()
@@ -262,7 +282,8 @@ class GoalTerms:
             q, dq = r[4], r[5]
             dz = (Y1[0, i], Y1[1, i] - dq / T)
             rows.append(r[1] @ dz[0] + r[2] @ dz[1] + r[3])
-            plus, minus = _plus_minus(gp.residual, q, dq, dz, eps, T)
+            kept = samples[i] if samples is not None else None
+            plus, minus = kept[2:] if kept is not None and len(kept) == 4 else _plus_minus(gp.residual, q, dq, dz, eps, T)
             d_q = (plus[1].T @ lam - minus[1].T @ lam) / (2.0 * eps)
             d_v = (plus[2].T @ lam - minus[2].T @ lam) / (2.0 * eps)
             d_T = float(lam @ (plus[3] - minus[3])) / (2.0 * eps)

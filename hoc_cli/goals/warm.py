@@ -66,13 +66,14 @@ def _limit_columns(system, limits, rows, C: np.ndarray, free: np.ndarray, near: 
 
 
 def estimate_state(system, problem: GoalProblem, C: np.ndarray, grad: np.ndarray, limits=None,
-                   near: float = 1e-3) -> tuple[list[np.ndarray], object]:
+                   near: float = 1e-3, J: float | None = None) -> tuple[list[np.ndarray], object]:
     """(λ per goal row point, the limits' state or None) at a plan's coefficients C (N+1, m, n).
 
     Least squares on the stationarity ∇ₓJ + Dᵀλ + Σ μ ∂(±V/σ)/∂x = 0 over the goal rows (λ free) and the
     limit rows within ``near`` of their bound (μ ≥ 0; ``scipy.optimize.lsq_linear``). The limits' state is
     what ``replan`` reads from a plan's ``limits``: ``working`` (K, n) the kinds and joints of those rows,
-    ``penalty.mu_lo``/``mu_hi`` the multipliers, ``rho`` the penalty's start (ρ0 of the limits' loop).
+    ``penalty.mu_lo``/``mu_hi`` the multipliers, ``rho`` the penalty's start (ρ0 of the limits' loop; ``J``: the
+    problem's objective at C when known, else evaluated).
     """
     from scipy.optimize import lsq_linear
 
@@ -105,7 +106,8 @@ def estimate_state(system, problem: GoalProblem, C: np.ndarray, grad: np.ndarray
     for (k, side, idx), value in zip(candidates, sol[r:]):
         mu[side][k][idx] = value
         working[k, idx[-1]] = True
-    rho = RHO_START * max(abs(problem.value(problem.layout.pack(C))), 1e-6) / problem.mesh.T
+    J = problem.value(problem.layout.pack(C)) if J is None else J
+    rho = RHO_START * max(abs(J), 1e-6) / problem.mesh.T
     return lam, EstimatedLimits(working=working, penalty=Duals(rows, tuple(mu[-1.0]), tuple(mu[1.0])), rho=rho)
 
 
@@ -114,20 +116,21 @@ def previous_plan(system, mesh: HermiteMesh, C: np.ndarray, q0, dq0, goals: Goal
     """The plan with coefficients C (N+1, m, n) on ``mesh`` for ``goals`` as a ``GoalResult`` (a replan's
     ``previous``): J, the rows' violation, ρ = 10·|J|, and by ``multipliers``: "least-squares" λ and, with
     ``limits``, the limits' state (``estimate_state``; its ``limits``), or "zeros" (λ = 0, no limits'
-    state: the replan starts with an empty working set). x0's and pinned vias' values replace C's there
+    state: the replan starts with an empty working set; J alone is evaluated, the optimizer's ``grad`` None, the
+    replan's first point has its own). x0's and pinned vias' values replace C's there
     (the layout's fixed coefficients).
     """
+    if multipliers not in ("least-squares", "zeros"):
+        raise ValueError(f"multipliers must be 'least-squares' or 'zeros', got {multipliers!r}")
     problem = GoalProblem(system, mesh, q0, dq0, goals, cost=cost, G=G)
     x = problem.layout.pack(np.asarray(C, float))
     C = problem.coefficients(x)
-    ev = problem.evaluate(x)
+    ev = problem.evaluate(x, grad=multipliers == "least-squares")  # the same J without the gradient (zeros: unused)
     state = None
     if multipliers == "least-squares":
-        lam, state = estimate_state(system, problem, C, ev.grad, limits)
-    elif multipliers == "zeros":
-        lam = [np.zeros(p.residual.size) for p in problem.points]
+        lam, state = estimate_state(system, problem, C, ev.grad, limits, J=ev.J)
     else:
-        raise ValueError(f"multipliers must be 'least-squares' or 'zeros', got {multipliers!r}")
+        lam = [np.zeros(p.residual.size) for p in problem.points]
     terms = GoalTerms(mesh, problem.points, lam, RHO0 * max(abs(ev.J), 1e-6))
     opt = OptimizeResult(x=x, fun=ev.J, grad=ev.grad, status=Status.CONVERGED, iterations=0, n_evals=1,
                          n_precond=0, decrement=math.nan, message="read from a plan")
