@@ -155,7 +155,6 @@ class Programme:
     """
 
     def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray, keyed: bool = False) -> None:
-        P = g.size
         self.U, self.g, self.E = U, g, E
         self.keyed = keyed
         y0 = -_solve_upper(U, g, "T")
@@ -172,8 +171,8 @@ class Programme:
                 Q, R, _ = qr(self.Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
                 rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
                 self.Z = Q[:, rank:]
-        else:
-            self.Eh, self.Z = None, np.eye(P)
+        else:  # no equality rows: Z = I, whose products are skipped (the same numbers)
+            self.Eh, self.Z, self.z0 = None, None, y0
         if self.Z is not None:
             self.z0 = self.Z.T @ y0
         self._A: np.ndarray | None = None
@@ -205,9 +204,10 @@ class Programme:
         """(A U⁻¹ (k, P), its part A U⁻¹ Z z0 (k,), the rows G = −A U⁻¹ Z normalised (k, P − rank), their norms (k,))."""
         if A is not self._A:
             Ah = _solve_upper(self.U, A.T, "T").T  # A U⁻¹ (k, P)
-            G = -(Ah @ self.Z)
+            G = -(Ah @ self.Z) if self.Z is not None else -Ah
             scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
-            self._A, self._rows = A, (Ah, Ah @ (self.Z @ self.z0), G / scale[:, None], scale)
+            Zz0 = self.Z @ self.z0 if self.Z is not None else self.z0
+            self._A, self._rows = A, (Ah, Ah @ Zz0, G / scale[:, None], scale)
         return self._rows
 
     def _keyed_rows(self, A: np.ndarray, idx: np.ndarray, keys: np.ndarray) -> tuple:
@@ -271,11 +271,15 @@ class Programme:
         U, g, E = self.U, self.g, self.E
         if self.Z is not None:
             y = y_p + self.Z @ (self.z0 + u)
-        else:  # keyed: Z (z0 + u) = Q [0; z0 + u]
+        elif self._raw is not None:  # keyed: Z (z0 + u) = Q [0; z0 + u]
             y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0 + u])[:, None], "N")[:, 0]
+        else:  # no equality rows: Z = I
+            y = y_p + (self.z0 + u)
         d = _solve_upper(U, y, "N")
-        stationarity = -((y if U is None else U.T @ y) + g + (A.T @ mu if mu.size else 0.0))
-        nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
+        nu = np.zeros(0)
+        if E.shape[0]:
+            stationarity = -((y if U is None else U.T @ y) + g + (A.T @ mu if mu.size else 0.0))
+            nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0]
         decrease = -float(g @ d + 0.5 * y @ y)
         return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
 

@@ -1,0 +1,32 @@
+"""``qp_step.solve_qp`` without equality rows (the restoration's programmes, ``hoc_cli.goals.restoration``): the null
+space basis Z is the identity, whose products the programme skips (``Programme.Z`` None), and the step still meets the
+programme's KKT conditions (an independent check: H d + g + Aᵀμ = 0, A d ≤ b, μ ≥ 0, μ·(A d − b) = 0) and gives the
+step of the same programme with one redundant equality row 0·d = 0 added, the general path.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_programme_without_equality_rows_skips_the_identity_basis_and_meets_its_kkt_conditions(seed):
+    from hoc_cli.goals.qp_step import Programme, solve_qp, upper_factor
+
+    rng = np.random.default_rng(seed)
+    P, k = 40, 30
+    X = rng.standard_normal((P, P))
+    H = X @ X.T + P * np.eye(P)
+    g = 10.0 * rng.standard_normal(P)
+    A, b = rng.standard_normal((k, P)), rng.random(k) - 0.5
+    U = upper_factor(H)
+    E, e = np.zeros((0, P)), np.zeros(0)
+    assert Programme(U, g, E).Z is None
+    step = solve_qp(U, g, E, e, A, b)
+    d, mu = step.d, step.mu
+    assert np.max(A @ d - b) <= 1e-10 and np.min(mu) >= 0.0 and np.sum(mu > 0) >= 2
+    assert np.max(np.abs(H @ d + g + A.T @ mu)) <= 1e-9 * np.max(np.abs(g))
+    assert np.max(np.abs(mu * (A @ d - b))) <= 1e-10
+    general = solve_qp(U, g, np.zeros((1, P)), np.zeros(1), A, b)
+    assert np.allclose(general.d, d, rtol=0, atol=1e-12) and np.allclose(general.mu, mu, rtol=0, atol=1e-12)
+    assert np.isclose(general.decrease, step.decrease, rtol=1e-13)
