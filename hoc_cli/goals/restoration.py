@@ -93,9 +93,9 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
 
     def problem_at(T_: float) -> tuple:
         """(problem, limit rows, the goal points' ``PointSet``) at T_, kept in ``cache``: ``point_problem``'s at the
-        first T; at any other only the mesh, its limit rows (``rows_on``: rescaled) and its point set are new, the
-        problem's layout, fixed coefficients and goal points (which do not depend on T) are the first's (``_AtT``), its
-        quadrature is never read.
+        first T; at any other only the mesh, its limit rows (``rows_on``: rescaled) and its point set (on first use,
+        ``_AtT.where``; None in the tuple) are new, the problem's layout, fixed coefficients and goal points (which do
+        not depend on T) are the first's (``_AtT``), its quadrature is never read.
         """
         if T_ not in cache:
             if not cache:
@@ -105,7 +105,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
             rows = rows_on(rows0, mesh)
             if rows is None and limits is not None:
                 rows = build_limit_rows(mesh, first.layout.free, limits.n)
-            cache[T_] = (_AtT(mesh, first), rows, point_set(mesh, first.points) if first.points else None)
+            cache[T_] = (_AtT(mesh, first), rows, None)  # its point set made when the goal rows are (``_AtT.where``)
         return cache[T_]
 
     def limit_part(T_: float, C_: np.ndarray) -> tuple:
@@ -121,7 +121,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     def at(T_: float, C_: np.ndarray, part: tuple | None = None) -> _Point:
         """The restoration at (C_, T_) (``part``: ``limit_part`` there, when made)."""
         problem, rows, where, C, g, over = limit_part(T_, C_) if part is None else part
-        pt = _goal_rows(problem, where, C, lam)
+        pt = _goal_rows(problem, problem.where if isinstance(problem, _AtT) else where, C, lam)
         c = pt.c[:r]
         return _Point(pt, T_, rows, g, 0.5 * float(c @ c) + 0.5 * over, float(np.max(np.abs(c), initial=0.0)),
                       max(float(np.max(v, initial=-math.inf)) for v in g))
@@ -228,6 +228,13 @@ class _AtT:
     def coefficients(self, x: np.ndarray) -> np.ndarray:
         """C (N+1, m, n) from the free coefficients x (P,): ``GoalProblem.coefficients``."""
         return self.first.coefficients(x)
+
+    @cached_property
+    def where(self):
+        """The goal points' ``PointSet`` on the mesh (None without points), made on first use: a trial whose limit rows
+        alone reject it never needs it.
+        """
+        return point_set(self.mesh, self.first.points) if self.first.points else None
 
 
 @dataclass(frozen=True, eq=False)
