@@ -30,3 +30,27 @@ def test_a_programme_without_equality_rows_skips_the_identity_basis_and_meets_it
     general = solve_qp(U, g, np.zeros((1, P)), np.zeros(1), A, b)
     assert np.allclose(general.d, d, rtol=0, atol=1e-12) and np.allclose(general.mu, mu, rtol=0, atol=1e-12)
     assert np.isclose(general.decrease, step.decrease, rtol=1e-13)
+
+
+def test_the_programmes_triangular_solves_are_scipys_numbers_without_its_wrapper(monkeypatch):
+    """``qp_step._solve_upper`` calls LAPACK's dtrtrs as ``scipy.linalg.solve_triangular`` does (the transposed system
+    for a C-ordered factor): bit for bit its numbers, for C- and Fortran-ordered U, X (P,) and (P, k), U⁻¹ and U⁻ᵀ,
+    without going through it (it is kept for other dtypes and empty X)."""
+    import scipy.linalg
+
+    import hoc_cli.goals.qp_step as qp_step
+
+    rng = np.random.default_rng(3)
+    P = 23
+    U = np.triu(rng.standard_normal((P, P))) + 5.0 * np.eye(P)
+    cases = [(V, X, trans) for V in (U, np.asfortranarray(U)) for X in (rng.standard_normal(P), rng.standard_normal((P, 4)),
+             rng.standard_normal((4, P)).T) for trans in ("N", "T")]
+    refs = [scipy.linalg.solve_triangular(V, X, trans=trans, check_finite=False) for V, X, trans in cases]
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("scipy.linalg.solve_triangular called")
+
+    monkeypatch.setattr(qp_step, "solve_triangular", forbidden)
+    for (V, X, trans), ref in zip(cases, refs):
+        got = qp_step._solve_upper(V, X, trans)
+        assert got.shape == ref.shape and np.array_equal(got, ref)

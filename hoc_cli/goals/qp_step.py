@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
-from scipy.linalg.lapack import dormqr
+from scipy.linalg.lapack import dormqr, dtrtrs
 
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.nnls import nnls as warm_nnls
@@ -143,7 +143,20 @@ def _solve_upper(U: np.ndarray | None, X: np.ndarray, trans: str) -> np.ndarray:
     """U⁻¹ X (``trans`` "N") or U⁻ᵀ X ("T") for the upper triangular U (P, P), X (P,) or (P, k); U None: the identity
     (X itself, the same numbers as a triangular solve with the identity).
     """
-    return X if U is None else solve_triangular(U, X, trans=trans, check_finite=False)
+    if U is None:
+        return X
+    if not (U.dtype == X.dtype == np.float64 and U.ndim == 2 and X.size and X.shape[0] == U.shape[0]):
+        return solve_triangular(U, X, trans=trans, check_finite=False)
+    # LAPACK's dtrtrs as ``solve_triangular`` calls it (the same call, hence the same numbers), without its argument
+    # checks and batching wrapper: each programme makes a few such solves of small systems
+    t = 1 if trans == "T" else 0
+    if U.flags.f_contiguous:
+        x, info = dtrtrs(U, X, lower=0, trans=t)
+    else:  # the transposed system, as SciPy solves it for a C-ordered U
+        x, info = dtrtrs(U.T, X, lower=1, trans=1 - t)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular triangular factor (dtrtrs info {info})")
+    return x
 
 
 class Programme:
