@@ -54,3 +54,27 @@ def test_the_programmes_triangular_solves_are_scipys_numbers_without_its_wrapper
     for (V, X, trans), ref in zip(cases, refs):
         got = qp_step._solve_upper(V, X, trans)
         assert got.shape == ref.shape and np.array_equal(got, ref)
+
+
+def test_the_models_factor_is_scipys_numbers_without_its_wrapper(monkeypatch):
+    """``qp_step.upper_factor`` calls LAPACK's dpotrf as ``scipy.linalg.cho_factor`` does: bit for bit
+    ``np.triu(cho_factor(H)[0])``, C-ordered as that is (the triangular solves after it take the same path), without
+    going through ``cho_factor``; ``NumericalError`` for an indefinite H."""
+    import scipy.linalg
+
+    import hoc_cli.goals.qp_step as qp_step
+    from hoc_cli.errors import NumericalError
+
+    rng = np.random.default_rng(4)
+    X = rng.standard_normal((31, 31))
+    H = X @ X.T + np.eye(31)
+    ref = np.triu(scipy.linalg.cho_factor(H, lower=False, check_finite=False)[0])
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("scipy.linalg.cho_factor called")
+
+    monkeypatch.setattr(qp_step, "cho_factor", forbidden)
+    got = qp_step.upper_factor(H)
+    assert np.array_equal(got, ref) and got.flags.c_contiguous == ref.flags.c_contiguous
+    with pytest.raises(NumericalError):
+        qp_step.upper_factor(H - 100.0 * np.eye(31))

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
-from scipy.linalg.lapack import dormqr, dtrtrs
+from scipy.linalg.lapack import dormqr, dpotrf, dtrtrs
 
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.nnls import nnls as warm_nnls
@@ -44,10 +44,17 @@ class QPStep:
 
 def upper_factor(H: np.ndarray) -> np.ndarray:
     """The upper Cholesky factor U of H = UᵀU (P, P); ``NumericalError`` when H is not positive definite."""
-    try:
-        return np.triu(cho_factor(H, lower=False, check_finite=False)[0])
-    except np.linalg.LinAlgError:
-        raise NumericalError("the replan's quadratic model is not positive definite") from None
+    if not (isinstance(H, np.ndarray) and H.dtype == np.float64 and H.ndim == 2 and H.size and H.shape[0] == H.shape[1]):
+        try:
+            return np.triu(cho_factor(H, lower=False, check_finite=False)[0])
+        except np.linalg.LinAlgError:
+            raise NumericalError("the replan's quadratic model is not positive definite") from None
+    # LAPACK's dpotrf as ``cho_factor`` calls it (the same numbers), its lower triangle zeroed, C-ordered as np.triu's
+    # result (the triangular solves take the same path), without SciPy's argument checks
+    U, info = dpotrf(H, lower=0, clean=1)
+    if info != 0:
+        raise NumericalError("the replan's quadratic model is not positive definite")
+    return np.ascontiguousarray(U)
 
 
 def bordered_factor(U: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
