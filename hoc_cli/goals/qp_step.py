@@ -146,6 +146,14 @@ def _minimises(M: np.ndarray, f: np.ndarray, w: np.ndarray) -> bool:
     return bool(np.all(w >= 0.0) and np.all(v <= tol) and np.all(np.abs(v[w > 0.0]) <= tol[w > 0.0]))
 
 
+def _reflect(Qr: np.ndarray, tau: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Qᵀ X (m, k) for Q the product of the Householder reflectors (Qr (m, j), tau (j,)) of a QR in LAPACK's form."""
+    out, _, info = dormqr("L", "T", Qr, tau, np.asfortranarray(X), max(1, 64 * X.shape[1]))
+    if info != 0:
+        raise NumericalError("the replan's limit rows could not be transformed")
+    return out
+
+
 def _solve_upper(U: np.ndarray | None, X: np.ndarray, trans: str) -> np.ndarray:
     """U⁻¹ X (``trans`` "N") or U⁻ᵀ X ("T") for the upper triangular U (P, P), X (P,) or (P, k); U None: the identity
     (X itself, the same numbers as a triangular solve with the identity).
@@ -199,6 +207,10 @@ class Programme:
         self._rows: tuple = ()
         self._slot: dict = {}  # keyed: the buffer column of each row key transformed so far
         self._buf: tuple = ()  # keyed: (Ahᵀ (P, c), Gᵀ normalised (P − rank, c), norms (c,), A U⁻¹ Z z0 (c,))
+        self._basis: tuple | None = None  # keyed: (touched columns T (t,), B = Zᵀ U⁻ᵀ I_T (P − rank, t), R_B (t, t))
+        self._refl: list = []  # keyed: the Householder reflectors of B = W R_B, per block of T: (Qr, tau, row offset)
+        self._basis_of = None  # keyed: the A whose touched columns ``_basis`` covers (None: not compressed)
+        self._compressed = False  # keyed: whether the last ``rows`` were compressed (``step`` reads them so)
 
     def _apply_q(self, X: np.ndarray, trans: str) -> np.ndarray:
         """Q X (``trans`` "N") or Qᵀ X ("T") for X (P, k), by the keyed programme's Householder reflectors."""
@@ -252,6 +264,47 @@ class Programme:
         AhT, GsT, scale, part = self._buf
         return AhT[:, pos], GsT[:, pos], scale[pos], part[pos]
 
+    def _touched_basis(self, A: np.ndarray) -> tuple | None:
+        """The keyed programme's compression for the rows of A (k, P): (T, B, R_B) with T the columns any row of A
+        touches (t,), B = Zᵀ U⁻ᵀ I_T (P − rank, t) and R_B (t, t) upper triangular with B = W R_B (W orthonormal
+        columns), or None when t is above half of P − rank (the QR of B would cost what the smaller NNLS saves).
+        Every least-distance column Gᵀ_j = −B A_j[T]ᵀ lies in the range of B, so ‖Gᵀ w‖ = ‖R_B A[:, T]ᵀ w‖ for every
+        w: the NNLS over [R_B A[:, T]ᵀ; hᵀ] (t + 1 rows) has the NNLS over [Gᵀ; hᵀ]'s objective. The basis of a
+        programme grows with the columns of the A passed: the columns an A touches outside it are appended to T
+        (T is in that order, not sorted), their columns of B computed alone and R_B extended by a block column (the
+        new columns reflected by the last QR's Householder reflectors, then a QR of the rows below R_B).
+        """
+        if A is self._basis_of:
+            return self._basis
+        touched = np.flatnonzero(np.any(A != 0.0, axis=0))
+        old = self._basis
+        new = touched if old is None else touched[~np.isin(touched, old[0])]
+        if old is not None and not new.size:
+            self._basis_of = A
+            return old
+        t0 = 0 if old is None else old[0].size
+        if 2 * (t0 + new.size) > self.z0.size:  # the QR of B would cost what the smaller NNLS saves
+            return None
+        I_new = np.zeros((self.g.size, new.size), order="F")
+        I_new[new, np.arange(new.size)] = 1.0
+        X = _solve_upper(self.U, I_new, "T")  # U⁻ᵀ I_new (P, t')
+        B_new = self._apply_q(X, "T")[self._raw[2]:] if self._raw is not None else X
+        if old is None:
+            (Qr, tau), R = qr(B_new, mode="raw", check_finite=False)
+            self._refl = [(Qr, tau, 0)]
+            basis = (new, B_new, R)
+        else:
+            Y = np.asfortranarray(B_new)
+            for Qr, tau, off in self._refl:  # Qᵀ B_new by the reflectors so far
+                Y[off:] = _reflect(Qr, tau, Y[off:])
+            (Qr, tau), R22 = qr(Y[t0:], mode="raw", check_finite=False)
+            self._refl.append((Qr, tau, t0))
+            R = np.zeros((t0 + new.size, t0 + new.size))
+            R[:t0, :t0], R[:t0, t0:], R[t0:, t0:] = old[2], Y[:t0], R22
+            basis = (np.concatenate([old[0], new]), np.hstack([old[1], B_new]), R)
+        self._basis, self._basis_of = basis, A
+        return basis
+
     def rows(self, A: np.ndarray, b: np.ndarray, y_p: np.ndarray, size: float | None = None,
              idx: np.ndarray | None = None, keys: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """The least-distance rows G u ≥ h of A d ≤ b (k rows; ``idx``: of the rows A[idx] ≤ b[idx] only) as the
@@ -259,7 +312,17 @@ class Programme:
         (None: h's largest entry): (M, scale, size). ``keys`` (k,) int: a keyed programme's row keys of A (required
         there, ignored otherwise).
         """
-        if self.keyed:
+        basis = self._touched_basis(A) if self.keyed else None
+        self._compressed = basis is not None
+        if basis is not None:  # M (t + 1, k): the rows in the touched columns' basis (``_touched_basis``)
+            idx = np.arange(A.shape[0]) if idx is None else np.asarray(idx)
+            cols, _, R = basis
+            Ai = A[idx]
+            GsT = -(R @ Ai[:, cols].T)
+            scale = np.maximum(np.sqrt(np.einsum("ij,ij->j", GsT, GsT)), 1e-300)
+            GsT /= scale
+            h = -(b[idx] - Ai @ self._shifted(y_p))
+        elif self.keyed:
             idx = np.arange(A.shape[0]) if idx is None else np.asarray(idx)
             AhT, GsT, scale, AhZz0 = self._keyed_rows(A, idx, np.asarray(keys)[idx])
             h = -(b[idx] - y_p @ AhT - AhZz0)
@@ -277,6 +340,14 @@ class Programme:
         hs = hs / size
         return np.vstack([GsT, hs[None, :]]), scale, size
 
+    def _shifted(self, y_p: np.ndarray) -> np.ndarray:
+        """U⁻¹ (y_p + Z z0) (P,): the rows' values A U⁻¹ (y_p + Z z0) at u = 0 are A times it."""
+        if self.Z is not None:
+            y = y_p + self.Z @ self.z0
+        else:
+            y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0])[:, None], "N")[:, 0]
+        return _solve_upper(self.U, y, "N")
+
     def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float, y_p: np.ndarray) -> QPStep:
         """The step from the NNLS solution w (k,) ≥ 0 of the rows A (k, P) (``rows``' scale and size) and its
         residual r = M w − f, with the particular part y_p of the equality rows' right-hand side.
@@ -284,7 +355,11 @@ class Programme:
         if A.shape[0]:
             if abs(r[-1]) < 1e-12:
                 raise NumericalError("the replan's limit rows admit no step")
-            u = -r[:-1] / r[-1] * size
+            if self._compressed:  # Gᵀ w = −B A[:, T]ᵀ (w / scale): u in the full null space
+                cols, B, _ = self._basis
+                u = (B @ (A[:, cols].T @ (w / scale))) / r[-1] * size
+            else:
+                u = -r[:-1] / r[-1] * size
             mu = (w / (-r[-1])) / scale * size
         else:
             u, mu = np.zeros(self.z0.size), np.zeros(0)
