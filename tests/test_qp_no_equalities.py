@@ -78,3 +78,25 @@ def test_the_models_factor_is_scipys_numbers_without_its_wrapper(monkeypatch):
     assert np.array_equal(got, ref) and got.flags.c_contiguous == ref.flags.c_contiguous
     with pytest.raises(NumericalError):
         qp_step.upper_factor(H - 100.0 * np.eye(31))
+
+
+def test_a_keyed_programme_without_equality_rows_on_its_touched_columns_gives_the_same_step():
+    """A keyed programme (the real-time steps') without equality rows whose rows touch few columns solves its NNLS in
+    the touched columns' basis (``Programme._touched_basis``, its shifted origin U⁻¹ z0 with Z = I): the same step and
+    multipliers as the unkeyed programme, to rounding."""
+    from hoc_cli.goals.qp_step import Programme, solve_qp, upper_factor
+
+    rng = np.random.default_rng(5)
+    P, k = 40, 12
+    X = rng.standard_normal((P, P))
+    U = upper_factor(X @ X.T + P * np.eye(P))
+    g = 10.0 * rng.standard_normal(P)
+    A = np.zeros((k, P))
+    A[:, :8] = rng.standard_normal((k, 8))  # 8 of 40 columns touched
+    b = 0.1 * rng.random(k)  # d = 0 meets them
+    E, e = np.zeros((0, P)), np.zeros(0)
+    ref = solve_qp(U, g, E, e, A, b)
+    prog = Programme(U, g, E, keyed=True)
+    got = solve_qp(U, g, E, e, A, b, programme=prog, keys=np.arange(k))
+    assert prog._compressed and np.sum(ref.mu > 0) >= 2
+    assert np.allclose(got.d, ref.d, rtol=0, atol=1e-11) and np.allclose(got.mu, ref.mu, rtol=0, atol=1e-11)

@@ -344,8 +344,10 @@ class Programme:
         """U⁻¹ (y_p + Z z0) (P,): the rows' values A U⁻¹ (y_p + Z z0) at u = 0 are A times it."""
         if self.Z is not None:
             y = y_p + self.Z @ self.z0
-        else:
+        elif self._raw is not None:
             y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0])[:, None], "N")[:, 0]
+        else:  # no equality rows: Z = I
+            y = y_p + self.z0
         return _solve_upper(self.U, y, "N")
 
     def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float, y_p: np.ndarray) -> QPStep:
