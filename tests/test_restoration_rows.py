@@ -143,3 +143,36 @@ def test_a_trial_its_limit_rows_alone_reject_evaluates_no_goal_rows(monkeypatch)
     found = restoration.restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
     assert found.feasible and found.violation <= 1e-9 and found.row_violation <= 1e-9 and 0.5 < found.T < 0.6
     assert calls["rows"] <= calls["programmes"] - 10
+
+
+def test_the_restoration_builds_one_problem_and_rescales_only_its_mesh_rows_and_points(monkeypatch):
+    """Each trial T of the restoration needs the mesh there, its limit rows and its goal points only: the problem
+    (``point_problem``: a ``GoalProblem`` and its quadrature) is built once, at the first T, and its layout and fixed
+    coefficients serve every other T; the restoration from 0.5 s on the catch's 8 elements visits ~30 Ts and ends where
+    ``test_a_rejected_trial_is_solved_again_with_the_rows_it_broke`` does, its C at each T as a fresh problem's there."""
+    import hoc_cli.goals.replan_point as replan_point
+    import hoc_cli.goals.restoration as restoration
+    from hoc_cli.goals.replan import TimeRange
+
+    arm, limits, goals, start = _start()
+    calls = {"problems": 0, "rescaled": 0}
+    point_problem, problem_on = restoration.point_problem, replan_point.problem_on
+
+    def problem_spy(*args, **kwargs):
+        calls["problems"] += 1
+        return point_problem(*args, **kwargs)
+
+    def on_spy(*args, **kwargs):
+        calls["rescaled"] += 1
+        return problem_on(*args, **kwargs)
+
+    monkeypatch.setattr(restoration, "point_problem", problem_spy)
+    monkeypatch.setattr(replan_point, "problem_on", on_spy)
+    found = restoration.restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
+    assert found.feasible and 0.5 < found.T < 0.6 and found.steps >= 10
+    assert calls == {"problems": 1, "rescaled": 0}
+    # the coefficients at the T found, as a problem built there gives them
+    model, arm2, limits2, problem = ur5_catch()
+    fresh = replan_point.point_problem(arm, "quintic", 8, found.T, problem.q0, problem.dq0, goals, start.problem.cost,
+                                       start.G, limits, {})[0]
+    assert np.array_equal(fresh.coefficients(fresh.layout.pack(found.coeffs)), found.coeffs)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, lstsq, qr, solve_triangular
-from scipy.linalg.lapack import dormqr
+from scipy.linalg.lapack import dormqr, dpotrf, dtrtrs
 
 from hoc_cli.errors import NumericalError
 from hoc_cli.optimize.nnls import nnls as warm_nnls
@@ -44,10 +44,17 @@ class QPStep:
 
 def upper_factor(H: np.ndarray) -> np.ndarray:
     """The upper Cholesky factor U of H = UᵀU (P, P); ``NumericalError`` when H is not positive definite."""
-    try:
-        return np.triu(cho_factor(H, lower=False, check_finite=False)[0])
-    except np.linalg.LinAlgError:
-        raise NumericalError("the replan's quadratic model is not positive definite") from None
+    if not (isinstance(H, np.ndarray) and H.dtype == np.float64 and H.ndim == 2 and H.size and H.shape[0] == H.shape[1]):
+        try:
+            return np.triu(cho_factor(H, lower=False, check_finite=False)[0])
+        except np.linalg.LinAlgError:
+            raise NumericalError("the replan's quadratic model is not positive definite") from None
+    # LAPACK's dpotrf as ``cho_factor`` calls it (the same numbers), its lower triangle zeroed, C-ordered as np.triu's
+    # result (the triangular solves take the same path), without SciPy's argument checks
+    U, info = dpotrf(H, lower=0, clean=1)
+    if info != 0:
+        raise NumericalError("the replan's quadratic model is not positive definite")
+    return np.ascontiguousarray(U)
 
 
 def bordered_factor(U: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
@@ -151,7 +158,20 @@ def _solve_upper(U: np.ndarray | None, X: np.ndarray, trans: str) -> np.ndarray:
     """U⁻¹ X (``trans`` "N") or U⁻ᵀ X ("T") for the upper triangular U (P, P), X (P,) or (P, k); U None: the identity
     (X itself, the same numbers as a triangular solve with the identity).
     """
-    return X if U is None else solve_triangular(U, X, trans=trans, check_finite=False)
+    if U is None:
+        return X
+    if not (U.dtype == X.dtype == np.float64 and U.ndim == 2 and X.size and X.shape[0] == U.shape[0]):
+        return solve_triangular(U, X, trans=trans, check_finite=False)
+    # LAPACK's dtrtrs as ``solve_triangular`` calls it (the same call, hence the same numbers), without its argument
+    # checks and batching wrapper: each programme makes a few such solves of small systems
+    t = 1 if trans == "T" else 0
+    if U.flags.f_contiguous:
+        x, info = dtrtrs(U, X, lower=0, trans=t)
+    else:  # the transposed system, as SciPy solves it for a C-ordered U
+        x, info = dtrtrs(U.T, X, lower=1, trans=1 - t)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular triangular factor (dtrtrs info {info})")
+    return x
 
 
 class Programme:
@@ -163,7 +183,6 @@ class Programme:
     """
 
     def __init__(self, U: np.ndarray, g: np.ndarray, E: np.ndarray, keyed: bool = False) -> None:
-        P = g.size
         self.U, self.g, self.E = U, g, E
         self.keyed = keyed
         y0 = -_solve_upper(U, g, "T")
@@ -180,8 +199,8 @@ class Programme:
                 Q, R, _ = qr(self.Eh.T, pivoting=True)  # Eh.T = Q R Πᵀ
                 rank = int(np.sum(np.abs(np.diag(R)) > 1e-12 * max(abs(R[0, 0]), 1e-300))) if R.size else 0
                 self.Z = Q[:, rank:]
-        else:
-            self.Eh, self.Z = None, np.eye(P)
+        else:  # no equality rows: Z = I, whose products are skipped (the same numbers)
+            self.Eh, self.Z, self.z0 = None, None, y0
         if self.Z is not None:
             self.z0 = self.Z.T @ y0
         self._A: np.ndarray | None = None
@@ -217,9 +236,10 @@ class Programme:
         """(A U⁻¹ (k, P), its part A U⁻¹ Z z0 (k,), the rows G = −A U⁻¹ Z normalised (k, P − rank), their norms (k,))."""
         if A is not self._A:
             Ah = _solve_upper(self.U, A.T, "T").T  # A U⁻¹ (k, P)
-            G = -(Ah @ self.Z)
+            G = -(Ah @ self.Z) if self.Z is not None else -Ah
             scale = np.maximum(np.linalg.norm(G, axis=1), 1e-300)  # rows normalised: w's scale per row
-            self._A, self._rows = A, (Ah, Ah @ (self.Z @ self.z0), G / scale[:, None], scale)
+            Zz0 = self.Z @ self.z0 if self.Z is not None else self.z0
+            self._A, self._rows = A, (Ah, Ah @ Zz0, G / scale[:, None], scale)
         return self._rows
 
     def _keyed_rows(self, A: np.ndarray, idx: np.ndarray, keys: np.ndarray) -> tuple:
@@ -324,8 +344,10 @@ class Programme:
         """U⁻¹ (y_p + Z z0) (P,): the rows' values A U⁻¹ (y_p + Z z0) at u = 0 are A times it."""
         if self.Z is not None:
             y = y_p + self.Z @ self.z0
-        else:
+        elif self._raw is not None:
             y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0])[:, None], "N")[:, 0]
+        else:  # no equality rows: Z = I
+            y = y_p + self.z0
         return _solve_upper(self.U, y, "N")
 
     def step(self, A: np.ndarray, w: np.ndarray, r: np.ndarray, scale: np.ndarray, size: float, y_p: np.ndarray) -> QPStep:
@@ -346,11 +368,15 @@ class Programme:
         U, g, E = self.U, self.g, self.E
         if self.Z is not None:
             y = y_p + self.Z @ (self.z0 + u)
-        else:  # keyed: Z (z0 + u) = Q [0; z0 + u]
+        elif self._raw is not None:  # keyed: Z (z0 + u) = Q [0; z0 + u]
             y = y_p + self._apply_q(np.concatenate([np.zeros(self.g.size - self.z0.size), self.z0 + u])[:, None], "N")[:, 0]
+        else:  # no equality rows: Z = I
+            y = y_p + (self.z0 + u)
         d = _solve_upper(U, y, "N")
-        stationarity = -((y if U is None else U.T @ y) + g + (A.T @ mu if mu.size else 0.0))
-        nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0] if E.shape[0] else np.zeros(0)
+        nu = np.zeros(0)
+        if E.shape[0]:
+            stationarity = -((y if U is None else U.T @ y) + g + (A.T @ mu if mu.size else 0.0))
+            nu = lstsq(E.T, stationarity, cond=1e-12, check_finite=False)[0]
         decrease = -float(g @ d + 0.5 * y @ y)
         return QPStep(d=d, nu=nu, mu=mu, decrease=decrease)
 

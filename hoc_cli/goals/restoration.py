@@ -43,10 +43,11 @@ import numpy as np
 from hoc_cli.errors import NumericalError
 from hoc_cli.free_time import fixed_coefficient_motion, rescale, row_time_derivatives
 from hoc_cli.goals.active_limits import ActiveRows, kinematic_rows
-from hoc_cli.goals.mesh import mesh_fractions
+from hoc_cli.goals.mesh import mesh_fractions, scaled_mesh
 from hoc_cli.goals.qp_step import solve_qp, upper_factor
-from hoc_cli.goals.replan_point import point_problem
-from hoc_cli.goals.terms import GoalTerms
+from hoc_cli.goals.replan_point import limit_rows as build_limit_rows
+from hoc_cli.goals.replan_point import point_problem, rows_on
+from hoc_cli.goals.terms import GoalTerms, point_set
 
 _log = logging.getLogger(__name__)  # solver traces at DEBUG level (docs/design.md)
 MARGIN = 0.05  # κ: the rows tightened by this fraction of the limit's size
@@ -90,11 +91,28 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     r = sum(v.size for v in lam)
     cache: dict = {}
 
+    def problem_at(T_: float) -> tuple:
+        """(problem, limit rows, the goal points' ``PointSet``) at T_, kept in ``cache``: ``point_problem``'s at the
+        first T; at any other only the mesh, its limit rows (``rows_on``: rescaled) and its point set (on first use,
+        ``_AtT.where``; None in the tuple) are new, the problem's layout, fixed coefficients and goal points (which do
+        not depend on T) are the first's (``_AtT``), its quadrature is never read.
+        """
+        if T_ not in cache:
+            if not cache:
+                return point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)
+            first, rows0, _ = next(iter(cache.values()))
+            mesh = scaled_mesh(order, T_, N, fractions)
+            rows = rows_on(rows0, mesh)
+            if rows is None and limits is not None:
+                rows = build_limit_rows(mesh, first.layout.free, limits.n)
+            cache[T_] = (_AtT(mesh, first), rows, None)  # its point set made when the goal rows are (``_AtT.where``)
+        return cache[T_]
+
     def limit_part(T_: float, C_: np.ndarray) -> tuple:
         """(problem, rows, where, C (N+1, m, n) with the fixed coefficients set, g + κ per kind, Σ max(0, g + κ)²) at
         (C_, T_): m's limit rows alone, without the goal rows' kinematics.
         """
-        problem, rows, where = point_problem(system, order, N, T_, q0, dq0, goals, cost, G, limits, cache, fractions)
+        problem, rows, where = problem_at(T_)
         C = problem.coefficients(problem.layout.pack(C_))
         g_lo, g_hi = kinematic_rows(limits, rows, C)
         g = [v + margin for v in g_lo + g_hi]
@@ -103,7 +121,7 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     def at(T_: float, C_: np.ndarray, part: tuple | None = None) -> _Point:
         """The restoration at (C_, T_) (``part``: ``limit_part`` there, when made)."""
         problem, rows, where, C, g, over = limit_part(T_, C_) if part is None else part
-        pt = _goal_rows(problem, where, C, lam)
+        pt = _goal_rows(problem, problem.where if isinstance(problem, _AtT) else where, C, lam)
         c = pt.c[:r]
         return _Point(pt, T_, rows, g, 0.5 * float(c @ c) + 0.5 * over, float(np.max(np.abs(c), initial=0.0)),
                       max(float(np.max(v, initial=-math.inf)) for v in g))
@@ -188,6 +206,35 @@ def restore(system, plan0, goals, limits, *, span=None, margin: float = MARGIN, 
     feasible = p.violation <= tol and p.row_violation <= tol
     return Restoration(T=p.T, coeffs=p.pt.C, violation=p.violation, row_violation=p.row_violation,
                        feasible=feasible, steps=steps, stalled=not feasible and why == "stalled")
+
+
+@dataclass(frozen=True, eq=False)
+class _AtT:
+    """The restoration's problem at another T: the mesh there, and the layout, fixed coefficients (t-domain values) and
+    goal points of ``first`` (a ``GoalProblem`` at the first T), which do not depend on T.
+    """
+
+    mesh: object
+    first: object
+
+    @property
+    def layout(self):
+        return self.first.layout
+
+    @property
+    def points(self) -> list:
+        return self.first.points
+
+    def coefficients(self, x: np.ndarray) -> np.ndarray:
+        """C (N+1, m, n) from the free coefficients x (P,): ``GoalProblem.coefficients``."""
+        return self.first.coefficients(x)
+
+    @cached_property
+    def where(self):
+        """The goal points' ``PointSet`` on the mesh (None without points), made on first use: a trial whose limit rows
+        alone reject it never needs it.
+        """
+        return point_set(self.mesh, self.first.points) if self.first.points else None
 
 
 @dataclass(frozen=True, eq=False)
