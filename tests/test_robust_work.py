@@ -29,6 +29,23 @@ def ur5_moving():
                                  time=Free(0.5, 3.0, weight=20.0, guess=1.5), N=8, limits=JointLimits.from_model(model))
 
 
+def _moving_plan_counting(monkeypatch, owner, name: str, record) -> None:
+    """Solve the moving target with ``owner.name`` wrapped: ``record(args, options)`` sees each call's arguments, and
+    the plan must be the known one (converged, T to 1e-9, J to 1e-10 relative)."""
+    import hoc_cli
+
+    original = getattr(owner, name)
+
+    def spy(*args, **options):
+        record(args, options)
+        return original(*args, **options)
+
+    monkeypatch.setattr(owner, name, spy)
+    plan = hoc_cli.solve(ur5_moving())
+    assert plan.converged
+    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+
+
 def _spy_on_replans(monkeypatch) -> list:
     """A list that ``free_time_sqp.replan`` appends (elements, Gauss points per element) of its start to at each call."""
     import hoc_cli.goals.free_time_sqp as fts
@@ -67,20 +84,10 @@ def test_a_step_whose_goal_rows_break_the_floor_is_corrected_without_its_dynamic
     """``replan_qp._corrected_step`` reads the full step's goal rows alone first: the dynamics at its end are evaluated
     only when they pass the violation floor (the merit test then needs its J). The moving target's steps evaluate the
     dynamics (``evaluate_point`` with derivatives) 30 times (32 when every full step's end was evaluated)."""
-    import hoc_cli
     import hoc_cli.goals.replan_qp as rq
 
     calls: list = []
-    evaluate = rq.evaluate_point
-
-    def spy(*args, derivatives: bool = True, **options):
-        calls.append(derivatives)
-        return evaluate(*args, derivatives=derivatives, **options)
-
-    monkeypatch.setattr(rq, "evaluate_point", spy)
-    plan = hoc_cli.solve(ur5_moving())
-    assert plan.converged
-    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    _moving_plan_counting(monkeypatch, rq, "evaluate_point", lambda a, o: calls.append(o.get("derivatives", True)))
     assert sum(calls) <= 30
 
 
@@ -88,20 +95,10 @@ def test_the_steps_in_x_and_T_start_from_the_last_point_of_the_steps_at_the_gues
     """The coarse runs share their points' problems (``replan``'s ``cache``): the moving target's steps in x and T start
     at the last point of the steps at the guess T, whose dynamics, goal rows and Hessian samples they reuse (25 Hessian
     sweeps, 26 when each run evaluated its first point afresh), and the plan is the same to the last bit."""
-    import hoc_cli
     from hoc_cli.problem import ControlProblem
 
     sweeps: list = []
-    hessian_samples = ControlProblem.hessian_samples
-
-    def spy(self, *args, **options):
-        sweeps.append(self.mesh.N)
-        return hessian_samples(self, *args, **options)
-
-    monkeypatch.setattr(ControlProblem, "hessian_samples", spy)
-    plan = hoc_cli.solve(ur5_moving())
-    assert plan.converged
-    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    _moving_plan_counting(monkeypatch, ControlProblem, "hessian_samples", lambda a, o: sweeps.append(a[0].mesh.N))
     assert len(sweeps) <= 25
 
 
@@ -109,20 +106,10 @@ def test_the_goal_rows_checked_before_a_step_are_those_of_its_evaluation(monkeyp
     """``replan_point.goal_values`` (a step's goal rows read before its dynamics) makes the rows' pass of the point's
     evaluation (with the samples of their curvature) and keeps it: the evaluation that follows reuses it. The moving
     target's plan makes 55 passes of the tool's forward kinematics (83 when each evaluation made its own)."""
-    import hoc_cli
     from hoc_cli.goals.residuals import FrameResidual
 
     passes: list = []
-    batch = FrameResidual.batch
-
-    def spy(self, q, *args, **options):
-        passes.append(len(q))
-        return batch(self, q, *args, **options)
-
-    monkeypatch.setattr(FrameResidual, "batch", spy)
-    plan = hoc_cli.solve(ur5_moving())
-    assert plan.converged
-    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    _moving_plan_counting(monkeypatch, FrameResidual, "batch", lambda a, o: passes.append(len(a[1])))
     assert len(passes) <= 55
 
 
@@ -131,7 +118,6 @@ def test_the_T_columns_points_come_from_the_evaluations_kinematics_pass(monkeypa
     ``GoalTerms.time_column`` differences: its column, c' and Λ'' from them are its own pass's numbers to the last bit
     (the catch's goal at a point of its initial trajectory), and the moving target's steps make that pass once, in
     their points' evaluations (``terms._plus_minus`` once instead of 16 times)."""
-    import hoc_cli
     import hoc_cli.goals.terms as terms_module
     from hoc_cli.elements import HermiteMesh
     from hoc_cli.free_time import fixed_coefficient_motion
@@ -149,15 +135,7 @@ def test_the_T_columns_points_come_from_the_evaluations_kinematics_pass(monkeypa
     assert np.array_equal(alone[0], shared[0]) and np.array_equal(alone[1], shared[1]) and alone[2] == shared[2]
 
     calls: list = []
-    plus_minus = terms_module._plus_minus
-
-    def spy(*args, **options):
-        calls.append(1)
-        return plus_minus(*args, **options)
-
-    monkeypatch.setattr(terms_module, "_plus_minus", spy)
-    plan = hoc_cli.solve(ur5_moving())
-    assert plan.T == pytest.approx(MOVING_T, rel=1e-9) and plan.J == pytest.approx(MOVING_J, rel=1e-10)
+    _moving_plan_counting(monkeypatch, terms_module, "_plus_minus", lambda a, o: calls.append(1))
     assert len(calls) <= 1
 
 
