@@ -117,6 +117,17 @@ def test_a_rejected_trial_is_solved_again_with_the_rows_it_broke(N):
     assert 0.5 < found.T < 0.6 and found.steps <= 20
 
 
+def _count_calls(monkeypatch, calls: dict, key: str, owner, name: str) -> None:
+    """Wrap ``owner.name`` so that each call adds 1 to ``calls[key]`` and then runs the original."""
+    original = getattr(owner, name)
+
+    def spy(*args, **kwargs):
+        calls[key] += 1
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, spy)
+
+
 def test_a_trial_its_limit_rows_alone_reject_evaluates_no_goal_rows(monkeypatch):
     """A trial whose limit rows alone leave the ratio of actual to predicted decrease below ¼ (m ≥ ½Σmax(0, g + κ)²) is
     rejected, and re-solved with the rows it broke, without the goal rows' forward kinematics there: on the catch's 8
@@ -128,18 +139,8 @@ def test_a_trial_its_limit_rows_alone_reject_evaluates_no_goal_rows(monkeypatch)
 
     arm, limits, goals, start = _start()
     calls = {"rows": 0, "programmes": 0}
-    goal_rows, solve_qp = restoration._goal_rows, restoration.solve_qp
-
-    def rows_spy(*args, **kwargs):
-        calls["rows"] += 1
-        return goal_rows(*args, **kwargs)
-
-    def qp_spy(*args, **kwargs):
-        calls["programmes"] += 1
-        return solve_qp(*args, **kwargs)
-
-    monkeypatch.setattr(restoration, "_goal_rows", rows_spy)
-    monkeypatch.setattr(restoration, "solve_qp", qp_spy)
+    _count_calls(monkeypatch, calls, "rows", restoration, "_goal_rows")
+    _count_calls(monkeypatch, calls, "programmes", restoration, "solve_qp")
     found = restoration.restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
     assert found.feasible and found.violation <= 1e-9 and found.row_violation <= 1e-9 and 0.5 < found.T < 0.6
     assert calls["rows"] <= calls["programmes"] - 10
@@ -156,18 +157,8 @@ def test_the_restoration_builds_one_problem_and_rescales_only_its_mesh_rows_and_
 
     arm, limits, goals, start = _start()
     calls = {"problems": 0, "rescaled": 0}
-    point_problem, problem_on = restoration.point_problem, replan_point.problem_on
-
-    def problem_spy(*args, **kwargs):
-        calls["problems"] += 1
-        return point_problem(*args, **kwargs)
-
-    def on_spy(*args, **kwargs):
-        calls["rescaled"] += 1
-        return problem_on(*args, **kwargs)
-
-    monkeypatch.setattr(restoration, "point_problem", problem_spy)
-    monkeypatch.setattr(replan_point, "problem_on", on_spy)
+    _count_calls(monkeypatch, calls, "problems", restoration, "point_problem")
+    _count_calls(monkeypatch, calls, "rescaled", replan_point, "problem_on")
     found = restoration.restore(arm, start, goals, limits, span=TimeRange(0.3, 0.8))
     assert found.feasible and 0.5 < found.T < 0.6 and found.steps >= 10
     assert calls == {"problems": 1, "rescaled": 0}
